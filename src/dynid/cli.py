@@ -1,0 +1,148 @@
+"""The ``dynid`` command line: the only place that prints. Exit codes: 0 ok, 2 bad input."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+from dynid import __version__
+from dynid.errors import DynidError
+
+EXIT_OK = 0
+EXIT_INPUT = 2
+
+
+@contextmanager
+def _progress_bar(enabled: bool):
+    """A rich progress bar on stderr, fed through ``progress(task, done, total)``."""
+    if not enabled:
+        yield lambda task, done, total: None
+        return
+    from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
+    from rich.console import Console
+
+    bar = Progress(TextColumn("{task.description:>16}"), BarColumn(), TaskProgressColumn(), TimeRemainingColumn(),
+                   console=Console(stderr=True), transient=True)
+    tasks: dict[str, int] = {}
+
+    def progress(task: str, done: int, total: int) -> None:
+        if task not in tasks:
+            tasks[task] = bar.add_task(task, total=total)
+        bar.update(tasks[task], completed=done, total=total)
+
+    with bar:
+        yield progress
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from dynid.model import load_robot, robot_base_parameters
+
+    extras = tuple(e for e in args.extras.split(",") if e) if args.extras is not None else ("Ia", "fv", "fc", "offset")
+    robot = load_robot(args.robot, extras=extras)
+    base = robot_base_parameters(robot)
+    info = {
+        "robot": robot.name,
+        "source": robot.source,
+        "dof": robot.dof,
+        "n_actuators": robot.n_actuators,
+        "extras": list(robot.extras),
+        "n_standard_params": robot.n_standard_params,
+        "n_base_params": base.n_base,
+        "base_param_names": list(base.names),
+    }
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return EXIT_OK
+    print(f"robot            : {robot.name} ({robot.source})")
+    print(f"joints           : {robot.dof} ({', '.join(robot.joint_names)})")
+    print(f"actuators        : {robot.n_actuators}")
+    print(f"extras           : {', '.join(robot.extras) or 'none'}")
+    print(f"standard params  : {robot.n_standard_params}")
+    print(f"base params      : {base.n_base}")
+    for name, expr in zip(base.names, base.expressions()):
+        print(f"  {name:<8} = {expr}")
+    return EXIT_OK
+
+
+def _cmd_identify(args: argparse.Namespace) -> int:
+    from dynid.config import load_config
+    from dynid.pipeline import identify, write_outputs
+
+    cfg = load_config(args.config)
+    with _progress_bar(not args.quiet) as progress:
+        outcome = identify(cfg, progress)
+    written = write_outputs(outcome, args.out)
+    if not args.quiet:
+        print(outcome.summary_text())
+        print()
+    print(f"outputs in {Path(args.out)}: {', '.join(sorted(written))}")
+    return EXIT_OK
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from dynid.pipeline.demo import run_demo
+
+    with _progress_bar(not args.quiet) as progress:
+        demo = run_demo(args.out, progress)
+    print(demo.outcome.summary_text())
+    print()
+    print(demo.truth_table())
+    print()
+    out = Path(args.out)
+    print(f"outputs in {out}/:")
+    for name, what in (
+        ("summary.txt", "this summary"),
+        ("result.json", "method, parameters (value, std, rel. std %, 95 % CI), validation"),
+        ("params.csv", "identified base parameters with grouping expressions"),
+        ("validation.png", "held-out torques, measured vs predicted"),
+        ("report.html", "HTML report"),
+        ("config.toml", "the configuration used (rerun: dynid identify config.toml --out DIR)"),
+        ("data/", "simulated logs (train.csv, validation.csv); truth.json holds the true parameters"),
+    ):
+        if (out / name.rstrip("/")).exists():
+            print(f"  {out / name}  - {what}")
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="dynid", description="Identify the dynamic parameters of robot manipulators.")
+    p.add_argument("--version", action="version", version=f"dynid {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    pi = sub.add_parser("info", help="describe a robot model: joints, standard and base parameters")
+    pi.add_argument("robot", help="builtin:<name>, or a .urdf / .xml (MJCF) / DH .toml file")
+    pi.add_argument("--json", action="store_true", help="print JSON")
+    pi.add_argument("--extras", default=None, help="comma-separated joint extras (default Ia,fv,fc,offset; '' for none)")
+    pi.set_defaults(func=_cmd_info)
+
+    pid = sub.add_parser("identify", help="identify base parameters from logs as CONFIG.toml says")
+    pid.add_argument("config", help="TOML configuration (schema in the README)")
+    pid.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    pid.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+    pid.set_defaults(func=_cmd_identify)
+
+    pd = sub.add_parser("demo", help="simulate builtin:puma560, identify it and validate (needs nothing else)")
+    pd.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    pd.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    pd.set_defaults(func=_cmd_demo)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except DynidError as exc:
+        print(f"dynid: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("dynid: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,404 @@
+"""The configuration of ``dynid identify``: a strict, typed schema read from TOML.
+
+Unknown keys, wrong types and out-of-range values are :class:`~dynid.errors.ConfigError`
+with the dotted key in the message. Relative paths are relative to the config file.
+The complete schema with one example is documented in the README ("Configuration").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from dynid.errors import ConfigError, InputError
+
+__all__ = [
+    "Config",
+    "RobotConfig",
+    "CouplingConfig",
+    "SignalConfig",
+    "TimeConfig",
+    "DataConfig",
+    "LowpassConfig",
+    "ProcessingConfig",
+    "IdentificationConfig",
+    "OutputConfig",
+    "load_config",
+    "parse_config",
+    "POSITION_UNITS",
+    "TIME_UNITS",
+    "EFFORT_UNITS",
+]
+
+POSITION_UNITS = {"rad": 1.0, "deg": 0.017453292519943295, "m": 1.0, "mm": 1e-3}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+EFFORT_UNITS = {
+    "torque": {"N*m": 1.0, "Nm": 1.0, "N.m": 1.0, "mN*m": 1e-3, "N": 1.0},
+    "current": {"A": 1.0, "mA": 1e-3},
+}
+_METHODS = ("ols", "wls")
+_EXTRAS = ("Ia", "fv", "fc", "offset")
+
+
+# ---------------------------------------------------------------------- helpers
+def _table(value: Any, where: str, allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where}: expected a table, got {type(value).__name__}")
+    unknown = sorted(set(value) - allowed)
+    if unknown:
+        raise ConfigError(f"{where}: unknown keys {unknown}; allowed keys are {sorted(allowed)}")
+    missing = sorted(required - set(value))
+    if missing:
+        raise ConfigError(f"{where}: missing required keys {missing}")
+    return value
+
+
+def _str(value: Any, where: str, choices: tuple[str, ...] | None = None) -> str:
+    if not isinstance(value, str):
+        raise ConfigError(f"{where}: expected a string, got {value!r}")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"{where}: must be one of {list(choices)}, got {value!r}")
+    return value
+
+
+def _num(value: Any, where: str, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{where}: expected a number, got {value!r}")
+    if positive and not value > 0:
+        raise ConfigError(f"{where}: must be positive, got {value!r}")
+    return float(value)
+
+
+def _int(value: Any, where: str, minimum: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ConfigError(f"{where}: must be >= {minimum}, got {value}")
+    return int(value)
+
+
+def _bool(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where}: expected true or false, got {value!r}")
+    return value
+
+
+def _list(value: Any, where: str, item, n: int | None = None) -> tuple:
+    if not isinstance(value, list):
+        raise ConfigError(f"{where}: expected a list, got {value!r}")
+    if n is not None and len(value) != n:
+        raise ConfigError(f"{where}: expected {n} entries, got {len(value)}")
+    return tuple(item(v, f"{where}[{i}]") for i, v in enumerate(value))
+
+
+def _path(value: Any, where: str, base: Path) -> Path:
+    p = Path(_str(value, where)).expanduser()
+    return p if p.is_absolute() else (base / p)
+
+
+# ---------------------------------------------------------------------- schema
+@dataclasses.dataclass(frozen=True)
+class CouplingConfig:
+    motor: int
+    joints: tuple[int, ...]
+    weights: tuple[float, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotConfig:
+    """``[robot]``: the model and its drive train."""
+
+    model: str
+    extras: tuple[str, ...] = _EXTRAS
+    gear_ratios: tuple[float, ...] | None = None
+    couplings: tuple[CouplingConfig, ...] = ()
+    drive_gains: tuple[float, ...] | None = None
+    position_offset: tuple[float, ...] | None = None
+
+    @property
+    def has_transmission(self) -> bool:
+        return any(
+            x for x in (self.gear_ratios, self.couplings, self.drive_gains, self.position_offset)
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class SignalConfig:
+    """A group of columns: ``{ columns = [...], unit = ..., side = ..., kind = ..., file = ... }``."""
+
+    columns: tuple[str, ...]
+    unit: str
+    side: str = "joint"
+    kind: str = "torque"
+    file: Path | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class TimeConfig:
+    column: str
+    unit: str = "s"
+    file: Path | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class DataConfig:
+    """``[data]`` (training log) or ``[validation]`` (held-out log)."""
+
+    position: SignalConfig
+    effort: SignalConfig
+    file: Path | None = None
+    time: TimeConfig | None = None
+    sample_rate_hz: float | None = None
+    velocity: SignalConfig | None = None
+    acceleration: SignalConfig | None = None
+    rows: tuple[int, int] | None = None
+    time_window: tuple[float, float] | None = None
+
+    def files(self) -> tuple[Path, ...]:
+        """Every file this spec reads."""
+        out = []
+        for s in (self.time, self.position, self.effort, self.velocity, self.acceleration):
+            if s is not None:
+                f = s.file or self.file
+                if f is not None and f not in out:
+                    out.append(f)
+        return tuple(out)
+
+
+@dataclasses.dataclass(frozen=True)
+class LowpassConfig:
+    cutoff_hz: float
+    order: int = 4
+    filter_effort: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class ProcessingConfig:
+    """``[processing]``: how raw logs become positions, velocities, accelerations, torques."""
+
+    resample: str | float = "auto"
+    lowpass: LowpassConfig | None = None
+    derivatives: str = "central"
+    decimate: int = 1
+    trim_samples: int | None = None
+    min_velocity: tuple[float, ...] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class IdentificationConfig:
+    method: str = "wls"
+    chunk_size: int = 20000
+    base_seed: int = 0
+    base_samples: int | None = None
+    min_joint_motion: float = 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class OutputConfig:
+    plots: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    robot: RobotConfig
+    data: DataConfig
+    validation: DataConfig
+    processing: ProcessingConfig = ProcessingConfig()
+    identification: IdentificationConfig = IdentificationConfig()
+    output: OutputConfig = OutputConfig()
+    source: Path | None = None
+    raw: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------- parsing
+def _parse_robot(t: Any, base: Path) -> RobotConfig:
+    where = "robot"
+    t = _table(t, where, {"model", "extras", "gear_ratios", "couplings", "drive_gains", "position_offset"}, {"model"})
+    model = _str(t["model"], f"{where}.model")
+    if not model.startswith("builtin:"):
+        model = str(_path(model, f"{where}.model", base))
+    extras = _list(t.get("extras", list(_EXTRAS)), f"{where}.extras", lambda v, w: _str(v, w, _EXTRAS))
+    couplings = []
+    for i, c in enumerate(t.get("couplings", [])):
+        cw = f"{where}.couplings[{i}]"
+        c = _table(c, cw, {"motor", "joints", "weights"}, {"motor", "joints"})
+        couplings.append(
+            CouplingConfig(
+                motor=_int(c["motor"], f"{cw}.motor", 1),
+                joints=_list(c["joints"], f"{cw}.joints", lambda v, w: _int(v, w, 1)),
+                weights=_list(c.get("weights", []), f"{cw}.weights", _num),
+            )
+        )
+    if "couplings" in t and not isinstance(t["couplings"], list):
+        raise ConfigError(f"{where}.couplings: expected a list of tables")
+    num_list = lambda key: _list(t[key], f"{where}.{key}", _num) if key in t else None  # noqa: E731
+    return RobotConfig(
+        model=model,
+        extras=extras,
+        gear_ratios=num_list("gear_ratios"),
+        couplings=tuple(couplings),
+        drive_gains=num_list("drive_gains"),
+        position_offset=num_list("position_offset"),
+    )
+
+
+def _parse_signal(t: Any, where: str, base: Path, what: str) -> SignalConfig:
+    allowed = {"columns", "unit", "side", "file"} | ({"kind"} if what == "effort" else set())
+    t = _table(t, where, allowed, {"columns"})
+    cols = t["columns"]
+    columns = (_str(cols, f"{where}.columns"),) if isinstance(cols, str) else _list(cols, f"{where}.columns", _str)
+    if not columns:
+        raise ConfigError(f"{where}.columns: empty")
+    side = _str(t.get("side", "joint"), f"{where}.side", ("joint", "motor"))
+    if what == "effort":
+        kind = _str(t.get("kind", "torque"), f"{where}.kind", ("torque", "current"))
+        default_unit = "A" if kind == "current" else "N*m"
+        unit = _str(t.get("unit", default_unit), f"{where}.unit", tuple(EFFORT_UNITS[kind]))
+    else:
+        kind = "torque"
+        unit = _str(t.get("unit", "rad"), f"{where}.unit", tuple(POSITION_UNITS))
+    file = _path(t["file"], f"{where}.file", base) if "file" in t else None
+    return SignalConfig(columns=columns, unit=unit, side=side, kind=kind, file=file)
+
+
+_DATA_KEYS = {"file", "time", "sample_rate_hz", "position", "effort", "velocity", "acceleration", "rows", "time_window"}
+
+
+def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
+    t = _table(t, where, _DATA_KEYS, {"position", "effort"})
+    time = None
+    if "time" in t:
+        tt = _table(t["time"], f"{where}.time", {"column", "unit", "file"}, {"column"})
+        time = TimeConfig(
+            column=_str(tt["column"], f"{where}.time.column"),
+            unit=_str(tt.get("unit", "s"), f"{where}.time.unit", tuple(TIME_UNITS)),
+            file=_path(tt["file"], f"{where}.time.file", base) if "file" in tt else None,
+        )
+    fs = _num(t["sample_rate_hz"], f"{where}.sample_rate_hz", positive=True) if "sample_rate_hz" in t else None
+    if (time is None) == (fs is None):
+        raise ConfigError(f"{where}: give exactly one of 'time' (a time column) or 'sample_rate_hz'")
+    rows = None
+    if "rows" in t:
+        rows = _list(t["rows"], f"{where}.rows", lambda v, w: _int(v, w, 0), 2)
+        if rows[1] <= rows[0]:
+            raise ConfigError(f"{where}.rows: stop {rows[1]} must exceed start {rows[0]}")
+    window = None
+    if "time_window" in t:
+        window = _list(t["time_window"], f"{where}.time_window", _num, 2)
+        if window[1] <= window[0]:
+            raise ConfigError(f"{where}.time_window: end must exceed start")
+    if rows is not None and window is not None:
+        raise ConfigError(f"{where}: give 'rows' or 'time_window', not both")
+    spec = DataConfig(
+        file=_path(t["file"], f"{where}.file", base) if "file" in t else None,
+        time=time,
+        sample_rate_hz=fs,
+        position=_parse_signal(t["position"], f"{where}.position", base, "position"),
+        effort=_parse_signal(t["effort"], f"{where}.effort", base, "effort"),
+        velocity=_parse_signal(t["velocity"], f"{where}.velocity", base, "velocity") if "velocity" in t else None,
+        acceleration=_parse_signal(t["acceleration"], f"{where}.acceleration", base, "acceleration")
+        if "acceleration" in t
+        else None,
+        rows=rows,
+        time_window=window,
+    )
+    for s, label in ((spec.position, "position"), (spec.effort, "effort"), (spec.velocity, "velocity"), (spec.acceleration, "acceleration")):
+        if s is not None and s.file is None and spec.file is None:
+            raise ConfigError(f"{where}.{label}: no file (set {where}.file or {where}.{label}.file)")
+    return spec
+
+
+def _parse_processing(t: Any) -> ProcessingConfig:
+    where = "processing"
+    t = _table(t, where, {"resample", "lowpass", "derivatives", "decimate", "trim_samples", "min_velocity"})
+    resample: str | float = "auto"
+    if "resample" in t:
+        r = t["resample"]
+        resample = _str(r, f"{where}.resample", ("auto", "off")) if isinstance(r, str) else _num(r, f"{where}.resample", positive=True)
+    lowpass = None
+    if "lowpass" in t:
+        lp = _table(t["lowpass"], f"{where}.lowpass", {"cutoff_hz", "order", "filter_effort"}, {"cutoff_hz"})
+        lowpass = LowpassConfig(
+            cutoff_hz=_num(lp["cutoff_hz"], f"{where}.lowpass.cutoff_hz", positive=True),
+            order=_int(lp.get("order", 4), f"{where}.lowpass.order", 1),
+            filter_effort=_bool(lp.get("filter_effort", True), f"{where}.lowpass.filter_effort"),
+        )
+    mv = None
+    if "min_velocity" in t:
+        v = t["min_velocity"]
+        mv = (_num(v, f"{where}.min_velocity"),) if not isinstance(v, list) else _list(v, f"{where}.min_velocity", _num)
+        if any(x < 0 for x in mv):
+            raise ConfigError(f"{where}.min_velocity: must be >= 0")
+    return ProcessingConfig(
+        resample=resample,
+        lowpass=lowpass,
+        derivatives=_str(t.get("derivatives", "central"), f"{where}.derivatives", ("central", "measured")),
+        decimate=_int(t.get("decimate", 1), f"{where}.decimate", 1),
+        trim_samples=_int(t["trim_samples"], f"{where}.trim_samples", 0) if "trim_samples" in t else None,
+        min_velocity=mv,
+    )
+
+
+def _parse_identification(t: Any) -> IdentificationConfig:
+    where = "identification"
+    t = _table(t, where, {"method", "chunk_size", "base_seed", "base_samples", "min_joint_motion"})
+    return IdentificationConfig(
+        method=_str(t.get("method", "wls"), f"{where}.method", _METHODS),
+        chunk_size=_int(t.get("chunk_size", 20000), f"{where}.chunk_size", 1),
+        base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),
+        base_samples=_int(t["base_samples"], f"{where}.base_samples", 1) if "base_samples" in t else None,
+        min_joint_motion=_num(t.get("min_joint_motion", 1e-3), f"{where}.min_joint_motion"),
+    )
+
+
+def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = None) -> Config:
+    """Validate a parsed TOML document into a :class:`Config`."""
+    doc = _table(dict(doc), "config", {"robot", "data", "validation", "processing", "identification", "output"}, {"robot", "data", "validation"})
+    data_t = _table(doc["data"], "data", _DATA_KEYS)
+    val_t = doc["validation"]
+    if not isinstance(val_t, dict):
+        raise ConfigError("validation: expected a table")
+    unknown = sorted(set(val_t) - _DATA_KEYS)
+    if unknown:
+        raise ConfigError(f"validation: unknown keys {unknown}; allowed keys are {sorted(_DATA_KEYS)}")
+    inherited = {k: v for k, v in data_t.items() if k not in ("rows", "time_window")}
+    data = _parse_data(data_t, "data", base_dir)
+    validation = _parse_data({**inherited, **val_t}, "validation", base_dir)
+    if set(validation.files()) == set(data.files()):
+        if validation.rows is None and validation.time_window is None:
+            raise ConfigError("validation: uses the training file without 'rows' or 'time_window'; hold out samples")
+        if data.rows is None and data.time_window is None:
+            raise ConfigError("data: training uses the whole file that validation also reads; set data.rows or data.time_window")
+        if (data.rows is None) != (validation.rows is None):
+            raise ConfigError("data and validation windows must both be 'rows' or both 'time_window'")
+        a, b = (data.rows, validation.rows) if data.rows is not None else (data.time_window, validation.time_window)
+        if a[0] < b[1] and b[0] < a[1]:
+            raise ConfigError(f"validation window {list(b)} overlaps the training window {list(a)}")
+    out_t = _table(doc.get("output", {}), "output", {"plots"})
+    return Config(
+        robot=_parse_robot(doc["robot"], base_dir),
+        data=data,
+        validation=validation,
+        processing=_parse_processing(doc.get("processing", {})),
+        identification=_parse_identification(doc.get("identification", {})),
+        output=OutputConfig(plots=_bool(out_t.get("plots", True), "output.plots")),
+        source=source,
+        raw=doc,
+    )
+
+
+def load_config(path: str | Path) -> Config:
+    """Read and validate a TOML configuration file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"config file not found: {path}")
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file") from None
+    return parse_config(doc, path.resolve().parent, source=path.resolve())

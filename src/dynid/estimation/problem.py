@@ -1,0 +1,209 @@
+"""The compressed linear regression problem ``y = W beta + e``, built chunk by chunk.
+
+For each output channel ``j`` (joint or actuator) the rows ``(W_j, y_j)`` are reduced by
+an incremental QR factorization of the augmented matrix ``[W_j | y_j]``:
+
+.. math::
+
+    [W_j \\;|\\; y_j] = Q_j \\begin{bmatrix} R_j & z_j \\\\ 0 & \\rho_j \\end{bmatrix},
+    \\qquad \\|y_j - W_j\\beta\\|^2 = \\|z_j - R_j\\beta\\|^2 + \\rho_j^2 .
+
+Only the ``(p+1) x (p+1)`` factor per channel is kept, so memory does not grow with the
+number of samples; the full stacked regressor never exists. Keeping one factor per
+channel lets OLS, WLS (per-channel weights, Gautier) and later estimators work from
+the compressed form, and gives exact per-channel residual sums of squares for any
+parameter vector.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from dynid._typing import BoolArray, FloatArray
+from dynid.errors import InputError
+
+__all__ = ["RegressionProblem", "ProblemBuilder"]
+
+
+def _qr_r(a: FloatArray, size: int) -> FloatArray:
+    r = np.linalg.qr(a, mode="r")
+    if r.shape[0] < size:
+        r = np.vstack([r, np.zeros((size - r.shape[0], size))])
+    return r
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RegressionProblem:
+    """Compressed per-channel least-squares problem (see module docstring).
+
+    Attributes
+    ----------
+    names : tuple of str
+        Parameter names (columns of ``W``), length ``p``.
+    channel_names : tuple of str
+        Output channels (joints or actuators), length ``n_ch``.
+    factors : array, shape (n_ch, p + 1, p + 1)
+        Upper-triangular augmented factors ``[[R_j, z_j], [0, rho_j]]``.
+    n_obs : int array, shape (n_ch,)
+        Rows accumulated per channel.
+    expressions : tuple of str, optional
+        Grouping expressions of the parameters (display only).
+    meta : mapping
+        Provenance of the problem (data sources, processing).
+    """
+
+    names: tuple[str, ...]
+    channel_names: tuple[str, ...]
+    factors: FloatArray
+    n_obs: np.ndarray
+    expressions: tuple[str, ...] | None = None
+    meta: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        f = np.array(self.factors, dtype=float)
+        p = len(self.names)
+        if f.shape != (len(self.channel_names), p + 1, p + 1):
+            raise InputError(f"factors have shape {f.shape}, expected {(len(self.channel_names), p + 1, p + 1)}")
+        n_obs = np.array(self.n_obs, dtype=np.int64)
+        f.setflags(write=False)
+        n_obs.setflags(write=False)
+        object.__setattr__(self, "factors", f)
+        object.__setattr__(self, "n_obs", n_obs)
+        object.__setattr__(self, "names", tuple(self.names))
+        object.__setattr__(self, "channel_names", tuple(self.channel_names))
+        object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+
+    # ------------------------------------------------------------------ views
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.channel_names)
+
+    @property
+    def n_total(self) -> int:
+        return int(self.n_obs.sum())
+
+    @property
+    def R(self) -> FloatArray:
+        """Per-channel triangular factors, shape (n_ch, p, p)."""
+        p = self.n_params
+        return self.factors[:, :p, :p]
+
+    @property
+    def z(self) -> FloatArray:
+        """Per-channel projected outputs ``Q_j^T y_j``, shape (n_ch, p)."""
+        p = self.n_params
+        return self.factors[:, :p, p]
+
+    @property
+    def rss_floor(self) -> FloatArray:
+        """Per-channel residual outside the column space, ``rho_j^2``, shape (n_ch,)."""
+        p = self.n_params
+        return self.factors[:, p, p] ** 2
+
+    def rss_per_channel(self, beta: FloatArray) -> FloatArray:
+        """Exact residual sum of squares ``||y_j - W_j beta||^2`` per channel."""
+        beta = np.asarray(beta, dtype=float)
+        r = self.z - np.einsum("jab,b->ja", self.R, beta)
+        return np.sum(r**2, axis=1) + self.rss_floor
+
+    def channel_ranks(self, rtol: float = 1e-10) -> np.ndarray:
+        """Number of parameters acting on each channel (non-zero columns of ``R_j``)."""
+        norms = np.linalg.norm(self.R, axis=1)  # (n_ch, p)
+        top = norms.max(axis=1, keepdims=True)
+        top[top == 0] = 1.0
+        return np.count_nonzero(norms > rtol * top, axis=1)
+
+    def replace(self, **changes: Any) -> RegressionProblem:
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def from_arrays(
+        cls,
+        W: FloatArray,
+        y: FloatArray,
+        names: Sequence[str],
+        channel_names: Sequence[str] | None = None,
+        mask: BoolArray | None = None,
+        **kwargs: Any,
+    ) -> RegressionProblem:
+        """Compress a regressor ``W`` (n, n_ch, p) and outputs ``y`` (n, n_ch) in one go."""
+        W = np.asarray(W, dtype=float)
+        if channel_names is None:
+            channel_names = tuple(f"ch{j + 1}" for j in range(W.shape[1]))
+        b = ProblemBuilder(names, channel_names)
+        b.add(W, y, mask)
+        return b.build(**kwargs)
+
+
+class ProblemBuilder:
+    """Working memory that accumulates chunks into a :class:`RegressionProblem`.
+
+    Examples
+    --------
+    >>> b = ProblemBuilder(names, joint_names)          # doctest: +SKIP
+    >>> for W, y in chunks: b.add(W, y)                  # doctest: +SKIP
+    >>> problem = b.build()                              # doctest: +SKIP
+    """
+
+    def __init__(self, names: Sequence[str], channel_names: Sequence[str]) -> None:
+        self.names = tuple(names)
+        self.channel_names = tuple(channel_names)
+        p = len(self.names)
+        self._factors = np.zeros((len(self.channel_names), p + 1, p + 1))
+        self._n_obs = np.zeros(len(self.channel_names), dtype=np.int64)
+
+    def add(self, W: FloatArray, y: FloatArray, mask: BoolArray | None = None) -> None:
+        """Accumulate rows.
+
+        Parameters
+        ----------
+        W : array, shape (n, n_ch, p)
+            Regressor chunk.
+        y : array, shape (n, n_ch)
+            Measured outputs.
+        mask : bool array, shape (n, n_ch), optional
+            Rows to use per channel (e.g. to drop near-zero-velocity samples of one joint).
+        """
+        W = np.asarray(W, dtype=float)
+        y = np.asarray(y, dtype=float)
+        n_ch, p = len(self.channel_names), len(self.names)
+        if W.ndim != 3 or W.shape[1:] != (n_ch, p):
+            raise InputError(f"regressor chunk has shape {W.shape}, expected (n, {n_ch}, {p})")
+        if y.shape != W.shape[:2]:
+            raise InputError(f"mismatched lengths: regressor {W.shape[:2]} vs outputs {y.shape}")
+        if mask is not None:
+            mask = np.asarray(mask, dtype=bool)
+            if mask.shape != y.shape:
+                raise InputError(f"row mask has shape {mask.shape}, expected {y.shape}")
+        if not (np.all(np.isfinite(W)) and np.all(np.isfinite(y))):
+            raise InputError("regressor or outputs contain NaN/inf")
+        for j in range(n_ch):
+            rows = slice(None) if mask is None else mask[:, j]
+            Wj, yj = W[rows, j, :], y[rows, j]
+            m = Wj.shape[0]
+            if m == 0:
+                continue
+            a = np.empty((p + 1 + m, p + 1))
+            a[: p + 1] = self._factors[j]
+            a[p + 1 :, :p] = Wj
+            a[p + 1 :, p] = yj
+            self._factors[j] = _qr_r(a, p + 1)[: p + 1]
+            self._n_obs[j] += m
+
+    def build(self, **kwargs: Any) -> RegressionProblem:
+        return RegressionProblem(
+            names=self.names,
+            channel_names=self.channel_names,
+            factors=self._factors.copy(),
+            n_obs=self._n_obs.copy(),
+            **kwargs,
+        )

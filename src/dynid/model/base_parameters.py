@@ -1,0 +1,256 @@
+"""Base (identifiable) parameters: a linear map from the standard parameters.
+
+The columns of the standard regressor are linearly dependent (some parameters never
+affect the torques, others only in fixed combinations). On a stack of regressors at
+random states, the base parameters are
+
+.. math::
+
+    \\beta = \\pi_{ind} + K\\,\\pi_{dep} = B\\,\\pi, \\qquad
+    Y\\,\\pi = Y_{:,ind}\\,\\beta ,
+
+with :math:`Y_{:,dep} = Y_{:,ind} K` (Gautier 1990; Khalil & Dombre, ch. 12;
+paper 003 §2.2).
+
+Algorithm (deterministic):
+
+1. stack the regressor at ``n_samples`` random states (seeded), scale columns to unit
+   norm and drop columns that are identically zero;
+2. QR **with column pivoting** gives the numerical rank ``r`` (``|R_ii|`` above a
+   relative tolerance);
+3. the independent columns are chosen in the natural parameter order: a column is
+   independent when it is not in the span of the columns before it (diagonal of an
+   unpivoted QR of the scaled stack). Distal parameters are thus regrouped into
+   proximal ones (``Izz1 + Ia1 + Iyy2 + ...``), as in the classical grouping rules.
+   The count must equal ``r`` from step 2;
+4. :math:`K` by least squares, entries below ``1e-10`` set to zero.
+
+Grouping expressions are for display only; never parse them back.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+
+from dynid._typing import FloatArray, IntArray
+from dynid.errors import ModelError
+
+__all__ = ["BaseParameters", "compute_base_parameters", "robot_base_parameters", "random_states", "format_expression"]
+
+RegressorFn = Callable[[FloatArray, FloatArray, FloatArray], FloatArray]
+
+
+def format_expression(name: str, coeffs: FloatArray, dep_names: Sequence[str], digits: int = 4) -> str:
+    """``name + 0.35*m3 - Iyy2`` style text for one base parameter (display only)."""
+    parts = [name]
+    for c, dn in zip(coeffs, dep_names):
+        if c == 0.0:
+            continue
+        mag = abs(c)
+        sign = "-" if c < 0 else "+"
+        coef = "" if abs(mag - 1.0) < 10 ** (-digits) else f"{mag:.{digits}g}*"
+        parts.append(f"{sign} {coef}{dn}")
+    return " ".join(parts)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BaseParameters:
+    """The linear map between standard and base parameters.
+
+    Attributes
+    ----------
+    standard_names : tuple of str
+        Names of the standard parameters (length ``p``).
+    independent : int array, shape (r,)
+        Standard-parameter indices whose columns form the base regressor (sorted).
+    dependent : int array, shape (p - r,)
+        The other indices (zero columns included).
+    K : array, shape (r, p - r)
+        :math:`\\beta = \\pi_{ind} + K \\pi_{dep}`.
+    rank_tol : float
+        Relative tolerance used for the rank.
+    n_samples, seed : int
+        Random states used (for provenance).
+    """
+
+    standard_names: tuple[str, ...]
+    independent: IntArray
+    dependent: IntArray
+    K: FloatArray
+    rank_tol: float
+    n_samples: int
+    seed: int
+
+    def __post_init__(self) -> None:
+        for f in ("independent", "dependent", "K"):
+            a = np.array(getattr(self, f))
+            a.setflags(write=False)
+            object.__setattr__(self, f, a)
+
+    # ------------------------------------------------------------------ sizes / names
+    @property
+    def n_base(self) -> int:
+        return int(self.independent.shape[0])
+
+    @property
+    def n_standard(self) -> int:
+        return len(self.standard_names)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Base parameter names: the name of each independent standard parameter."""
+        return tuple(self.standard_names[i] for i in self.independent)
+
+    @property
+    def B(self) -> FloatArray:
+        """Regrouping matrix, shape (r, p): ``beta = B @ pi``."""
+        b = np.zeros((self.n_base, self.n_standard))
+        b[np.arange(self.n_base), self.independent] = 1.0
+        b[:, self.dependent] = self.K
+        return b
+
+    def expressions(self, digits: int = 4) -> tuple[str, ...]:
+        """Grouping expressions such as ``Izz1 + Ia1 + Iyy2 + 0.1866*m3`` (display only)."""
+        dep_names = [self.standard_names[i] for i in self.dependent]
+        return tuple(
+            format_expression(n, self.K[r], dep_names, digits) for r, n in enumerate(self.names)
+        )
+
+    # ------------------------------------------------------------------ maps
+    def from_standard(self, pi: FloatArray) -> FloatArray:
+        """Base parameters of a standard vector (or of each row of a 2-D array)."""
+        pi = np.asarray(pi, dtype=float)
+        if pi.shape[-1] != self.n_standard:
+            raise ModelError(f"expected {self.n_standard} standard parameters, got {pi.shape[-1]}")
+        return pi[..., self.independent] + pi[..., self.dependent] @ self.K.T
+
+    def to_standard(self, beta: FloatArray, reference: FloatArray | None = None) -> FloatArray:
+        """The standard vector closest to ``reference`` (default 0) that maps to ``beta``.
+
+        Solves :math:`\\min \\|\\pi - \\pi_{ref}\\|` subject to :math:`B\\pi = \\beta`,
+        i.e. :math:`\\pi = \\pi_{ref} + B^+(\\beta - B\\pi_{ref})`.
+        """
+        beta = np.asarray(beta, dtype=float)
+        if beta.shape != (self.n_base,):
+            raise ModelError(f"expected {self.n_base} base parameters, got shape {beta.shape}")
+        ref = np.zeros(self.n_standard) if reference is None else np.asarray(reference, dtype=float)
+        b = self.B
+        return ref + np.linalg.lstsq(b, beta - b @ ref, rcond=None)[0]
+
+    def regressor(self, Y: FloatArray) -> FloatArray:
+        """Base regressor: the independent columns of a standard regressor."""
+        Y = np.asarray(Y)
+        if Y.shape[-1] != self.n_standard:
+            raise ModelError(f"regressor has {Y.shape[-1]} columns, expected {self.n_standard}")
+        return Y[..., self.independent]
+
+
+def random_states(
+    lower: FloatArray, upper: FloatArray, n_samples: int, rng: np.random.Generator, vel_scale: float = 2.0, acc_scale: float = 5.0
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Uniform positions within limits, Gaussian velocities and accelerations."""
+    nv = lower.shape[0]
+    q = rng.uniform(lower, upper, size=(n_samples, nv))
+    dq = vel_scale * rng.standard_normal((n_samples, nv))
+    ddq = acc_scale * rng.standard_normal((n_samples, nv))
+    return q, dq, ddq
+
+
+def _base_from_stack(
+    W: FloatArray, names: Sequence[str], rank_tol: float, n_samples: int, seed: int
+) -> BaseParameters:
+    p = W.shape[1]
+    norms = np.linalg.norm(W, axis=0)
+    scale = norms.max()
+    if scale == 0:
+        raise ModelError("the regressor is identically zero: no parameter affects the torques")
+    nonzero = np.flatnonzero(norms > 1e-12 * scale)
+    Ws = W[:, nonzero] / norms[nonzero]
+    # (2) numerical rank from QR with column pivoting
+    r_piv = sla.qr(Ws, mode="r", pivoting=True)[0]
+    d_piv = np.abs(np.diag(r_piv))
+    rank = int(np.count_nonzero(d_piv > rank_tol * d_piv[0]))
+    # (3) natural-order choice of the independent columns
+    r_nat = sla.qr(Ws, mode="r")[0]
+    d_nat = np.abs(np.diag(r_nat))
+    indep_local = np.flatnonzero(d_nat > rank_tol * d_piv[0])
+    if indep_local.size != rank:
+        raise ModelError(
+            f"ambiguous base parameters: pivoted QR rank {rank} vs {indep_local.size} independent columns "
+            "in natural order; increase the number of random samples"
+        )
+    independent = np.sort(nonzero[indep_local])
+    dependent = np.setdiff1d(np.arange(p), independent)
+    Wi, Wd = W[:, independent], W[:, dependent]
+    K = np.linalg.lstsq(Wi, Wd, rcond=None)[0]
+    K[np.abs(K) < 1e-10] = 0.0
+    resid = np.linalg.norm(Wd - Wi @ K) / max(np.linalg.norm(Wd), 1.0)
+    if resid > 1e-6:
+        raise ModelError(f"base-parameter regrouping does not reproduce the regressor (relative residual {resid:.2e})")
+    return BaseParameters(
+        standard_names=tuple(names),
+        independent=independent,
+        dependent=dependent,
+        K=K,
+        rank_tol=rank_tol,
+        n_samples=n_samples,
+        seed=seed,
+    )
+
+
+def compute_base_parameters(
+    regressor_fn: RegressorFn,
+    names: Sequence[str],
+    lower: FloatArray,
+    upper: FloatArray,
+    *,
+    n_samples: int | None = None,
+    seed: int = 0,
+    rank_tol: float = 1e-8,
+) -> BaseParameters:
+    """Base parameters of a regressor evaluated at random states.
+
+    Parameters
+    ----------
+    regressor_fn : callable
+        ``regressor_fn(q, dq, ddq) -> (n, n_out, p)``.
+    names : sequence of str
+        Standard parameter names (length ``p``).
+    lower, upper : array, shape (n_q,)
+        Position range to sample.
+    n_samples : int, optional
+        Number of random states; default ``max(200, 4 p)``.
+    seed : int
+        Seed of the random generator (the result is deterministic).
+    rank_tol : float
+        Relative tolerance on the pivoted QR diagonal.
+    """
+    p = len(names)
+    n_samples = int(n_samples) if n_samples is not None else max(200, 4 * p)
+    rng = np.random.default_rng(seed)
+    q, dq, ddq = random_states(np.asarray(lower, float), np.asarray(upper, float), n_samples, rng)
+    Y = regressor_fn(q, dq, ddq)
+    if Y.shape[-1] != p:
+        raise ModelError(f"regressor has {Y.shape[-1]} columns but {p} names were given")
+    return _base_from_stack(Y.reshape(-1, p), names, rank_tol, n_samples, seed)
+
+
+def robot_base_parameters(robot, *, n_samples: int | None = None, seed: int = 0, rank_tol: float = 1e-8) -> BaseParameters:
+    """Base parameters of a :class:`~dynid.model.robot.RobotModel` (random states within its limits)."""
+    from dynid.model.regressor import regressor
+
+    data = robot.create_data()
+    lo, hi = robot.position_limits()
+    return compute_base_parameters(
+        lambda q, dq, ddq: regressor(robot, q, dq, ddq, data=data),
+        robot.parameter_names,
+        lo,
+        hi,
+        n_samples=n_samples,
+        seed=seed,
+        rank_tol=rank_tol,
+    )

@@ -1,0 +1,126 @@
+"""Load a robot description: ``builtin:<name>``, URDF, MJCF, or a DH table in TOML."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from dynid.errors import InputError, ModelError
+from dynid.model.robot import JOINT_EXTRAS, RobotModel
+from dynid.model.transmission import Transmission
+
+__all__ = ["load_robot", "load_pin_model"]
+
+_UNBOUNDED = {
+    "JointModelRUBX": pin.JointModelRX,
+    "JointModelRUBY": pin.JointModelRY,
+    "JointModelRUBZ": pin.JointModelRZ,
+}
+
+
+def _bounded_revolute(model: pin.Model) -> pin.Model:
+    """Replace continuous (unbounded, nq=2) revolute joints by ordinary ones (nq=1).
+
+    dynid works with joint angles; continuous joints get limits ±π for sampling.
+    """
+    if model.nq == model.nv:
+        return model
+    new = pin.Model()
+    new.name = model.name
+    new.gravity = model.gravity
+    for j in range(1, model.njoints):
+        jm = model.joints[j]
+        short = jm.shortname()
+        if short in _UNBOUNDED:
+            njm = _UNBOUNDED[short]()
+            lo, hi = np.array([-np.pi]), np.array([np.pi])
+        elif short == "JointModelRevoluteUnboundedUnaligned":
+            axis = jm.extract().axis if hasattr(jm, "extract") else None
+            if axis is None:
+                raise ModelError(f"continuous joint {model.names[j]!r} with an unaligned axis is not supported")
+            njm = pin.JointModelRevoluteUnaligned(np.asarray(axis))
+            lo, hi = np.array([-np.pi]), np.array([np.pi])
+        elif jm.nq == jm.nv:
+            njm = jm
+            lo = model.lowerPositionLimit[jm.idx_q : jm.idx_q + jm.nq]
+            hi = model.upperPositionLimit[jm.idx_q : jm.idx_q + jm.nq]
+        else:
+            raise ModelError(f"joint {model.names[j]!r} of type {short} is not supported in a serial model")
+        jid = new.addJoint(
+            model.parents[j], njm, model.jointPlacements[j], model.names[j],
+            np.full(njm.nv, 1e3), np.full(njm.nv, 1e2), np.asarray(lo, float), np.asarray(hi, float),
+        )
+        new.appendBodyToJoint(jid, model.inertias[j], pin.SE3.Identity())
+    for f in model.frames:
+        if f.name == "universe" or (f.type == pin.FrameType.JOINT):
+            continue
+        new.addFrame(pin.Frame(f.name, f.parentJoint, f.placement, f.type), False)
+    return new
+
+
+def load_pin_model(path: str | Path) -> pin.Model:
+    """A pinocchio model (no geometry) from a URDF or MJCF file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"robot file not found: {path}")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".urdf":
+            model = pin.buildModelFromUrdf(str(path))
+        elif suffix in (".xml", ".mjcf"):
+            model = pin.buildModelFromMJCF(str(path))
+        else:
+            raise ModelError(f"{path}: unknown robot file type {suffix!r} (use .urdf, .xml/.mjcf or a DH .toml)")
+    except ModelError:
+        raise
+    except (RuntimeError, ValueError, OSError) as exc:
+        raise ModelError(f"{path}: cannot parse robot description ({str(exc).strip().splitlines()[0]})") from None
+    if model.nv == 0:
+        raise ModelError(f"{path}: the model has no moving joints")
+    return _bounded_revolute(model)
+
+
+def load_robot(
+    spec: str,
+    *,
+    extras: Sequence[str] = JOINT_EXTRAS,
+    transmission: Transmission | None = None,
+    nominal_extras: Mapping[str, object] | None = None,
+) -> RobotModel:
+    """Load a serial robot.
+
+    Parameters
+    ----------
+    spec : str
+        ``builtin:<name>``, or a path to ``.urdf``, ``.xml``/``.mjcf`` or a DH ``.toml``.
+    extras : sequence of str
+        Joint extras to include in the parameter vector (subset of ``Ia, fv, fc, offset``).
+    transmission : Transmission, optional
+        Motor-joint map (gear ratios, couplings, drive gains, encoder offsets).
+    nominal_extras : mapping, optional
+        Nominal extras overriding those of the description.
+    """
+    extras = tuple(extras)
+    if spec.startswith("builtin:"):
+        from dynid.model.robots import build_builtin
+
+        robot = build_builtin(spec.split(":", 1)[1], extras)
+    else:
+        path = Path(spec)
+        if path.suffix.lower() == ".toml":
+            from dynid.model.dh import read_dh_toml
+
+            model, nominal, name = read_dh_toml(path)
+            robot = RobotModel(model, name=name, extras=extras, nominal_extras=nominal, source=str(path))
+        else:
+            model = load_pin_model(path)
+            robot = RobotModel(model, name=model.name or path.stem, extras=extras, source=str(path))
+    changes: dict[str, object] = {}
+    if transmission is not None:
+        changes["transmission"] = transmission
+    if nominal_extras:
+        changes["nominal_extras"] = {**robot.nominal_extras, **nominal_extras}
+    return robot.replace(**changes) if changes else robot

@@ -1,0 +1,161 @@
+"""Joint-torque regressor of a serial robot, linear in the standard parameters.
+
+The rigid-body part is pinocchio's ``computeJointTorqueRegressor`` (one call per
+sample, written straight into a preallocated array); the extras (rotor inertia,
+viscous and Coulomb friction, offset, coupled-motor terms) are filled vectorized.
+See :mod:`dynid.model.robot` for the parameter layout and the torque equation.
+
+Shapes: ``q, dq, ddq`` are ``(n, n_v)``; the regressor is ``(n, n_v, n_params)``
+(sample, output joint, parameter), so ``regressor[i] @ params`` is the joint torque
+vector of sample ``i``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from dynid._typing import FloatArray
+from dynid.errors import InputError
+from dynid.model.robot import RobotModel
+
+__all__ = ["regressor", "extras_torque", "inverse_dynamics", "check_states"]
+
+
+def check_states(robot: RobotModel, q: FloatArray, dq: FloatArray, ddq: FloatArray) -> tuple[FloatArray, ...]:
+    """Validate and return ``q, dq, ddq`` as float arrays of shape (n, n_v)."""
+    nv = robot.dof
+    out = []
+    for name, x in (("q", q), ("dq", dq), ("ddq", ddq)):
+        a = np.asarray(x, dtype=float)
+        if a.ndim == 1:
+            a = a[None, :]
+        if a.ndim != 2 or a.shape[1] != nv:
+            raise InputError(f"{name} must have shape (n, {nv}), got {np.shape(x)}")
+        out.append(a)
+    if not (out[0].shape[0] == out[1].shape[0] == out[2].shape[0]):
+        raise InputError(f"mismatched lengths: q {out[0].shape[0]}, dq {out[1].shape[0]}, ddq {out[2].shape[0]}")
+    return tuple(out)
+
+
+def _fill_extras(robot: RobotModel, dq: FloatArray, ddq: FloatArray, out: FloatArray) -> None:
+    lay = robot.layout
+    cols = {"Ia": ddq, "fv": dq, "fc": np.sign(dq), "offset": None}
+    rows = np.arange(lay.nv)
+    for e, idx in lay.extra_index.items():
+        src = cols[e]
+        if src is None:
+            out[:, rows, idx] = 1.0
+        else:
+            out[:, rows, idx] = src
+    if lay.coupled_motors:
+        tr = robot.transmission
+        assert tr is not None
+        for m_pos, k in enumerate(lay.coupled_motors):
+            c = tr.coupling_weights(k)
+            w = dq @ c
+            motor_cols = {"Ia": ddq @ c, "fv": w, "fc": np.sign(w)}
+            for e, idx in lay.motor_index.items():
+                out[:, :, idx[m_pos]] = motor_cols[e][:, None] * c[None, :]
+
+
+def regressor(
+    robot: RobotModel,
+    q: FloatArray,
+    dq: FloatArray,
+    ddq: FloatArray,
+    *,
+    data: pin.Data | None = None,
+    out: FloatArray | None = None,
+) -> FloatArray:
+    """Standard-parameter regressor :math:`Y(q, \\dot q, \\ddot q)`.
+
+    Parameters
+    ----------
+    robot : RobotModel
+    q, dq, ddq : array, shape (n, n_v)
+        Joint positions [rad], velocities [rad/s], accelerations [rad/s²].
+    data : pinocchio.Data, optional
+        Working memory to reuse across calls.
+    out : array, shape (n, n_v, n_params), optional
+        Preallocated output (overwritten).
+
+    Returns
+    -------
+    array, shape (n, n_v, n_params)
+        ``Y[i] @ params`` is the vector of joint torques of sample ``i``;
+        columns follow ``robot.parameter_names``.
+
+    Notes
+    -----
+    The rigid-body columns satisfy ``Y_rb @ pi_rb == pinocchio.rnea(q, dq, ddq)``
+    (Atkeson et al. 1986; pinocchio ``computeJointTorqueRegressor``).
+    """
+    q, dq, ddq = check_states(robot, q, dq, ddq)
+    n, nv = q.shape
+    p = robot.layout.n_params
+    nb = robot.layout.n_body_params
+    if out is None:
+        out = np.zeros((n, nv, p))
+    elif out.shape != (n, nv, p):
+        raise InputError(f"out has shape {out.shape}, expected {(n, nv, p)}")
+    else:
+        out[..., nb:] = 0.0
+    model = robot.pin_model
+    data = model.createData() if data is None else data
+    body = out[:, :, :nb]
+    jtr = pin.computeJointTorqueRegressor
+    for i, (qi, vi, ai) in enumerate(zip(list(q), list(dq), list(ddq))):
+        body[i] = jtr(model, data, qi, vi, ai)
+    _fill_extras(robot, dq, ddq, out)
+    return out
+
+
+def extras_torque(robot: RobotModel, params: FloatArray, dq: FloatArray, ddq: FloatArray) -> FloatArray:
+    """Torques of the extras alone, computed term by term (not through the regressor).
+
+    Returns
+    -------
+    array, shape (n, n_v)
+    """
+    lay = robot.layout
+    params = np.asarray(params, dtype=float)
+    dq = np.atleast_2d(np.asarray(dq, dtype=float))
+    ddq = np.atleast_2d(np.asarray(ddq, dtype=float))
+    tau = np.zeros_like(dq)
+    terms = {"Ia": ddq, "fv": dq, "fc": np.sign(dq), "offset": np.ones_like(dq)}
+    for e, idx in lay.extra_index.items():
+        tau += params[idx][None, :] * terms[e]
+    for m_pos, k in enumerate(lay.coupled_motors):
+        assert robot.transmission is not None
+        c = robot.transmission.coupling_weights(k)
+        w, dw = dq @ c, ddq @ c
+        motor = {"Ia": dw, "fv": w, "fc": np.sign(w)}
+        torque_k = sum(params[idx[m_pos]] * motor[e] for e, idx in lay.motor_index.items())
+        tau += np.asarray(torque_k)[:, None] * c[None, :]
+    return tau
+
+
+def inverse_dynamics(
+    robot: RobotModel, params: FloatArray, q: FloatArray, dq: FloatArray, ddq: FloatArray
+) -> FloatArray:
+    """Joint torques by pinocchio's RNEA with body inertias from ``params`` plus extras.
+
+    This is an independent route to the torques (recursive Newton–Euler on a model
+    rebuilt from the parameters, rotor inertia through ``model.armature``), used to
+    simulate data and to check the regressor.
+
+    Returns
+    -------
+    array, shape (n, n_v)
+    """
+    q, dq, ddq = check_states(robot, q, dq, ddq)
+    model = robot.with_parameters(params)
+    data = model.createData()
+    tau = np.empty_like(q)
+    for i in range(q.shape[0]):
+        tau[i] = pin.rnea(model, data, q[i], dq[i], ddq[i])
+    no_ia = np.array(params, dtype=float, copy=True)
+    if "Ia" in robot.layout.extra_index:
+        no_ia[robot.layout.extra_index["Ia"]] = 0.0  # armature already in rnea
+    return tau + extras_torque(robot, no_ia, dq, ddq)

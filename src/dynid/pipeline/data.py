@@ -1,0 +1,238 @@
+"""From log files to processed joint-space datasets, as the configuration says.
+
+Steps (each recorded in the returned provenance, in order):
+
+1. read the named columns, convert units to SI, cut the row or time window;
+2. map motor-side positions and efforts to joint space through the transmission
+   (``q = C^{-1} θ + q0``, ``τ = C^T K i``);
+3. resample irregular timestamps onto a uniform grid (``processing.resample``);
+4. zero-phase Butterworth low-pass of positions (and efforts) with the cut-off in Hz;
+5. velocities and accelerations by central differences (or measured ones);
+6. trim the filter transients at both ends, then keep one sample in ``decimate``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dynid._typing import FloatArray
+from dynid.config import EFFORT_UNITS, POSITION_UNITS, TIME_UNITS, DataConfig, ProcessingConfig, RobotConfig
+from dynid.dataset import Dataset
+from dynid.errors import ConfigError, IdentifiabilityError, InputError
+from dynid.io.readers import TableReader
+from dynid.model.loading import load_robot
+from dynid.model.robot import RobotModel
+from dynid.model.transmission import Coupling, Transmission
+from dynid.signals import central_difference, lowpass, padlen_for, resample_uniform
+
+__all__ = ["build_robot", "read_log", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask"]
+
+
+def build_robot(cfg: RobotConfig) -> RobotModel:
+    """The robot model of ``[robot]`` with its transmission."""
+    transmission = None
+    if cfg.has_transmission:
+        robot0 = load_robot(cfg.model, extras=cfg.extras)
+        n = robot0.dof
+        for key, val in (("gear_ratios", cfg.gear_ratios), ("drive_gains", cfg.drive_gains), ("position_offset", cfg.position_offset)):
+            if val is not None and len(val) != n:
+                raise ConfigError(f"robot.{key}: {len(val)} entries for a robot with {n} joints")
+        transmission = Transmission.from_ratios(
+            cfg.gear_ratios if cfg.gear_ratios is not None else np.ones(n),
+            [Coupling(c.motor, c.joints, c.weights) for c in cfg.couplings],
+            drive_gains=cfg.drive_gains if cfg.drive_gains is not None else 1.0,
+            position_offset=cfg.position_offset if cfg.position_offset is not None else 0.0,
+        )
+    return load_robot(cfg.model, extras=cfg.extras, transmission=transmission)
+
+
+def read_log(spec: DataConfig, n_channels: int, names: tuple[str, ...], label: str) -> Dataset:
+    """Read the columns named in ``spec`` into a raw :class:`Dataset` (SI units, window cut)."""
+    readers: dict[Path, TableReader] = {}
+
+    def reader(path: Path) -> TableReader:
+        if path not in readers:
+            readers[path] = TableReader(path)
+        return readers[path]
+
+    def columns(sig, what: str, scale: float) -> tuple[FloatArray, Path]:
+        path = sig.file or spec.file
+        arr = reader(path).columns(sig.columns)
+        if arr.shape[1] != n_channels:
+            raise InputError(f"{label}.{what}: {arr.shape[1]} columns for a robot with {n_channels} joints")
+        return arr * scale, path
+
+    q, q_file = columns(spec.position, "position", POSITION_UNITS[spec.position.unit])
+    tau, tau_file = columns(spec.effort, "effort", EFFORT_UNITS[spec.effort.kind][spec.effort.unit])
+    extra: dict[str, FloatArray] = {}
+    files = {"position": q_file, "effort": tau_file}
+    for what, sig in (("velocity", spec.velocity), ("acceleration", spec.acceleration)):
+        if sig is not None:
+            extra[what], files[what] = columns(sig, what, POSITION_UNITS[sig.unit])
+    if spec.time is not None:
+        tpath = spec.time.file or spec.file
+        t = reader(tpath).columns([spec.time.column])[:, 0] * TIME_UNITS[spec.time.unit]
+        files["time"] = tpath
+    else:
+        t = np.arange(q.shape[0]) / spec.sample_rate_hz
+    lengths = {"time": t.shape[0], "position": q.shape[0], "effort": tau.shape[0], **{k: v.shape[0] for k, v in extra.items()}}
+    if len(set(lengths.values())) > 1:
+        detail = ", ".join(f"{k} ({files.get(k, 'sample_rate_hz')}) {v}" for k, v in lengths.items())
+        raise InputError(f"{label}: mismatched lengths: {detail}")
+    sl = slice(None)
+    if spec.rows is not None:
+        start, stop = spec.rows
+        if stop > q.shape[0]:
+            raise InputError(f"{label}.rows: stop {stop} is beyond the {q.shape[0]} rows of the log")
+        sl = slice(start, stop)
+    elif spec.time_window is not None:
+        idx = np.flatnonzero((t >= spec.time_window[0]) & (t < spec.time_window[1]))
+        if idx.size < 2:
+            raise InputError(f"{label}.time_window {list(spec.time_window)} s selects {idx.size} samples")
+        sl = slice(int(idx[0]), int(idx[-1]) + 1)
+    meta = {
+        "position_side": spec.position.side,
+        "effort_kind": spec.effort.kind,
+        "effort_side": spec.effort.side if spec.effort.kind == "torque" else "motor",
+        "source": {k: str(v) for k, v in files.items()},
+        "sha256": {str(p): r.sha256() for p, r in readers.items()},
+        "window": {"rows": list(spec.rows)} if spec.rows else ({"time": list(spec.time_window)} if spec.time_window else "all"),
+    }
+    try:
+        return Dataset(
+            t=t[sl],
+            q=q[sl],
+            tau=tau[sl],
+            dq=extra["velocity"][sl] if "velocity" in extra else None,
+            ddq=extra["acceleration"][sl] if "acceleration" in extra else None,
+            names=names,
+            meta=meta,
+        )
+    except InputError as exc:
+        raise InputError(f"{label}: {exc}") from None
+
+
+def to_joint_space(ds: Dataset, robot: RobotModel, label: str) -> tuple[Dataset, list[str]]:
+    """Map motor-side quantities to joint space; returns the dataset and notes."""
+    tr = robot.transmission
+    notes: list[str] = []
+    q, dq, ddq, tau = ds.q, ds.dq, ds.ddq, ds.tau
+    if ds.meta["position_side"] == "motor":
+        if tr is None:
+            raise ConfigError(f"{label}.position.side = 'motor' needs robot.gear_ratios")
+        q = tr.joint_positions(q)
+        dq = tr.joint_rates(dq) if dq is not None else None
+        ddq = tr.joint_rates(ddq) if ddq is not None else None
+    elif tr is not None:
+        q = q + tr.position_offset
+    if ds.meta["effort_kind"] == "current":
+        if tr is None:
+            tr_eff = Transmission.identity(robot.dof)
+            notes.append("efforts are motor currents with unit drive gains: parameters absorb the unknown gains")
+        else:
+            tr_eff = tr
+            if np.all(tr.drive_gains == 1.0):
+                notes.append("drive gains are 1: identified parameters absorb the current-to-torque gains")
+        tau = tr_eff.joint_torques_from_currents(tau)
+    elif ds.meta["effort_side"] == "motor":
+        if tr is None:
+            raise ConfigError(f"{label}.effort.side = 'motor' needs robot.gear_ratios")
+        tau = tr.joint_torques(tau)
+    out = ds.replace(q=q, dq=dq, ddq=ddq, tau=tau, names=robot.joint_names, meta={"position_side": "joint", "effort_kind": "torque", "effort_side": "joint"})
+    return out, notes
+
+
+def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str) -> tuple[Dataset, list[dict[str, Any]]]:
+    """Resample, filter, differentiate, trim and decimate (see module docstring)."""
+    steps: list[dict[str, Any]] = []
+    t, q, tau, dq_m, ddq_m = ds.t, ds.q, ds.tau, ds.dq, ds.ddq
+    uniform = ds.is_uniform()
+    if cfg.resample == "off" and not uniform:
+        dt = np.diff(t)
+        raise InputError(
+            f"{label}: timestamps are irregular (period {dt.min():.4g}..{dt.max():.4g} s); "
+            "set processing.resample = 'auto' or a rate in Hz"
+        )
+    if (cfg.resample == "auto" and not uniform) or isinstance(cfg.resample, float):
+        fs_new = float(cfg.resample) if isinstance(cfg.resample, float) else ds.fs
+        t_new, q = resample_uniform(t, q, fs_new, kind="cubic")
+        _, tau = resample_uniform(t, tau, fs_new, kind="linear")
+        dq_m = resample_uniform(t, dq_m, fs_new, kind="cubic")[1] if dq_m is not None else None
+        ddq_m = resample_uniform(t, ddq_m, fs_new, kind="linear")[1] if ddq_m is not None else None
+        steps.append({"step": "resample", "fs_hz": fs_new, "from_uniform": uniform, "positions": "cubic spline", "efforts": "linear"})
+        t = t_new
+    fs = 1.0 / float(np.median(np.diff(t)))
+    lp = cfg.lowpass
+    if lp is not None:
+        if not lp.cutoff_hz < fs / 2:
+            raise ConfigError(f"processing.lowpass.cutoff_hz = {lp.cutoff_hz} Hz is not below fs/2 = {fs / 2:g} Hz")
+        q = lowpass(q, lp.cutoff_hz, fs, lp.order)
+        if dq_m is not None:
+            dq_m = lowpass(dq_m, lp.cutoff_hz, fs, lp.order)
+        if ddq_m is not None:
+            ddq_m = lowpass(ddq_m, lp.cutoff_hz, fs, lp.order)
+        if lp.filter_effort:
+            tau = lowpass(tau, lp.cutoff_hz, fs, lp.order)
+        steps.append({"step": "lowpass", "type": "zero-phase Butterworth (sosfiltfilt)", "cutoff_hz": lp.cutoff_hz, "order": lp.order, "fs_hz": fs, "efforts_filtered": lp.filter_effort})
+    if cfg.derivatives == "central":
+        dq = central_difference(q, t)
+        ddq = central_difference(dq, t)
+        steps.append({"step": "derivatives", "method": "central differences of filtered positions"})
+    else:
+        if dq_m is None:
+            raise ConfigError(f"processing.derivatives = 'measured' needs {label}.velocity columns")
+        dq = dq_m
+        ddq = ddq_m if ddq_m is not None else central_difference(dq_m, t)
+        steps.append({"step": "derivatives", "method": "measured velocity" + (" and acceleration" if ddq_m is not None else ", central-difference acceleration")})
+    n_trim = cfg.trim_samples
+    if n_trim is None:
+        n_trim = padlen_for(lp.order, lp.cutoff_hz, fs) if lp is not None else 2
+    if 2 * n_trim >= t.shape[0] - 2:
+        raise InputError(f"{label}: {t.shape[0]} samples are too few to trim {n_trim} filter-transient samples at each end")
+    keep = slice(n_trim, t.shape[0] - n_trim)
+    steps.append({"step": "trim", "samples_each_end": int(n_trim)})
+    k = cfg.decimate
+    if k > 1:
+        if lp is None or lp.cutoff_hz >= 0.5 * fs / k:
+            raise ConfigError(
+                f"processing.decimate = {k} needs processing.lowpass.cutoff_hz below the new Nyquist "
+                f"frequency {0.5 * fs / k:g} Hz (anti-aliasing)"
+            )
+        keep = slice(n_trim, t.shape[0] - n_trim, k)
+        steps.append({"step": "decimate", "factor": k, "fs_hz": fs / k})
+    out = Dataset(
+        t=t[keep], q=q[keep], tau=tau[keep], dq=dq[keep], ddq=ddq[keep], names=ds.names,
+        meta={**ds.meta, "processing": steps},
+    )
+    return out, steps
+
+
+def check_joint_motion(ds: Dataset, robot: RobotModel, min_range: float, label: str) -> None:
+    """Refuse data in which a joint never moves: its parameters would be unidentifiable."""
+    rng = np.ptp(ds.q, axis=0)
+    still = [j for j in range(robot.dof) if rng[j] < min_range]
+    if not still:
+        return
+    lay = robot.layout
+    names: list[str] = []
+    for j in still:
+        names += [lay.names[idx[j]] for e, idx in lay.extra_index.items() if e != "offset"]
+    joints = ", ".join(f"{robot.joint_names[j]} (range {rng[j]:.3g} rad)" for j in still)
+    raise IdentifiabilityError(
+        f"{label}: joint never moves: {joints}; unidentifiable parameters include {', '.join(names) or 'its inertial terms'}",
+        tuple(names),
+    )
+
+
+def velocity_mask(ds: Dataset, min_velocity: tuple[float, ...] | None) -> np.ndarray | None:
+    """Rows of each joint equation to keep: ``|dq_j| >= min_velocity_j`` (None: all)."""
+    if min_velocity is None:
+        return None
+    n = ds.q.shape[1]
+    if len(min_velocity) not in (1, n):
+        raise ConfigError(f"processing.min_velocity: {len(min_velocity)} entries for {n} joints")
+    thr = np.broadcast_to(np.asarray(min_velocity, float), (n,))
+    return np.abs(ds.dq) >= thr

@@ -1,0 +1,36 @@
+"""A self-contained HTML report of one identification."""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+from typing import Any
+
+from dynid.estimation.results import IdentificationResult
+
+__all__ = ["write_html_report"]
+
+_STYLE = """
+body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px}
+table{border-collapse:collapse;margin:1em 0;font-size:13px}
+td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}
+th{background:#f3f3f3} td:first-child,th:first-child{text-align:left}
+img{max-width:100%}
+"""
+
+
+def write_html_report(result: IdentificationResult, metrics: Any, path: str | Path, plot: str | None = None) -> Path:
+    """Summary, validation table and (optionally) the validation plot in one HTML file."""
+    rows = "".join(
+        f"<tr><td>{html.escape(c)}</td><td>{r:.4g}</td><td>{p:.3g}</td><td>{q:.4f}</td></tr>"
+        for c, r, p, q in zip(metrics.channel_names, metrics.rmse, metrics.rel_rmse_pct, metrics.r2)
+    )
+    body = (
+        f"<h1>dynid identification report</h1>{result.summary().as_html()}"
+        f"<h2>Held-out validation ({metrics.n_samples} samples)</h2>"
+        f"<table><tr><th>joint</th><th>RMSE [N·m]</th><th>rel RMSE %</th><th>R²</th></tr>{rows}</table>"
+        + (f"<img src='{html.escape(plot)}' alt='validation plot'>" if plot else "")
+    )
+    path = Path(path)
+    path.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>dynid report</title><style>{_STYLE}</style></head><body>{body}</body></html>")
+    return path

@@ -1,0 +1,49 @@
+"""Plots a person would rather look at than read (matplotlib, headless)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from dynid.errors import require
+
+__all__ = ["plot_validation"]
+
+_MAX_POINTS = 4000
+
+def _pyplot():
+    mpl = require("matplotlib", "plot")
+    mpl.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+def plot_validation(metrics: Any, path: str | Path) -> Path:
+    """Measured vs predicted torques on held-out data, one panel per joint, with errors.
+
+    ``metrics`` is a :class:`dynid.pipeline.identify.ValidationMetrics`.
+    """
+    plt = _pyplot()
+    n = metrics.measured.shape[1]
+    step = max(1, metrics.t.shape[0] // _MAX_POINTS)
+    t = metrics.t[::step] - metrics.t[0]
+    fig, axes = plt.subplots(n, 1, figsize=(10, 1.9 * n + 0.6), sharex=True, squeeze=False)
+    for j, ax in enumerate(axes[:, 0]):
+        meas = metrics.measured[::step, j]
+        pred = metrics.predicted[::step, j]
+        ax.plot(t, meas, lw=0.9, color="0.35", label="measured")
+        ax.plot(t, pred, lw=0.9, color="tab:blue", label="predicted")
+        ax.plot(t, meas - pred, lw=0.7, color="tab:red", alpha=0.8, label="error")
+        ax.set_ylabel(f"{metrics.channel_names[j]}\n[N·m]", fontsize=8)
+        ax.text(0.995, 0.95, f"RMSE {metrics.rmse[j]:.3g} ({metrics.rel_rmse_pct[j]:.2g} %)",
+                transform=ax.transAxes, ha="right", va="top", fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=8)
+    axes[0, 0].legend(loc="upper left", fontsize=8, ncol=3)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.suptitle("Held-out validation: measured vs predicted joint torques", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

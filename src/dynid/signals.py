@@ -1,0 +1,176 @@
+"""Signal processing on arrays: filtering, differentiation, resampling, decimation.
+
+Pure NumPy/SciPy functions. Time is axis 0 of every array and frequencies are in Hz
+(``cutoff_hz``, ``fs``). Cut-offs are passed to SciPy with ``fs=`` so they are never
+normalized by hand (a common bug in peer tools is to pass ``ts*fc/2`` as the
+normalized frequency, which silently quarters the cut-off; see ../shared/DESIGN.md).
+
+Notes
+-----
+A zero-phase (forward-backward) Butterworth filter of order ``n`` has magnitude
+``|H(f)|^2`` where ``|H|`` is that of the single pass: the single pass is -3 dB at
+``cutoff_hz``, the zero-phase pair -6 dB. Shang et al. 2009 (paper 001, §4) and Ku et
+al. 2026 (paper 003, §4.3) use this filter before central differences.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import interpolate, signal
+
+from dynid._typing import FloatArray
+from dynid.errors import InputError
+
+__all__ = [
+    "butter_sos",
+    "lowpass",
+    "central_difference",
+    "derivatives",
+    "resample_uniform",
+    "decimate",
+    "padlen_for",
+]
+
+
+def _check_cutoff(cutoff_hz: float, fs: float) -> None:
+    if not (fs > 0 and np.isfinite(fs)):
+        raise InputError(f"sampling rate fs must be positive and finite, got {fs!r} Hz")
+    if not (0 < cutoff_hz < fs / 2):
+        raise InputError(
+            f"cut-off {cutoff_hz!r} Hz must lie in (0, fs/2) = (0, {fs / 2:g}) Hz"
+        )
+
+
+def butter_sos(order: int, cutoff_hz: float, fs: float) -> FloatArray:
+    """Second-order sections of a low-pass Butterworth filter.
+
+    Parameters
+    ----------
+    order : int
+        Filter order (>= 1).
+    cutoff_hz : float
+        -3 dB frequency of one pass [Hz].
+    fs : float
+        Sampling rate [Hz].
+    """
+    if int(order) < 1:
+        raise InputError(f"filter order must be >= 1, got {order!r}")
+    _check_cutoff(cutoff_hz, fs)
+    return signal.butter(int(order), cutoff_hz, btype="low", output="sos", fs=fs)
+
+
+def padlen_for(order: int, cutoff_hz: float, fs: float) -> int:
+    """Samples of edge transient of the zero-phase filter (about 5 time constants)."""
+    return int(np.ceil(5.0 * order * fs / (2.0 * np.pi * cutoff_hz)))
+
+
+def lowpass(x: FloatArray, cutoff_hz: float, fs: float, order: int = 4, axis: int = 0) -> FloatArray:
+    """Zero-phase Butterworth low-pass filter (``sosfiltfilt``).
+
+    Parameters
+    ----------
+    x : array, shape (n, ...)
+        Signal, time on ``axis``.
+    cutoff_hz, fs, order
+        See :func:`butter_sos`. The zero-phase result is -6 dB at ``cutoff_hz``.
+
+    Returns
+    -------
+    array, same shape as ``x``
+    """
+    x = np.asarray(x, dtype=float)
+    sos = butter_sos(order, cutoff_hz, fs)
+    n = x.shape[axis]
+    padlen = min(3 * (2 * sos.shape[0] + 1), n - 1)
+    if n < 4:
+        raise InputError(f"signal of {n} samples is too short to filter")
+    return signal.sosfiltfilt(sos, x, axis=axis, padtype="odd", padlen=padlen)
+
+
+def central_difference(x: FloatArray, t: FloatArray | float) -> FloatArray:
+    """Derivative along axis 0 by central differences.
+
+    Interior samples use ``(x[i+1] - x[i-1]) / (t[i+1] - t[i-1])`` (second order for
+    uniform sampling); the two end samples use second-order one-sided differences.
+
+    Parameters
+    ----------
+    x : array, shape (n, ...)
+    t : array, shape (n,), or float
+        Sample times [s] or the uniform sampling period [s].
+    """
+    x = np.asarray(x, dtype=float)
+    if x.shape[0] < 3:
+        raise InputError(f"central differences need at least 3 samples, got {x.shape[0]}")
+    return np.gradient(x, t, axis=0, edge_order=2)
+
+
+def derivatives(q: FloatArray, t: FloatArray | float) -> tuple[FloatArray, FloatArray]:
+    """Velocity and acceleration of ``q`` by repeated central differences."""
+    dq = central_difference(q, t)
+    return dq, central_difference(dq, t)
+
+
+def resample_uniform(
+    t: FloatArray, x: FloatArray, fs: float | None = None, kind: str = "linear"
+) -> tuple[FloatArray, FloatArray]:
+    """Interpolate irregularly sampled data onto a uniform time grid.
+
+    Parameters
+    ----------
+    t : array, shape (n,)
+        Strictly increasing sample times [s].
+    x : array, shape (n, ...)
+        Samples.
+    fs : float, optional
+        New sampling rate [Hz]; default ``1 / median(diff(t))``.
+    kind : {"linear", "cubic"}
+        Linear interpolation, or a not-a-knot cubic spline (smooth derivatives).
+
+    Returns
+    -------
+    t_new : array, shape (m,)
+        ``t[0] + k / fs`` for all ``k`` with ``t_new <= t[-1]``.
+    x_new : array, shape (m, ...)
+    """
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(x, dtype=float)
+    if t.ndim != 1 or t.shape[0] != x.shape[0]:
+        raise InputError(f"mismatched lengths: time has {t.shape} samples, data {x.shape}")
+    if np.any(np.diff(t) <= 0):
+        raise InputError("time is not strictly increasing; cannot resample")
+    if fs is None:
+        fs = 1.0 / float(np.median(np.diff(t)))
+    if not (fs > 0 and np.isfinite(fs)):
+        raise InputError(f"resampling rate must be positive, got {fs!r} Hz")
+    m = int(np.floor((t[-1] - t[0]) * fs + 1e-9)) + 1
+    t_new = t[0] + np.arange(m) / fs
+    if kind == "linear":
+        flat = x.reshape(x.shape[0], -1)
+        out = np.empty((m, flat.shape[1]))
+        for j in range(flat.shape[1]):
+            out[:, j] = np.interp(t_new, t, flat[:, j])
+        x_new = out.reshape((m,) + x.shape[1:])
+    elif kind == "cubic":
+        x_new = interpolate.CubicSpline(t, x, axis=0)(t_new)
+    else:
+        raise InputError(f"unknown interpolation kind {kind!r} (use 'linear' or 'cubic')")
+    return t_new, x_new
+
+
+def decimate(x: FloatArray, factor: int, fs: float | None = None, order: int = 8, axis: int = 0) -> FloatArray:
+    """Keep one sample in ``factor`` after a zero-phase anti-aliasing low-pass.
+
+    The anti-aliasing filter is a zero-phase Butterworth at 0.8 of the new Nyquist
+    frequency (``0.8 * fs / (2 * factor)``), so decimated data carry no alias.
+    ``fs`` only sets the units; the result does not depend on it.
+    """
+    factor = int(factor)
+    if factor < 1:
+        raise InputError(f"decimation factor must be >= 1, got {factor}")
+    x = np.asarray(x, dtype=float)
+    if factor == 1:
+        return x.copy()
+    fs = 1.0 if fs is None else float(fs)
+    y = lowpass(x, 0.8 * fs / (2 * factor), fs, order=order, axis=axis)
+    return np.take(y, np.arange(0, x.shape[axis], factor), axis=axis)
