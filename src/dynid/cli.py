@@ -10,7 +10,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from dynid import __version__
-from dynid.errors import DynidError
+from dynid.errors import DynidError, InputError
 
 EXIT_OK = 0
 EXIT_INPUT = 2
@@ -18,8 +18,11 @@ EXIT_INPUT = 2
 
 @contextmanager
 def _progress_bar(enabled: bool):
-    """A rich progress bar on stderr, fed through ``progress(task, done, total)``."""
-    if not enabled:
+    """A rich progress bar on stderr, fed through ``progress(task, done, total)``.
+
+    Only drawn on a terminal: redirected stderr gets nothing but error lines.
+    """
+    if not enabled or not sys.stderr.isatty():
         yield lambda task, done, total: None
         return
     from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
@@ -68,11 +71,23 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _check_out(out: str) -> None:
+    """Refuse an --out that cannot be a folder before any long computation."""
+    path = Path(out)
+    for p in (path, *path.parents):
+        if p.exists():
+            if not p.is_dir():
+                raise InputError(f"--out {out}: {p} exists and is not a folder")
+            break
+
+
 def _cmd_identify(args: argparse.Namespace) -> int:
     from dynid.config import load_config
+
+    _check_out(args.out)
+    cfg = load_config(args.config)  # config errors come before the heavy imports below
     from dynid.pipeline import identify, write_outputs
 
-    cfg = load_config(args.config)
     with _progress_bar(not args.quiet) as progress:
         outcome = identify(cfg, progress)
     written = write_outputs(outcome, args.out)
@@ -86,6 +101,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from dynid.pipeline.demo import run_demo
 
+    _check_out(args.out)
     with _progress_bar(not args.quiet) as progress:
         demo = run_demo(args.out, progress)
     print(demo.outcome.summary_text())

@@ -47,13 +47,21 @@ _EXTRAS = ("Ia", "fv", "fc", "offset")
 def _table(value: Any, where: str, allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise ConfigError(f"{where}: expected a table, got {type(value).__name__}")
-    unknown = sorted(set(value) - allowed)
-    if unknown:
-        raise ConfigError(f"{where}: unknown keys {unknown}; allowed keys are {sorted(allowed)}")
+    _reject_unknown(value, where, allowed)
     missing = sorted(required - set(value))
     if missing:
         raise ConfigError(f"{where}: missing required keys {missing}")
     return value
+
+
+def _reject_unknown(value: Mapping[str, Any], where: str, allowed: set[str]) -> None:
+    unknown = sorted(set(value) - allowed)
+    if unknown:
+        dotted = [k if where == "config" else f"{where}.{k}" for k in unknown]
+        raise ConfigError(
+            f"unknown key{'s' if len(dotted) > 1 else ''} {', '.join(dotted)}; allowed keys in "
+            f"{'the top level' if where == 'config' else f'[{where}]'} are {sorted(allowed)}"
+        )
 
 
 def _str(value: Any, where: str, choices: tuple[str, ...] | None = None) -> str:
@@ -67,8 +75,10 @@ def _str(value: Any, where: str, choices: tuple[str, ...] | None = None) -> str:
 def _num(value: Any, where: str, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{where}: expected a number, got {value!r}")
-    if positive and not value > 0:
-        raise ConfigError(f"{where}: must be positive, got {value!r}")
+    if value != value:  # TOML allows nan
+        raise ConfigError(f"{where}: expected a number, got nan")
+    if positive and not 0 < value < float("inf"):
+        raise ConfigError(f"{where}: must be positive and finite, got {value!r}")
     return float(value)
 
 
@@ -96,7 +106,8 @@ def _list(value: Any, where: str, item, n: int | None = None) -> tuple:
 
 def _path(value: Any, where: str, base: Path) -> Path:
     p = Path(_str(value, where)).expanduser()
-    return p if p.is_absolute() else (base / p)
+    # canonical, so that one file named two ways is recognised as the same file
+    return (p if p.is_absolute() else (base / p)).resolve()
 
 
 # ---------------------------------------------------------------------- schema
@@ -183,6 +194,7 @@ class ProcessingConfig:
     lowpass: LowpassConfig | None = None
     derivatives: str = "central"
     decimate: int = 1
+    decimate_method: str = "samples"
     trim_samples: int | None = None
     min_velocity: tuple[float, ...] | None = None
 
@@ -190,6 +202,7 @@ class ProcessingConfig:
 @dataclasses.dataclass(frozen=True)
 class IdentificationConfig:
     method: str = "wls"
+    physical_consistency: bool = False
     chunk_size: int = 20000
     base_seed: int = 0
     base_samples: int | None = None
@@ -221,6 +234,8 @@ def _parse_robot(t: Any, base: Path) -> RobotConfig:
     if not model.startswith("builtin:"):
         model = str(_path(model, f"{where}.model", base))
     extras = _list(t.get("extras", list(_EXTRAS)), f"{where}.extras", lambda v, w: _str(v, w, _EXTRAS))
+    if "couplings" in t and not isinstance(t["couplings"], list):
+        raise ConfigError(f"{where}.couplings: expected a list of tables")
     couplings = []
     for i, c in enumerate(t.get("couplings", [])):
         cw = f"{where}.couplings[{i}]"
@@ -232,8 +247,6 @@ def _parse_robot(t: Any, base: Path) -> RobotConfig:
                 weights=_list(c.get("weights", []), f"{cw}.weights", _num),
             )
         )
-    if "couplings" in t and not isinstance(t["couplings"], list):
-        raise ConfigError(f"{where}.couplings: expected a list of tables")
     num_list = lambda key: _list(t[key], f"{where}.{key}", _num) if key in t else None  # noqa: E731
     return RobotConfig(
         model=model,
@@ -313,7 +326,7 @@ def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
 
 def _parse_processing(t: Any) -> ProcessingConfig:
     where = "processing"
-    t = _table(t, where, {"resample", "lowpass", "derivatives", "decimate", "trim_samples", "min_velocity"})
+    t = _table(t, where, {"resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity"})
     resample: str | float = "auto"
     if "resample" in t:
         r = t["resample"]
@@ -337,6 +350,7 @@ def _parse_processing(t: Any) -> ProcessingConfig:
         lowpass=lowpass,
         derivatives=_str(t.get("derivatives", "central"), f"{where}.derivatives", ("central", "measured")),
         decimate=_int(t.get("decimate", 1), f"{where}.decimate", 1),
+        decimate_method=_str(t.get("decimate_method", "samples"), f"{where}.decimate_method", ("samples", "parallel")),
         trim_samples=_int(t["trim_samples"], f"{where}.trim_samples", 0) if "trim_samples" in t else None,
         min_velocity=mv,
     )
@@ -344,9 +358,10 @@ def _parse_processing(t: Any) -> ProcessingConfig:
 
 def _parse_identification(t: Any) -> IdentificationConfig:
     where = "identification"
-    t = _table(t, where, {"method", "chunk_size", "base_seed", "base_samples", "min_joint_motion"})
+    t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion"})
     return IdentificationConfig(
         method=_str(t.get("method", "wls"), f"{where}.method", _METHODS),
+        physical_consistency=_bool(t.get("physical_consistency", False), f"{where}.physical_consistency"),
         chunk_size=_int(t.get("chunk_size", 20000), f"{where}.chunk_size", 1),
         base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),
         base_samples=_int(t["base_samples"], f"{where}.base_samples", 1) if "base_samples" in t else None,
@@ -361,10 +376,19 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
     val_t = doc["validation"]
     if not isinstance(val_t, dict):
         raise ConfigError("validation: expected a table")
-    unknown = sorted(set(val_t) - _DATA_KEYS)
-    if unknown:
-        raise ConfigError(f"validation: unknown keys {unknown}; allowed keys are {sorted(_DATA_KEYS)}")
+    _reject_unknown(val_t, "validation", _DATA_KEYS)
     inherited = {k: v for k, v in data_t.items() if k not in ("rows", "time_window")}
+    # A time source given in [validation] replaces the inherited one (time column or rate).
+    if "sample_rate_hz" in val_t:
+        inherited.pop("time", None)
+    if "time" in val_t:
+        inherited.pop("sample_rate_hz", None)
+    # [validation] file = ... replaces the files of inherited signals, so that no signal
+    # is silently read from a training file named in [data].<signal>.file.
+    if "file" in val_t:
+        for key in ("time", "position", "effort", "velocity", "acceleration"):
+            if key in inherited and key not in val_t and isinstance(inherited[key], dict):
+                inherited[key] = {k: v for k, v in inherited[key].items() if k != "file"}
     data = _parse_data(data_t, "data", base_dir)
     validation = _parse_data({**inherited, **val_t}, "validation", base_dir)
     if set(validation.files()) == set(data.files()):

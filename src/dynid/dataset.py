@@ -34,8 +34,9 @@ def _frozen_array(name: str, x: Any, ndim: int) -> FloatArray:
         raise InputError(f"{name} must be {ndim}-D (n_samples{', n_channels' if ndim == 2 else ''}), got shape {arr.shape}")
     bad = ~np.isfinite(arr)
     if bad.any():
-        row = int(np.argwhere(bad)[0][0])
-        kind = "NaN" if np.isnan(arr).any() else "inf"
+        first = tuple(np.argwhere(bad)[0])
+        row = int(first[0])
+        kind = "NaN" if np.isnan(arr[first]) else "inf"
         raise InputError(f"{name} contains {kind} values ({int(bad.sum())} entries, first at sample {row})")
     arr.setflags(write=False)
     return arr
@@ -83,7 +84,7 @@ class Dataset:
         if np.any(dt <= 0):
             i = int(np.argmax(dt <= 0))
             raise InputError(
-                f"time is not strictly increasing at sample {i + 1} (t={t[i + 1]!r} after t={t[i]!r})"
+                f"time is not strictly increasing at sample {i + 1} (t={float(t[i + 1])!r} after t={float(t[i])!r})"
             )
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "q", q)

@@ -29,6 +29,9 @@ __all__ = [
     "resample_uniform",
     "decimate",
     "padlen_for",
+    "decimation_filter",
+    "decimation_segments",
+    "lowpass_sos",
 ]
 
 
@@ -78,20 +81,15 @@ def lowpass(x: FloatArray, cutoff_hz: float, fs: float, order: int = 4, axis: in
     -------
     array, same shape as ``x``
     """
-    x = np.asarray(x, dtype=float)
-    sos = butter_sos(order, cutoff_hz, fs)
-    n = x.shape[axis]
-    padlen = min(3 * (2 * sos.shape[0] + 1), n - 1)
-    if n < 4:
-        raise InputError(f"signal of {n} samples is too short to filter")
-    return signal.sosfiltfilt(sos, x, axis=axis, padtype="odd", padlen=padlen)
+    return lowpass_sos(np.asarray(x, dtype=float), butter_sos(order, cutoff_hz, fs), axis=axis)
 
 
 def central_difference(x: FloatArray, t: FloatArray | float) -> FloatArray:
     """Derivative along axis 0 by central differences.
 
-    Interior samples use ``(x[i+1] - x[i-1]) / (t[i+1] - t[i-1])`` (second order for
-    uniform sampling); the two end samples use second-order one-sided differences.
+    For uniform sampling interior samples use ``(x[i+1] - x[i-1]) / (t[i+1] - t[i-1])``
+    (for irregular ``t``, ``np.gradient``'s second-order weighted form); the two end
+    samples use second-order one-sided differences.
 
     Parameters
     ----------
@@ -137,8 +135,8 @@ def resample_uniform(
     x = np.asarray(x, dtype=float)
     if t.ndim != 1 or t.shape[0] != x.shape[0]:
         raise InputError(f"mismatched lengths: time has {t.shape} samples, data {x.shape}")
-    if np.any(np.diff(t) <= 0):
-        raise InputError("time is not strictly increasing; cannot resample")
+    if not np.all(np.diff(t) > 0):  # also catches NaN
+        raise InputError("time is not strictly increasing (or not finite); cannot resample")
     if fs is None:
         fs = 1.0 / float(np.median(np.diff(t)))
     if not (fs > 0 and np.isfinite(fs)):
@@ -171,6 +169,43 @@ def decimate(x: FloatArray, factor: int, fs: float | None = None, order: int = 8
     x = np.asarray(x, dtype=float)
     if factor == 1:
         return x.copy()
-    fs = 1.0 if fs is None else float(fs)
-    y = lowpass(x, 0.8 * fs / (2 * factor), fs, order=order, axis=axis)
+    sos, _ = decimation_filter(factor, 1.0 if fs is None else float(fs), order)
+    y = lowpass_sos(x, sos, axis=axis)
     return np.take(y, np.arange(0, x.shape[axis], factor), axis=axis)
+
+
+def decimation_filter(factor: int, fs: float, order: int = 8) -> tuple[FloatArray, int]:
+    """Anti-aliasing filter of :func:`decimate` and the overlap a chunked version needs.
+
+    Returns the SOS of a Butterworth low-pass at ``0.8 * fs / (2 * factor)`` and the
+    number of samples (15 time constants of the filter) by which chunks must overlap
+    so that chunk-wise zero-phase filtering equals whole-signal filtering to ~1e-12.
+    """
+    cutoff = 0.8 * fs / (2 * int(factor))
+    sos = butter_sos(order, cutoff, fs)
+    margin = int(np.ceil(15.0 * order * fs / (2.0 * np.pi * cutoff)))
+    return sos, margin
+
+
+def decimation_segments(n: int, factor: int, margin: int, chunk: int):
+    """Plan chunk-wise zero-phase filtering followed by keeping samples ``0, k, 2k, ...``.
+
+    Yields ``(a, b, keep)``: filter input rows ``a:b`` (the chunk plus ``margin`` rows
+    on each side, clipped to the signal), then keep the rows ``keep`` (indices into
+    the segment) of the filtered segment. Concatenating the kept rows of all segments
+    gives the decimated signal.
+    """
+    factor, chunk = int(factor), max(int(chunk), int(factor))
+    chunk -= chunk % factor  # chunk boundaries on the output grid
+    for s in range(0, n, chunk):
+        e = min(s + chunk, n)
+        a, b = max(0, s - margin), min(n, e + margin)
+        yield a, b, np.arange(s, e, factor) - a
+
+
+def lowpass_sos(x: FloatArray, sos: FloatArray, axis: int = 0) -> FloatArray:
+    """Zero-phase filtering with given second-order sections (same padding as :func:`lowpass`)."""
+    n = x.shape[axis]
+    if n < 4:
+        raise InputError(f"signal of {n} samples is too short to filter")
+    return signal.sosfiltfilt(sos, x, axis=axis, padtype="odd", padlen=min(3 * (2 * sos.shape[0] + 1), n - 1))

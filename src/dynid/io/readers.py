@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -83,6 +84,8 @@ class TableReader:
 
     def _load_npz(self) -> dict[str, np.ndarray]:
         if self._npz is None:
+            if not zipfile.is_zipfile(self.path):
+                raise InputError(f"{self.path}: not an NPZ file (not a zip archive of arrays)")
             try:
                 with np.load(self.path, allow_pickle=False) as z:
                     self._npz = {k: z[k] for k in z.files}
