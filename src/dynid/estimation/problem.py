@@ -23,9 +23,11 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from dynid._typing import BoolArray, FloatArray
 from dynid.errors import InputError
+from dynid.model.base_parameters import StandardMap
 
 __all__ = ["RegressionProblem", "ProblemBuilder"]
 
@@ -53,6 +55,8 @@ class RegressionProblem:
         Rows accumulated per channel.
     expressions : tuple of str, optional
         Grouping expressions of the parameters (display only).
+    standard : StandardMap, optional
+        Map to physical standard parameters (needed by constrained estimators).
     meta : mapping
         Provenance of the problem (data sources, processing).
     """
@@ -62,6 +66,7 @@ class RegressionProblem:
     factors: FloatArray
     n_obs: np.ndarray
     expressions: tuple[str, ...] | None = None
+    standard: StandardMap | None = None
     meta: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -77,6 +82,8 @@ class RegressionProblem:
         object.__setattr__(self, "names", tuple(self.names))
         object.__setattr__(self, "channel_names", tuple(self.channel_names))
         object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+        if self.standard is not None and self.standard.B.shape[0] != p:
+            raise InputError(f"standard map has {self.standard.B.shape[0]} base parameters, the problem {p}")
 
     # ------------------------------------------------------------------ views
     @property
@@ -186,6 +193,13 @@ class ProblemBuilder:
                 raise InputError(f"row mask has shape {mask.shape}, expected {y.shape}")
         if not (np.all(np.isfinite(W)) and np.all(np.isfinite(y))):
             raise InputError("regressor or outputs contain NaN/inf")
+        # one BLAS thread: the QR of a tall, narrow block gains nothing from threads and
+        # multi-threaded OpenBLAS is many times slower on a loaded machine (bench/README.md)
+        with threadpool_limits(limits=1, user_api="blas"):
+            self._add(W, y, mask)
+
+    def _add(self, W: FloatArray, y: FloatArray, mask: BoolArray | None) -> None:
+        n_ch, p = len(self.channel_names), len(self.names)
         for j in range(n_ch):
             rows = slice(None) if mask is None else mask[:, j]
             Wj, yj = W[rows, j, :], y[rows, j]

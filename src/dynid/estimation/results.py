@@ -277,6 +277,8 @@ class IdentificationResult:
                     ci_low=float(ci[i, 0]),
                     ci_high=float(ci[i, 1]),
                 )
+            else:  # no covariance for this method: the fields are present and explicitly null
+                rec.update(std=None, rel_std_pct=None, ci_low=None, ci_high=None)
             if self.expressions is not None:
                 rec["expression"] = self.expressions[i]
             params.append(rec)

@@ -1,6 +1,12 @@
 """Robot models, parameters, regressors and base parameters (pinocchio lives here)."""
 
-from dynid.model.base_parameters import BaseParameters, compute_base_parameters, robot_base_parameters
+from dynid.model.base_parameters import (
+    BaseParameters,
+    StandardMap,
+    compute_base_parameters,
+    pseudo_inertia,
+    robot_base_parameters,
+)
 from dynid.model.loading import load_robot
 from dynid.model.regressor import extras_torque, inverse_dynamics, regressor
 from dynid.model.robot import BODY_PARAMS, JOINT_EXTRAS, ParameterLayout, RobotModel
@@ -11,6 +17,8 @@ __all__ = [
     "JOINT_EXTRAS",
     "BaseParameters",
     "Coupling",
+    "StandardMap",
+    "pseudo_inertia",
     "ParameterLayout",
     "RobotModel",
     "Transmission",

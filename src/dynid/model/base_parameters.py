@@ -39,7 +39,15 @@ import scipy.linalg as sla
 from dynid._typing import FloatArray, IntArray
 from dynid.errors import ModelError
 
-__all__ = ["BaseParameters", "compute_base_parameters", "robot_base_parameters", "random_states", "format_expression"]
+__all__ = [
+    "BaseParameters",
+    "StandardMap",
+    "compute_base_parameters",
+    "format_expression",
+    "pseudo_inertia",
+    "random_states",
+    "robot_base_parameters",
+]
 
 RegressorFn = Callable[[FloatArray, FloatArray, FloatArray], FloatArray]
 
@@ -254,3 +262,58 @@ def robot_base_parameters(robot, *, n_samples: int | None = None, seed: int = 0,
         seed=seed,
         rank_tol=rank_tol,
     )
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class StandardMap:
+    """How base parameters relate to physical standard parameters (for constrained estimators).
+
+    Attributes
+    ----------
+    standard_names : tuple of str
+    B : array, shape (r, p)
+        ``beta = B @ pi``.
+    body_blocks : tuple of int arrays (10,)
+        Indices of each body's ``[m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]``.
+    nonnegative : int array
+        Indices of parameters that are non-negative physically (rotor inertias,
+        viscous and Coulomb friction coefficients, motor-side terms).
+    reference : array, shape (p,), optional
+        Nominal (CAD) standard parameters.
+    """
+
+    standard_names: tuple[str, ...]
+    B: FloatArray
+    body_blocks: tuple[IntArray, ...]
+    nonnegative: IntArray
+    reference: FloatArray | None = None
+
+    @classmethod
+    def of(cls, robot, base: BaseParameters) -> StandardMap:
+        """The map of a :class:`~dynid.model.robot.RobotModel` and its base parameters."""
+        lay = robot.layout
+        nonneg = [idx for e, idx in lay.extra_index.items() if e != "offset"] + list(lay.motor_index.values())
+        return cls(
+            standard_names=lay.names,
+            B=base.B,
+            body_blocks=tuple(np.arange(10 * j, 10 * j + 10) for j in range(lay.n_bodies)),
+            nonnegative=np.sort(np.concatenate(nonneg)).astype(int) if nonneg else np.zeros(0, dtype=int),
+            reference=robot.nominal_parameters(),
+        )
+
+
+def pseudo_inertia(block: FloatArray) -> FloatArray:
+    """4x4 pseudo-inertia matrix of ``[m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]``.
+
+    :math:`J = \\begin{bmatrix} \\tfrac12 \\mathrm{tr}(I)\\mathbf 1 - I & h \\\\ h^T & m \\end{bmatrix}`
+    with :math:`I` the inertia about the frame origin and :math:`h = m c`; the
+    parameters are physically consistent iff :math:`J \\succeq 0` (Wensing, Kim &
+    Slotine 2017), which implies positive mass and the triangle inequalities.
+    """
+    m, mx, my, mz, ixx, ixy, iyy, ixz, iyz, izz = np.asarray(block, dtype=float)
+    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    out = np.zeros((4, 4))
+    out[:3, :3] = 0.5 * np.trace(inertia) * np.eye(3) - inertia
+    out[:3, 3] = out[3, :3] = (mx, my, mz)
+    out[3, 3] = m
+    return out
