@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from dynid.errors import InputError, ModelError
 from dynid.model.robot import JOINT_EXTRAS, RobotModel
 from dynid.model.transmission import Transmission
 
-__all__ = ["load_robot", "load_pin_model"]
+__all__ = ["load_robot", "load_pin_model", "urdf_joint_dynamics"]
 
 _UNBOUNDED = {
     "JointModelRUBX": pin.JointModelRX,
@@ -61,6 +62,33 @@ def _bounded_revolute(model: pin.Model) -> pin.Model:
     return new
 
 
+def _urdf_without_dynamics(path: Path) -> tuple[str, dict[str, tuple[float, float]]]:
+    """URDF text with ``<dynamics>`` removed, and those values per joint name.
+
+    dynid identifies friction itself; pinocchio 4 refuses URDFs with negative
+    ``friction`` (as in identified models), so the tags are taken out before parsing
+    and kept as nominal viscous (``damping``) and Coulomb (``friction``) values.
+    """
+    try:
+        tree = ET.parse(path)
+    except ET.ParseError as exc:
+        raise ModelError(f"{path}: invalid XML ({exc})") from None
+    found: dict[str, tuple[float, float]] = {}
+    for joint in tree.getroot().iter("joint"):
+        for dyn in joint.findall("dynamics"):
+            try:
+                found[joint.get("name", "")] = (float(dyn.get("damping", 0.0)), float(dyn.get("friction", 0.0)))
+            except ValueError:
+                raise ModelError(f"{path}: joint {joint.get('name')!r} has a non-numeric <dynamics>") from None
+            joint.remove(dyn)
+    return ET.tostring(tree.getroot(), encoding="unicode"), found
+
+
+def urdf_joint_dynamics(path: str | Path) -> dict[str, tuple[float, float]]:
+    """``{joint name: (damping, friction)}`` from the URDF's ``<dynamics>`` tags."""
+    return _urdf_without_dynamics(Path(path))[1]
+
+
 def load_pin_model(path: str | Path) -> pin.Model:
     """A pinocchio model (no geometry) from a URDF or MJCF file."""
     path = Path(path)
@@ -69,7 +97,7 @@ def load_pin_model(path: str | Path) -> pin.Model:
     suffix = path.suffix.lower()
     try:
         if suffix == ".urdf":
-            model = pin.buildModelFromUrdf(str(path))
+            model = pin.buildModelFromXML(_urdf_without_dynamics(path)[0])
         elif suffix in (".xml", ".mjcf"):
             model = pin.buildModelFromMJCF(str(path))
         else:
@@ -117,7 +145,16 @@ def load_robot(
             robot = RobotModel(model, name=name, extras=extras, nominal_extras=nominal, source=str(path))
         else:
             model = load_pin_model(path)
-            robot = RobotModel(model, name=model.name or path.stem, extras=extras, source=str(path))
+            nominal: dict[str, object] = {}
+            if path.suffix.lower() == ".urdf":
+                dyn = urdf_joint_dynamics(path)
+                names = list(model.names)[1:]
+                if any(n in dyn for n in names):
+                    nominal = {
+                        "fv": np.array([dyn.get(n, (0.0, 0.0))[0] for n in names]),
+                        "fc": np.array([dyn.get(n, (0.0, 0.0))[1] for n in names]),
+                    }
+            robot = RobotModel(model, name=model.name or path.stem, extras=extras, nominal_extras=nominal, source=str(path))
     changes: dict[str, object] = {}
     if transmission is not None:
         changes["transmission"] = transmission

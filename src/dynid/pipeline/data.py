@@ -8,7 +8,10 @@ Steps (each recorded in the returned provenance, in order):
 3. resample irregular timestamps onto a uniform grid (``processing.resample``);
 4. zero-phase Butterworth low-pass of positions (and efforts) with the cut-off in Hz;
 5. velocities and accelerations by central differences (or measured ones);
-6. trim the filter transients at both ends, then keep one sample in ``decimate``.
+6. trim the filter transients at both ends, then keep one sample in ``decimate``
+   (``decimate_method = "samples"``), or leave the data at full rate for the parallel
+   decimation of regressor and efforts done while the problem is built
+   (``decimate_method = "parallel"``, Gautier; see :mod:`dynid.pipeline.identify`).
 """
 
 from __future__ import annotations
@@ -195,14 +198,23 @@ def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str) -> tuple[Dataset,
     keep = slice(n_trim, t.shape[0] - n_trim)
     steps.append({"step": "trim", "samples_each_end": int(n_trim)})
     k = cfg.decimate
-    if k > 1:
+    if k > 1 and cfg.decimate_method == "parallel":
+        if lp is not None and lp.filter_effort:
+            raise ConfigError(
+                "processing.decimate_method = 'parallel' filters efforts and regressor columns together; "
+                "set processing.lowpass.filter_effort = false (efforts would otherwise be filtered twice)"
+            )
+        steps.append({"step": "decimate", "method": "parallel (Gautier): regressor columns and efforts low-passed "
+                      "together (zero-phase Butterworth order 8 at 0.8 x new Nyquist), one sample in factor kept",
+                      "factor": k, "fs_hz": fs / k})
+    elif k > 1:
         if lp is None or lp.cutoff_hz >= 0.5 * fs / k:
             raise ConfigError(
                 f"processing.decimate = {k} needs processing.lowpass.cutoff_hz below the new Nyquist "
                 f"frequency {0.5 * fs / k:g} Hz (anti-aliasing)"
             )
         keep = slice(n_trim, t.shape[0] - n_trim, k)
-        steps.append({"step": "decimate", "factor": k, "fs_hz": fs / k})
+        steps.append({"step": "decimate", "method": "samples: one sample in factor kept after the low-pass", "factor": k, "fs_hz": fs / k})
     out = Dataset(
         t=t[keep], q=q[keep], tau=tau[keep], dq=dq[keep], ddq=ddq[keep], names=ds.names,
         meta={**ds.meta, "processing": steps},
@@ -227,12 +239,12 @@ def check_joint_motion(ds: Dataset, robot: RobotModel, min_range: float, label: 
     )
 
 
-def velocity_mask(ds: Dataset, min_velocity: tuple[float, ...] | None) -> np.ndarray | None:
-    """Rows of each joint equation to keep: ``|dq_j| >= min_velocity_j`` (None: all)."""
+def velocity_mask(dq: np.ndarray, min_velocity: tuple[float, ...] | None) -> np.ndarray | None:
+    """Rows of each joint equation to keep: ``|dq_j| >= min_velocity_j`` (None: all rows)."""
     if min_velocity is None:
         return None
-    n = ds.q.shape[1]
+    n = dq.shape[1]
     if len(min_velocity) not in (1, n):
         raise ConfigError(f"processing.min_velocity: {len(min_velocity)} entries for {n} joints")
     thr = np.broadcast_to(np.asarray(min_velocity, float), (n,))
-    return np.abs(ds.dq) >= thr
+    return np.abs(dq) >= thr

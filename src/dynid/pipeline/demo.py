@@ -76,6 +76,17 @@ class DemoOutcome:
         return "\n".join(lines)
 
 
+def _relocate(obj, old: str, new: str):
+    """Replace the path prefix ``old`` by ``new`` in every string of a nested structure."""
+    if isinstance(obj, str):
+        return new + obj[len(old):] if obj.startswith(old) else obj
+    if isinstance(obj, dict):
+        return {(_relocate(k, old, new)): _relocate(v, old, new) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_relocate(v, old, new) for v in obj]
+    return obj
+
+
 def _write_csv(path: Path, ds: Dataset) -> None:
     n = ds.q.shape[1]
     header = ["t"] + [f"q{j + 1}" for j in range(n)] + [f"tau{j + 1}" for j in range(n)]
@@ -107,6 +118,9 @@ def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int =
         cfg_text = _CONFIG.format(q=json.dumps([f"q{j + 1}" for j in range(n)]), tau=json.dumps([f"tau{j + 1}" for j in range(n)]))
         (stage / "config.toml").write_text(cfg_text)
         outcome = identify(load_config(stage / "config.toml"), progress)
+        # the inputs were read from the staging folder; the record must name their final place
+        relocated = _relocate(dict(outcome.result.provenance), str(stage.resolve()), str(out.resolve()))
+        outcome = dataclasses.replace(outcome, result=outcome.result.with_provenance(**relocated))
         true_base = outcome.base.from_standard(truth)
         demo = DemoOutcome(outcome, true_base, out)
         write_files(outcome, stage)

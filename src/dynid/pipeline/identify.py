@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import platform
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -18,10 +18,11 @@ from dynid.dataset import Dataset
 from dynid.errors import InputError
 from dynid.estimation import ESTIMATORS, IdentificationResult, ProblemBuilder, RegressionProblem
 from dynid.io.output import staged_output
-from dynid.model.base_parameters import BaseParameters, robot_base_parameters
+from dynid.model.base_parameters import BaseParameters, StandardMap, robot_base_parameters
 from dynid.model.regressor import regressor
 from dynid.model.robot import RobotModel
 from dynid.pipeline.data import build_robot, check_joint_motion, preprocess, read_log, to_joint_space, velocity_mask
+from dynid.signals import decimation_filter, decimation_segments, lowpass_sos
 
 __all__ = ["Progress", "ValidationMetrics", "IdentifyOutcome", "build_problem", "validate", "identify", "write_outputs", "write_files", "OUTPUT_FILES"]
 
@@ -33,31 +34,68 @@ def _no_progress(task: str, done: int, total: int) -> None:
     return None
 
 
+def _chunks(
+    robot: RobotModel,
+    base: BaseParameters,
+    ds: Dataset,
+    parallel_decimate: int,
+    chunk_size: int,
+    progress: Progress,
+    task: str,
+) -> Iterator[tuple[FloatArray, FloatArray, FloatArray]]:
+    """Yield ``(W_base, tau, dq)`` chunk by chunk, at full rate or parallel-decimated.
+
+    Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the
+    base regressor and each effort channel are low-passed by the same zero-phase
+    filter and one sample in ``k`` is kept, so torque and model see identical
+    filtering even where the regressor is non-smooth (Coulomb ``sign`` columns).
+    Chunks overlap by 15 filter time constants, which makes the result equal to
+    whole-signal filtering to ~1e-12 without ever holding the full regressor.
+    """
+    if ds.dq is None or ds.ddq is None:
+        raise InputError("the dataset has no velocities/accelerations; preprocess it first")
+    n = ds.n_samples
+    data = robot.create_data()
+    if parallel_decimate <= 1:
+        buf = np.empty((min(chunk_size, n), robot.dof, robot.n_standard_params))
+        for start in range(0, n, chunk_size):
+            stop = min(start + chunk_size, n)
+            Y = regressor(robot, ds.q[start:stop], ds.dq[start:stop], ds.ddq[start:stop], data=data,
+                          out=buf[: stop - start])
+            yield base.regressor(Y), ds.tau[start:stop], ds.dq[start:stop]
+            progress(task, stop, n)
+        return
+    k = parallel_decimate
+    sos, margin = decimation_filter(k, ds.fs)
+    if n <= 2 * k:
+        raise InputError(f"{n} samples are too few to decimate by {k}")
+    for a, b, keep in decimation_segments(n, k, margin, max(chunk_size, 4 * margin)):
+        Y = base.regressor(regressor(robot, ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], data=data))
+        filt = lambda x: lowpass_sos(x, sos)[keep]  # noqa: E731
+        yield filt(Y), filt(ds.tau[a:b]), filt(ds.dq[a:b])
+        progress(task, b, n)
+
+
 def build_problem(
     robot: RobotModel,
     base: BaseParameters,
     ds: Dataset,
     *,
-    mask: np.ndarray | None = None,
+    min_velocity: tuple[float, ...] | None = None,
+    parallel_decimate: int = 1,
     chunk_size: int = 20000,
     progress: Progress = _no_progress,
     meta: dict[str, Any] | None = None,
 ) -> RegressionProblem:
-    """Compress a processed joint-space dataset chunk by chunk (never the full regressor)."""
-    if ds.dq is None or ds.ddq is None:
-        raise InputError("the dataset has no velocities/accelerations; preprocess it first")
-    n = ds.n_samples
+    """Compress a processed joint-space dataset chunk by chunk (never the full regressor).
+
+    ``min_velocity`` drops, per joint equation, the rows where that joint's (filtered)
+    velocity is below the threshold [rad/s] (Coulomb friction is ill-defined there).
+    """
     builder = ProblemBuilder(base.names, robot.joint_names)
-    data = robot.create_data()
-    chunk = max(1, int(chunk_size))
-    buf = np.zeros((min(chunk, n), robot.dof, robot.n_standard_params))
-    for start in range(0, n, chunk):
-        stop = min(start + chunk, n)
-        out = buf[: stop - start]
-        Y = regressor(robot, ds.q[start:stop], ds.dq[start:stop], ds.ddq[start:stop], data=data, out=out)
-        builder.add(base.regressor(Y), ds.tau[start:stop], None if mask is None else mask[start:stop])
-        progress("compress", stop, n)
-    return builder.build(expressions=base.expressions(), meta=meta or {})
+    for W, tau, dq in _chunks(robot, base, ds, parallel_decimate, max(1, int(chunk_size)), progress, "compress"):
+        builder.add(W, tau, velocity_mask(dq, min_velocity))
+    return builder.build(expressions=base.expressions(), standard=StandardMap.of(robot, base), meta=meta or {})
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -108,36 +146,41 @@ def validate(
     base: BaseParameters,
     ds: Dataset,
     *,
+    parallel_decimate: int = 1,
     chunk_size: int = 20000,
     progress: Progress = _no_progress,
 ) -> ValidationMetrics:
-    """Predict the held-out torques with the identified base parameters; per-joint errors."""
+    """Predict the held-out torques with the identified base parameters; per-joint errors.
+
+    The held-out data go through exactly the processing of the training data
+    (including parallel decimation when used).
+    """
     if tuple(result.names) != base.names:
         raise InputError("the result's parameters are not the base parameters of this robot")
-    n = ds.n_samples
-    pred = np.empty_like(ds.tau)
-    data = robot.create_data()
-    for start in range(0, n, chunk_size):
-        stop = min(start + chunk_size, n)
-        Y = regressor(robot, ds.q[start:stop], ds.dq[start:stop], ds.ddq[start:stop], data=data)
-        pred[start:stop] = base.regressor(Y) @ result.params
-        progress("validate", stop, n)
-    err = ds.tau - pred
+    meas, pred = [], []
+    for W, tau, _ in _chunks(robot, base, ds, parallel_decimate, max(1, int(chunk_size)), progress, "validate"):
+        meas.append(tau)
+        pred.append(W @ result.params)
+    measured, predicted = np.concatenate(meas), np.concatenate(pred)
+    k = max(1, parallel_decimate)
+    t = np.asarray(ds.t)[::k][: measured.shape[0]]
+    err = measured - predicted
     rmse = np.sqrt(np.mean(err**2, axis=0))
-    centred = ds.tau - ds.tau.mean(axis=0)
+    centred = measured - measured.mean(axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         r2 = 1.0 - np.sum(err**2, axis=0) / np.sum(centred**2, axis=0)
+    src = ds.meta.get("source")
     return ValidationMetrics(
         channel_names=robot.joint_names,
-        n_samples=n,
+        n_samples=int(measured.shape[0]),
         rmse=rmse,
-        rms_measured=np.sqrt(np.mean(ds.tau**2, axis=0)),
+        rms_measured=np.sqrt(np.mean(measured**2, axis=0)),
         max_abs_error=np.max(np.abs(err), axis=0),
         r2=r2,
-        t=np.asarray(ds.t),
-        measured=np.asarray(ds.tau),
-        predicted=pred,
-        source=dict(ds.meta.get("source", {})) if isinstance(ds.meta.get("source"), dict) else {"source": str(ds.meta.get("source"))},
+        t=t,
+        measured=measured,
+        predicted=predicted,
+        source=dict(src) if isinstance(src, dict) else {"source": str(src)},
     )
 
 
@@ -191,11 +234,13 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     progress("base parameters", 0, 1)
     base = robot_base_parameters(robot, n_samples=cfg.identification.base_samples, seed=cfg.identification.base_seed)
     progress("base parameters", 1, 1)
-    if train.n_samples * robot.dof <= base.n_base:
+    pcfg = cfg.processing
+    parallel = pcfg.decimate if pcfg.decimate_method == "parallel" else 1
+    n_eff = -(-train.n_samples // parallel)
+    if n_eff * robot.dof <= base.n_base:
         raise InputError(
-            f"data: {train.n_samples} processed samples x {robot.dof} joints are fewer than the {base.n_base} base parameters"
+            f"data: {n_eff} processed samples x {robot.dof} joints are fewer than the {base.n_base} base parameters"
         )
-    mask = velocity_mask(train, cfg.processing.min_velocity)
     meta = {
         "versions": _versions(),
         "config_file": str(cfg.source) if cfg.source else None,
@@ -207,14 +252,19 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
         "processing": steps,
         "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
     }
-    if mask is not None:
-        meta["row_selection"] = {"min_velocity": list(cfg.processing.min_velocity or ()), "rows_kept_per_joint": mask.sum(axis=0).tolist()}
-    problem = build_problem(robot, base, train, mask=mask, chunk_size=cfg.identification.chunk_size, progress=progress, meta=meta)
-    estimator = ESTIMATORS[cfg.identification.method]()
+    problem = build_problem(robot, base, train, min_velocity=pcfg.min_velocity, parallel_decimate=parallel,
+                            chunk_size=cfg.identification.chunk_size, progress=progress, meta=meta)
+    icfg = cfg.identification
+    estimator = ESTIMATORS[(icfg.method, icfg.physical_consistency)]()
     result = estimator.fit(problem)
+    if pcfg.min_velocity is not None:
+        result = result.with_provenance(
+            row_selection={"min_velocity_rad_s": list(pcfg.min_velocity), "rows_kept_per_joint": problem.n_obs.tolist()}
+        )
     if notes:
         result = result.with_notes(*notes)
-    metrics = validate(result, robot, base, held_out, chunk_size=cfg.identification.chunk_size, progress=progress)
+    metrics = validate(result, robot, base, held_out, parallel_decimate=parallel,
+                       chunk_size=cfg.identification.chunk_size, progress=progress)
     return IdentifyOutcome(cfg, robot, base, result, metrics, train, held_out, tuple(notes))
 
 
@@ -224,12 +274,20 @@ OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "valid
 def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Path]:
     """Write result.json, result.npz, params.csv, summary.txt (+ plots, report.html).
 
-    Files are staged and moved into ``out_dir`` only when all were written.
+    Files are staged and moved into ``out_dir`` only when all were written; dynid
+    outputs of an earlier run that this run did not produce are removed. Returns the
+    files of this run.
     """
-    with staged_output(out_dir) as stage:
-        write_files(outcome, stage)
     out = Path(out_dir)
-    return {name: out / name for name in OUTPUT_FILES if (out / name).exists()}
+    with staged_output(out) as stage:
+        write_files(outcome, stage)
+        produced = sorted(p.name for p in stage.iterdir())
+    # outputs of an earlier run that this run did not write (e.g. plots now switched off)
+    # would describe another identification: remove them
+    for name in OUTPUT_FILES:
+        if name not in produced and (out / name).is_file():
+            (out / name).unlink()
+    return {name: out / name for name in produced}
 
 
 def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
@@ -251,10 +309,13 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     with open(stage / "params.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["name", "value", "std", "rel_std_pct", "ci_low", "ci_high", "expression"])
-        ci = res.conf_int()
+        if res.cov_params is not None:
+            ci, bse, rel = res.conf_int(), res.bse, res.rel_std
+            stats = [(repr(float(bse[i])), f"{rel[i]:.6g}", repr(float(ci[i, 0])), repr(float(ci[i, 1]))) for i in range(len(res.names))]
+        else:  # the method gives no covariance (see the result's notes): leave the columns empty
+            stats = [("", "", "", "")] * len(res.names)
         for i, n in enumerate(res.names):
-            w.writerow([n, repr(float(res.params[i])), repr(float(res.bse[i])), f"{res.rel_std[i]:.6g}",
-                        repr(float(ci[i, 0])), repr(float(ci[i, 1])), expressions[i]])
+            w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i]])
     (stage / "summary.txt").write_text(outcome.summary_text() + "\n")
     if outcome.config.output.plots:
         from dynid.report import plot_validation, write_html_report
