@@ -69,6 +69,7 @@ def check_identifiable(R: FloatArray, names: tuple[str, ...], rtol: float = _RAN
 class _Solve:
     beta: FloatArray
     R: FloatArray  # p x p triangular factor of the whitened stacked regressor
+    c: FloatArray  # whitened outputs projected on it: the fit minimizes ||R beta - c||
     rss: FloatArray  # per-channel RSS at beta (unweighted)
     scale: float
     cov: FloatArray
@@ -96,7 +97,7 @@ def whitened_solve(problem: RegressionProblem, weights: FloatArray) -> _Solve:
     scale = float(np.sum(w * rss) / dof)
     rinv = sla.solve_triangular(r, np.eye(p))
     cov = scale * (rinv @ rinv.T)
-    return _Solve(beta=beta, R=r, rss=rss, scale=scale, cov=cov, dof=dof, cond=condition_number(r))
+    return _Solve(beta=beta, R=r, c=c, rss=rss, scale=scale, cov=cov, dof=dof, cond=condition_number(r))
 
 
 def _channel_noise_std(problem: RegressionProblem, rss: FloatArray) -> FloatArray:

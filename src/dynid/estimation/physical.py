@@ -32,11 +32,10 @@ import dataclasses
 import numpy as np
 
 from dynid.errors import DynidError, IdentifiabilityError, InputError, require
-from dynid.estimation.linear import _channel_noise_std, check_identifiable, whitened_solve
+from dynid.estimation.linear import _channel_noise_std, whitened_solve
 from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult
 from dynid.model.base_parameters import pseudo_inertia
-from dynid.stats import condition_number
 
 __all__ = ["PhysicalLS"]
 
@@ -92,14 +91,9 @@ class PhysicalLS:
             uncon = whitened_solve(problem, weights)
         else:
             weights, uncon = np.ones(problem.n_channels), ols
-        # compressed whitened problem: min || R beta - c ||
+        # the compressed whitened problem of the unconstrained fit: min || R beta - c ||
         p = problem.n_params
-        sw = np.sqrt(weights)
-        A = (problem.R * sw[:, None, None]).reshape(-1, p)
-        b = (problem.z * sw[:, None]).reshape(-1)
-        q, r = np.linalg.qr(A, mode="reduced")
-        check_identifiable(r, problem.names)
-        c = q.T @ b
+        r, c = uncon.R, uncon.c
         scale = np.linalg.norm(c) or 1.0
         pi = cp.Variable(smap.B.shape[1])
         constraints = [_pseudo_inertia_expr(cp, pi[blk]) >> 0 for blk in smap.body_blocks]
@@ -154,7 +148,7 @@ class PhysicalLS:
             n_obs=problem.n_obs,
             rss_per_channel=rss,
             noise_std=np.sqrt(1.0 / weights) if self.weighting == "wls" else _channel_noise_std(problem, rss),
-            condition_number=condition_number(r),
+            condition_number=uncon.cond,
             expressions=problem.expressions,
             solver={
                 "algorithm": "SDP on the compressed whitened problem",
