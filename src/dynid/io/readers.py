@@ -61,6 +61,7 @@ class TableReader:
             raise InputError(f"{self.path}: unknown data file type {suffix!r} (use .csv, .npz or .parquet)")
         self._frame = None
         self._npz: dict[str, np.ndarray] | None = None
+        self._sha256: str | None = None
 
     # ------------------------------------------------------------------ loading
     def _load_frame(self):
@@ -152,4 +153,7 @@ class TableReader:
         return np.hstack(cols)
 
     def sha256(self) -> str:
-        return file_sha256(self.path)
+        """SHA-256 of the file (computed once per reader)."""
+        if self._sha256 is None:
+            self._sha256 = file_sha256(self.path)
+        return self._sha256

@@ -52,9 +52,15 @@ def build_robot(cfg: RobotConfig) -> RobotModel:
     return load_robot(cfg.model, extras=cfg.extras, transmission=transmission)
 
 
-def read_log(spec: DataConfig, n_channels: int, names: tuple[str, ...], label: str) -> Dataset:
-    """Read the columns named in ``spec`` into a raw :class:`Dataset` (SI units, window cut)."""
-    readers: dict[Path, TableReader] = {}
+def read_log(
+    spec: DataConfig, n_channels: int, names: tuple[str, ...], label: str, readers: dict[Path, TableReader] | None = None
+) -> Dataset:
+    """Read the columns named in ``spec`` into a raw :class:`Dataset` (SI units, window cut).
+
+    ``readers`` caches open files across calls (training and validation windows of one
+    log are read and hashed once).
+    """
+    readers = {} if readers is None else readers
 
     def reader(path: Path) -> TableReader:
         if path not in readers:
@@ -101,7 +107,7 @@ def read_log(spec: DataConfig, n_channels: int, names: tuple[str, ...], label: s
         "effort_kind": spec.effort.kind,
         "effort_side": spec.effort.side if spec.effort.kind == "torque" else "motor",
         "source": {k: str(v) for k, v in files.items()},
-        "sha256": {str(p): r.sha256() for p, r in readers.items()},
+        "sha256": {str(p): readers[p].sha256() for p in dict.fromkeys(files.values())},
         "window": {"rows": list(spec.rows)} if spec.rows else ({"time": list(spec.time_window)} if spec.time_window else "all"),
     }
     try:

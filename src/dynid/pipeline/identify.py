@@ -224,8 +224,9 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     """Run the whole identification described by ``cfg`` (nothing is written)."""
     robot = build_robot(cfg.robot)
     names = robot.joint_names
-    raw_train = read_log(cfg.data, robot.dof, names, "data")
-    raw_valid = read_log(cfg.validation, robot.dof, names, "validation")
+    readers: dict = {}
+    raw_train = read_log(cfg.data, robot.dof, names, "data", readers)
+    raw_valid = read_log(cfg.validation, robot.dof, names, "validation", readers)
     train_j, notes = to_joint_space(raw_train, robot, "data")
     valid_j, _ = to_joint_space(raw_valid, robot, "validation")
     train, steps = preprocess(train_j, cfg.processing, "data")
