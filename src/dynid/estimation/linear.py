@@ -32,7 +32,7 @@ from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult
 from dynid.stats import condition_number
 
-__all__ = ["OLS", "WLS", "whitened_solve", "check_identifiable"]
+__all__ = ["OLS", "WLS", "whitened_solve", "check_identifiable", "gautier_noise_std"]
 
 _RANK_RTOL = 1e-10
 
@@ -106,6 +106,15 @@ def _channel_noise_std(problem: RegressionProblem, rss: FloatArray) -> FloatArra
     return np.sqrt(rss / np.maximum(dof_j, 1))
 
 
+def gautier_noise_std(problem: RegressionProblem) -> FloatArray:
+    """Per-joint noise std from OLS residuals (Gautier 1997), the WLS weights' source."""
+    sigma = _channel_noise_std(problem, whitened_solve(problem, np.ones(problem.n_channels)).rss)
+    if np.any(sigma <= 0):
+        zero = [c for c, s in zip(problem.channel_names, sigma) if s <= 0]
+        raise IdentifiabilityError(f"zero residual on channels {zero}: cannot weight by noise variance")
+    return sigma
+
+
 def _result(problem: RegressionProblem, method: str, s: _Solve, noise_std: FloatArray, solver: dict, notes: tuple[str, ...]) -> IdentificationResult:
     return IdentificationResult(
         method=method,
@@ -160,11 +169,7 @@ class WLS:
                 raise ValueError(f"noise_std must be {problem.n_channels} positive numbers")
             source = "given"
         else:
-            ols = whitened_solve(problem, np.ones(problem.n_channels))
-            sigma = _channel_noise_std(problem, ols.rss)
-            if np.any(sigma <= 0):
-                zero = [c for c, s in zip(problem.channel_names, sigma) if s <= 0]
-                raise IdentifiabilityError(f"zero residual on channels {zero}: cannot weight by noise variance")
+            sigma = gautier_noise_std(problem)
             source = "OLS residuals (Gautier)"
         s = whitened_solve(problem, 1.0 / sigma**2)
         notes = (f"weights 1/sigma_j^2 per channel; sigma_j from {source}",)

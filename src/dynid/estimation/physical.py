@@ -31,8 +31,8 @@ import dataclasses
 
 import numpy as np
 
-from dynid.errors import DynidError, IdentifiabilityError, InputError, require
-from dynid.estimation.linear import _channel_noise_std, whitened_solve
+from dynid.errors import DynidError, InputError, require
+from dynid.estimation.linear import _channel_noise_std, gautier_noise_std, whitened_solve
 from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult
 from dynid.model.base_parameters import pseudo_inertia
@@ -65,8 +65,8 @@ class PhysicalLS:
         cvxpy solver name (Clarabel by default).
     active_tol : float
         A body's constraint is reported active when the smallest eigenvalue of its
-        pseudo-inertia is below ``active_tol`` times its largest; a bound when the
-        parameter is below ``active_tol`` times the largest magnitude of its kind.
+        pseudo-inertia is below ``active_tol`` times its largest; a bound when a
+        non-negative parameter is below ``active_tol`` times the largest of them.
     """
 
     weighting: str = "wls"
@@ -82,15 +82,8 @@ class PhysicalLS:
         cp = require("cvxpy", "sdp")
         if self.solver not in cp.installed_solvers():
             raise DynidError(f"solver {self.solver} is not installed (installed: {', '.join(cp.installed_solvers())})")
-        ols = whitened_solve(problem, np.ones(problem.n_channels))
-        if self.weighting == "wls":
-            sigma = _channel_noise_std(problem, ols.rss)
-            if np.any(sigma <= 0):
-                raise IdentifiabilityError("zero residual on a channel: cannot weight by noise variance")
-            weights = 1.0 / sigma**2
-            uncon = whitened_solve(problem, weights)
-        else:
-            weights, uncon = np.ones(problem.n_channels), ols
+        weights = 1.0 / gautier_noise_std(problem) ** 2 if self.weighting == "wls" else np.ones(problem.n_channels)
+        uncon = whitened_solve(problem, weights)
         # the compressed whitened problem of the unconstrained fit: min || R beta - c ||
         p = problem.n_params
         r, c = uncon.R, uncon.c

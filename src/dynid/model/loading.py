@@ -13,7 +13,7 @@ from dynid.errors import InputError, ModelError
 from dynid.model.robot import JOINT_EXTRAS, RobotModel
 from dynid.model.transmission import Transmission
 
-__all__ = ["load_robot", "load_pin_model", "urdf_joint_dynamics"]
+__all__ = ["load_robot", "load_pin_model"]
 
 _UNBOUNDED = {
     "JointModelRUBX": pin.JointModelRX,
@@ -84,20 +84,16 @@ def _urdf_without_dynamics(path: Path) -> tuple[str, dict[str, tuple[float, floa
     return ET.tostring(tree.getroot(), encoding="unicode"), found
 
 
-def urdf_joint_dynamics(path: str | Path) -> dict[str, tuple[float, float]]:
-    """``{joint name: (damping, friction)}`` from the URDF's ``<dynamics>`` tags."""
-    return _urdf_without_dynamics(Path(path))[1]
-
-
-def load_pin_model(path: str | Path) -> pin.Model:
-    """A pinocchio model (no geometry) from a URDF or MJCF file."""
-    path = Path(path)
+def _load_pin_model(path: Path) -> tuple[pin.Model, dict[str, tuple[float, float]]]:
+    """The pinocchio model and, for URDF, the ``<dynamics>`` values per joint name."""
     if not path.is_file():
         raise InputError(f"robot file not found: {path}")
     suffix = path.suffix.lower()
+    dynamics: dict[str, tuple[float, float]] = {}
     try:
         if suffix == ".urdf":
-            model = pin.buildModelFromXML(_urdf_without_dynamics(path)[0])
+            xml, dynamics = _urdf_without_dynamics(path)
+            model = pin.buildModelFromXML(xml)
         elif suffix in (".xml", ".mjcf"):
             model = pin.buildModelFromMJCF(str(path))
         else:
@@ -108,7 +104,12 @@ def load_pin_model(path: str | Path) -> pin.Model:
         raise ModelError(f"{path}: cannot parse robot description ({str(exc).strip().splitlines()[0]})") from None
     if model.nv == 0:
         raise ModelError(f"{path}: the model has no moving joints")
-    return _bounded_revolute(model)
+    return _bounded_revolute(model), dynamics
+
+
+def load_pin_model(path: str | Path) -> pin.Model:
+    """A pinocchio model (no geometry) from a URDF or MJCF file."""
+    return _load_pin_model(Path(path))[0]
 
 
 def load_robot(
@@ -144,16 +145,14 @@ def load_robot(
             model, nominal, name = read_dh_toml(path)
             robot = RobotModel(model, name=name, extras=extras, nominal_extras=nominal, source=str(path))
         else:
-            model = load_pin_model(path)
+            model, dyn = _load_pin_model(path)
             nominal: dict[str, object] = {}
-            if path.suffix.lower() == ".urdf":
-                dyn = urdf_joint_dynamics(path)
-                names = list(model.names)[1:]
-                if any(n in dyn for n in names):
-                    nominal = {
-                        "fv": np.array([dyn.get(n, (0.0, 0.0))[0] for n in names]),
-                        "fc": np.array([dyn.get(n, (0.0, 0.0))[1] for n in names]),
-                    }
+            names = list(model.names)[1:]
+            if any(n in dyn for n in names):
+                nominal = {
+                    "fv": np.array([dyn.get(n, (0.0, 0.0))[0] for n in names]),
+                    "fc": np.array([dyn.get(n, (0.0, 0.0))[1] for n in names]),
+                }
             robot = RobotModel(model, name=model.name or path.stem, extras=extras, nominal_extras=nominal, source=str(path))
     changes: dict[str, object] = {}
     if transmission is not None:
