@@ -268,6 +268,11 @@ def _(d, logs):
     return [["info", "builtin:nope"]]
 
 
+for _mech in ("shang2dof", "rps3", "hexapod", "fivebar"):
+    case(f"info_{_mech}_json")(lambda d, logs, _m=_mech: [["info", f"builtin:{_m}", "--json"]])
+case("info_hexapod_text")(lambda d, logs: [["info", "builtin:hexapod"]])
+
+
 @case("demo")
 def _(d, logs):
     return [["demo", "--out", str(d / "out"), "-q"]]
@@ -360,6 +365,30 @@ def test_info_without_extras(runs):
     assert info["n_standard_params"] == 6 * 10
     assert info["n_base_params"] == 36
     assert len(info["base_param_names"]) == 36
+
+
+@pytest.mark.parametrize(
+    "name, dof, n_actuators, redundant",
+    [("shang2dof", 2, 3, True), ("rps3", 3, 3, False), ("hexapod", 6, 6, False), ("fivebar", 2, 2, False)],
+)
+def test_info_json_of_every_mechanism(runs, name, dof, n_actuators, redundant):
+    r = runs[f"info_{name}_json"].last
+    assert r.returncode == 0, r.stderr
+    info = json.loads(r.stdout)
+    assert info["kind"] == "closed-loop"
+    assert (info["dof"], info["n_actuators"], info["redundant_actuation"]) == (dof, n_actuators, redundant)
+    assert info["n_base_params"] == info["n_base_rigid_body"] + info["n_base_joint_terms"] == len(info["base_param_names"])
+    assert 0 < info["n_base_params"] < info["n_standard_params"]
+    if name == "shang2dof":
+        assert (info["n_base_rigid_body"], info["n_base_joint_terms"]) == (10, 15)
+
+
+def test_info_text_of_a_mechanism(runs):
+    r = runs["info_hexapod_text"].last
+    assert r.returncode == 0, r.stderr
+    out = r.stdout
+    assert "degrees of freedom: 6" in out and "actuators        : 6" in out
+    assert re.search(r"base params      : \d+ \(\d+ rigid-body \+ 14 joint terms\)", out), out
 
 
 def test_info_unknown_robot(runs):

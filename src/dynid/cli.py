@@ -42,14 +42,18 @@ def _progress_bar(enabled: bool):
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from dynid.model import load_robot, robot_base_parameters
+    from dynid.model import load_model, robot_base_parameters
+    from dynid.model.mechanism import Mechanism
 
     extras = tuple(e for e in args.extras.split(",") if e) if args.extras is not None else ("Ia", "fv", "fc", "offset")
-    robot = load_robot(args.robot, extras=extras)
+    robot = load_model(args.robot, extras=extras, closures=args.closures)
+    if isinstance(robot, Mechanism):
+        return _info_mechanism(robot, args.json)
     base = robot_base_parameters(robot)
     info = {
         "robot": robot.name,
         "source": robot.source,
+        "kind": "serial",
         "dof": robot.dof,
         "n_actuators": robot.n_actuators,
         "extras": list(robot.extras),
@@ -68,6 +72,56 @@ def _cmd_info(args: argparse.Namespace) -> int:
     print(f"base params      : {base.n_base}")
     for name, expr in zip(base.names, base.expressions()):
         print(f"  {name:<8} = {expr}")
+    return EXIT_OK
+
+
+def _info_mechanism(mech, as_json: bool) -> int:
+    from dynid.model.closed_loop import mechanism_base_parameters
+
+    base = mechanism_base_parameters(mech)
+    n_rb = int(sum(1 for i in base.independent if i < mech.n_body_params))
+    ind = mech.independent
+    coords = (
+        [mech.pin_model.names[j + 1] for j in ind.joints]
+        if hasattr(ind, "joints")
+        else [f"{'xyz'[a]}@{mech.pin_model.names[ind.joint]}" for a in ind.axes]
+    )
+    info = {
+        "robot": mech.name,
+        "source": mech.source,
+        "kind": "closed-loop",
+        "dof": mech.dof,
+        "n_actuators": mech.n_actuators,
+        "redundant_actuation": mech.redundant,
+        "n_joints": mech.nv,
+        "n_bodies": len(mech.bodies),
+        "closures": [{"name": c.name, "type": c.kind} for c in mech.closures],
+        "actuated": mech.actuated_names,
+        "independent_coordinates": coords,
+        "force_model": "projected (default for redundant actuation)" if mech.redundant else "actuator forces",
+        "n_standard_params": mech.n_standard_params,
+        "n_base_params": base.n_base,
+        "n_base_rigid_body": n_rb,
+        "n_base_joint_terms": base.n_base - n_rb,
+        "base_param_names": list(base.names),
+        "notes": list(mech.notes),
+    }
+    if as_json:
+        print(json.dumps(info, indent=2))
+        return EXIT_OK
+    print(f"mechanism        : {mech.name} ({mech.source})")
+    print(f"degrees of freedom: {mech.dof}")
+    print(f"actuators        : {mech.n_actuators} ({', '.join(mech.actuated_names)})"
+          + ("  [redundant actuation]" if mech.redundant else ""))
+    print(f"joints, bodies   : {mech.nv} joints (active and passive), {len(mech.bodies)} bodies with mass")
+    print(f"loop closures    : {len(mech.closures)} ({', '.join(f'{c.name}:{c.kind}' for c in mech.closures)})")
+    print(f"independent u    : {', '.join(coords)}")
+    print(f"standard params  : {mech.n_standard_params}")
+    print(f"base params      : {base.n_base} ({n_rb} rigid-body + {base.n_base - n_rb} joint terms)")
+    for name, expr in zip(base.names, base.expressions()):
+        print(f"  {name:<12} = {expr}")
+    for note in mech.notes:
+        print(f"note: {note}")
     return EXIT_OK
 
 
@@ -130,9 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     pi = sub.add_parser("info", help="describe a robot model: joints, standard and base parameters")
-    pi.add_argument("robot", help="builtin:<name>, or a .urdf / .xml (MJCF) / DH .toml file")
+    pi.add_argument("robot", help="builtin:<name>, or a .urdf (+ closure YAML) / .xml (MJCF) / DH .toml file")
     pi.add_argument("--json", action="store_true", help="print JSON")
     pi.add_argument("--extras", default=None, help="comma-separated joint extras (default Ia,fv,fc,offset; '' for none)")
+    pi.add_argument("--closures", default=None, help="loop-closure YAML for a URDF parallel robot (default: robot.yaml beside it)")
     pi.set_defaults(func=_cmd_info)
 
     pid = sub.add_parser("identify", help="identify base parameters from logs as CONFIG.toml says")

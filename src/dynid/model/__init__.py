@@ -7,7 +7,7 @@ from dynid.model.base_parameters import (
     pseudo_inertia,
     robot_base_parameters,
 )
-from dynid.model.loading import load_robot
+from dynid.model.loading import load_model, load_robot
 from dynid.model.regressor import extras_torque, inverse_dynamics, regressor
 from dynid.model.robot import BODY_PARAMS, JOINT_EXTRAS, ParameterLayout, RobotModel
 from dynid.model.transmission import Coupling, Transmission
@@ -25,6 +25,7 @@ __all__ = [
     "compute_base_parameters",
     "extras_torque",
     "inverse_dynamics",
+    "load_model",
     "load_robot",
     "regressor",
     "robot_base_parameters",

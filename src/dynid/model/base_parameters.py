@@ -194,8 +194,13 @@ def _base_from_stack(
     independent = np.sort(nonzero[indep_local])
     dependent = np.setdiff1d(np.arange(p), independent)
     Wi, Wd = W[:, independent], W[:, dependent]
-    K = np.linalg.lstsq(Wi, Wd, rcond=None)[0]
-    K[np.abs(K) < 1e-10] = 0.0
+    # K on unit-norm columns (K_s = D_i K D_d^-1), so that the threshold for numerical
+    # zeros does not depend on the units of the parameters
+    ni = np.where(norms[independent] > 0, norms[independent], 1.0)
+    nd = np.where(norms[dependent] > 0, norms[dependent], 1.0)
+    K_s = np.linalg.lstsq(Wi / ni, Wd / nd, rcond=None)[0]
+    K = K_s / ni[:, None] * nd[None, :]
+    K[(np.abs(K_s) < 1e-8) | (np.abs(K) < 1e-10)] = 0.0
     resid = np.linalg.norm(Wd - Wi @ K) / max(np.linalg.norm(Wd), 1.0)
     if resid > 1e-6:
         raise ModelError(f"base-parameter regrouping does not reproduce the regressor (relative residual {resid:.2e})")

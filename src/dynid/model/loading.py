@@ -13,7 +13,7 @@ from dynid.errors import InputError, ModelError
 from dynid.model.robot import JOINT_EXTRAS, RobotModel
 from dynid.model.transmission import Transmission
 
-__all__ = ["load_robot", "load_pin_model"]
+__all__ = ["load_model", "load_pin_model", "load_robot"]
 
 _UNBOUNDED = {
     "JointModelRUBX": pin.JointModelRX,
@@ -160,3 +160,41 @@ def load_robot(
     if nominal_extras:
         changes["nominal_extras"] = {**robot.nominal_extras, **nominal_extras}
     return robot.replace(**changes) if changes else robot
+
+
+def _mjcf_has_closures(path: Path) -> bool:
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError):
+        return False  # let the serial loader report the problem
+    return any(len(eq) > 0 for eq in root.iter("equality"))
+
+
+def load_model(spec: str, *, extras: Sequence[str] = JOINT_EXTRAS, closures: str | Path | None = None):
+    """A serial :class:`RobotModel` or a closed-loop :class:`~dynid.model.mechanism.Mechanism`.
+
+    Closed-loop models are: ``builtin:`` mechanisms (shang2dof, rps3, hexapod, fivebar),
+    MJCF files with an ``<equality>`` section (``<connect>``/``<weld>`` loop closures), and
+    URDF files given with a closure YAML (``closures``, or a ``robot.yaml`` next to the URDF).
+    Everything else is loaded by :func:`load_robot`.
+    """
+    if spec.startswith("builtin:"):
+        from dynid.model.robots import MECHANISMS, build_mechanism
+
+        name = spec.split(":", 1)[1]
+        if name in MECHANISMS:
+            return build_mechanism(name)
+        return load_robot(spec, extras=extras)
+    path = Path(spec)
+    suffix = path.suffix.lower()
+    if suffix in (".xml", ".mjcf") and path.is_file() and _mjcf_has_closures(path):
+        from dynid.model.mechanism_io import load_mechanism_mjcf
+
+        return load_mechanism_mjcf(path)
+    if suffix == ".urdf" and (closures is not None or (path.parent / "robot.yaml").is_file()):
+        from dynid.model.mechanism_io import load_mechanism_urdf
+
+        return load_mechanism_urdf(path, closures)
+    if closures is not None:
+        raise ModelError(f"a closure file was given but {spec} is not a URDF")
+    return load_robot(spec, extras=extras)

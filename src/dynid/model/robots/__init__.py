@@ -11,7 +11,7 @@ from importlib import resources
 
 from dynid.model.robot import JOINT_EXTRAS, RobotModel
 
-__all__ = ["BUILTINS", "build_builtin"]
+__all__ = ["BUILTINS", "MECHANISMS", "build_builtin", "build_mechanism"]
 
 
 def _generic6r(extras: tuple[str, ...] = JOINT_EXTRAS) -> RobotModel:
@@ -33,6 +33,33 @@ BUILTINS: dict[str, Callable[..., RobotModel]] = {
     "generic6r": _generic6r,
 }
 
+MECHANISMS: dict[str, str] = {
+    "shang2dof": "planar 2-DOF manipulator with 3 actuators (Shang et al. 2009, paper 001)",
+    "rps3": "3-RPS parallel manipulator (paper 000)",
+    "hexapod": "6-UPS Stewart-Gough platform modelled as PaLiDA (papers 002, 004)",
+    "fivebar": "planar five-bar linkage from an MJCF file (a template for MJCF mechanisms)",
+}
+"""Built-in closed-loop mechanisms (:class:`~dynid.model.mechanism.Mechanism`)."""
+
+
+def build_mechanism(name: str):
+    """A built-in closed-loop mechanism by name."""
+    from importlib import import_module
+
+    from dynid.errors import ModelError
+
+    if name not in MECHANISMS:
+        raise ModelError(f"unknown built-in mechanism {name!r}; available: {', '.join(sorted(MECHANISMS))}")
+    if name == "fivebar":
+        from dynid.model.mechanism_io import load_mechanism_mjcf
+
+        with resources.as_file(resources.files(__package__) / "fivebar.xml") as path:
+            mech = load_mechanism_mjcf(path)
+        import dataclasses
+
+        return dataclasses.replace(mech, source="builtin:fivebar") if mech.source != "builtin:fivebar" else mech
+    return import_module(f"dynid.model.robots.{name}").build()
+
 
 def build_builtin(name: str, extras: tuple[str, ...] = JOINT_EXTRAS) -> RobotModel:
     from dynid.errors import ModelError
@@ -40,5 +67,8 @@ def build_builtin(name: str, extras: tuple[str, ...] = JOINT_EXTRAS) -> RobotMod
     try:
         builder = BUILTINS[name]
     except KeyError:
-        raise ModelError(f"unknown built-in robot {name!r}; available: {', '.join(sorted(BUILTINS))}") from None
+        if name in MECHANISMS:
+            raise ModelError(f"builtin:{name} is a closed-loop mechanism, not a serial robot") from None
+        available = ", ".join(sorted([*BUILTINS, *MECHANISMS]))
+        raise ModelError(f"unknown built-in robot {name!r}; available: {available}") from None
     return builder(extras)

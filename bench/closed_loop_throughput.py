@@ -1,0 +1,146 @@
+"""Actuator-space regressor of the hexapod (6-UPS, 24 joints) in samples per second, next to
+the serial 6R regressor, in the same run, on one core.
+
+Target (project issue 3): ``>= 20 000`` samples/s for the hexapod's actuator-space regressor
+on one core.
+
+Method
+------
+* One core: BLAS limited to 1 thread (threadpoolctl); pinocchio is single-threaded.
+* Hexapod ``builtin:hexapod``: ``n`` constraint-consistent configurations from the closed-form
+  inverse kinematics of a smooth 6-D platform motion (fixed seed), random Gaussian velocities
+  and accelerations of the independent coordinates (the six actuated sliders). Generated once,
+  outside the timings.
+* Variants, timed in the same rounds:
+
+  ``serial 6R``          ``regressor(builtin:generic6r, q, dq, ddq, out=buf)`` (6 x 100:
+                          rigid-body + rotor inertia, friction, offset), the reference;
+  ``hexapod states``      ``mech.states(q, du, ddu)``: velocity map G, all joint velocities and
+                          accelerations (batched kinematics);
+  ``hexapod regressor``   ``actuator_regressor(mech, mech.states(q, du, ddu))``: the whole
+                          actuator-space regressor (6 x n_params per sample) from the positions
+                          of all joints and the derivatives of the independent coordinates.
+  ``hexapod FK``          (informational, ``--fk`` samples only) numeric forward kinematics
+                          ``mech.solve_positions`` from the six slider positions, warm-started
+                          along the motion.
+* After a warm-up, ``--repeats`` rounds run every variant once in a rotating order, with the
+  garbage collector off during a timed call. Reported: median and min microseconds per
+  sample, samples per second (from the median) and the hexapod/serial ratio per round
+  (median of the paired ratios).
+* Exit status 1 when the median hexapod-regressor throughput is below the target (not with
+  ``--quick``).
+
+Run: ``.venv/bin/python bench/closed_loop_throughput.py`` (``--quick`` for a smoke run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import sys
+import time
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from _util import median, print_machine, table
+
+from dynid.model import load_robot
+from dynid.model.base_parameters import random_states
+from dynid.model.closed_loop import actuator_regressor
+from dynid.model.regressor import regressor
+from dynid.model.robots import build_mechanism
+from dynid.model.robots import hexapod
+
+TARGET = 20_000.0
+
+
+def _timed(fn) -> float:
+    gc.collect()
+    gc.disable()
+    try:
+        t0 = time.perf_counter()
+        fn()
+        return time.perf_counter() - t0
+    finally:
+        gc.enable()
+
+
+def hexapod_motion(n: int, rng: np.random.Generator) -> np.ndarray:
+    """Platform poses along a smooth multi-sine motion around the home pose."""
+    t = np.linspace(0.0, 20.0, n)
+    amp = np.array([0.05, 0.05, 0.05, 0.08, 0.08, 0.08])
+    w = rng.uniform(0.5, 2.0, (3, 6))
+    ph = rng.uniform(0, 2 * np.pi, (3, 6))
+    pose = hexapod.HOME + amp * sum(np.sin(np.outer(t, w[k]) + ph[k]) for k in range(3)) / 3
+    return pose
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--n", type=int, default=20_000, help="samples per timed call (default 20000)")
+    ap.add_argument("--repeats", type=int, default=7, help="timed rounds (default 7)")
+    ap.add_argument("--fk", type=int, default=500, help="samples for the forward-kinematics figure (default 500)")
+    ap.add_argument("--quick", action="store_true", help="smoke run: n=2000, 3 rounds; the target is not enforced")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.n, args.repeats, args.fk = 2_000, 3, 100
+    n = args.n
+    print_machine()
+    rng = np.random.default_rng(2026)
+    mech = build_mechanism("hexapod")
+    q = hexapod.inverse_kinematics(hexapod_motion(n, rng))
+    du, ddu = 0.1 * rng.standard_normal((n, mech.dof)), rng.standard_normal((n, mech.dof))
+    robot = load_robot("builtin:generic6r")
+    lo, hi = robot.position_limits()
+    sq, sdq, sddq = random_states(lo, hi, n, rng)
+    buf = np.empty((n, robot.dof, robot.n_standard_params))
+    data = robot.create_data()
+    print(f"hexapod: {mech.nv} joints, {len(mech.bodies)} bodies, {mech.n_standard_params} standard parameters, "
+          f"{mech.dof} actuators; serial: {robot.name}, {robot.n_standard_params} parameters; n = {n}, "
+          f"{args.repeats} rounds, 1 BLAS thread")
+
+    def serial() -> None:
+        regressor(robot, sq, sdq, sddq, data=data, out=buf)
+
+    def states() -> None:
+        mech.states(q, du, ddu)
+
+    def full() -> None:
+        actuator_regressor(mech, mech.states(q, du, ddu))
+
+    variants = {"serial 6R": serial, "hexapod states": states, "hexapod regressor": full}
+    names = list(variants)
+    with threadpool_limits(1):
+        for fn in variants.values():
+            fn()
+        times: dict[str, list[float]] = {k: [] for k in names}
+        for r in range(args.repeats):
+            order = names[r % len(names):] + names[: r % len(names)]
+            for k in order:
+                times[k].append(_timed(variants[k]) / n * 1e6)
+            print(f"  round {r + 1}/{args.repeats}: " + ", ".join(f"{k} {times[k][-1]:.2f}" for k in names)
+                  + " us/sample", flush=True)
+        m = min(args.fk, n)
+        u = mech.coordinates(q[:m])
+        t0 = time.perf_counter()
+        q_fk = mech.solve_positions(u, q0=q[0])
+        fk_us = (time.perf_counter() - t0) / m * 1e6
+        assert np.abs(q_fk - q[:m]).max() < 1e-9
+    rows = []
+    for k in names:
+        med = median(times[k])
+        ratio = median([a / b for a, b in zip(times[k], times[names[0]])])
+        rows.append((k, f"{med:.2f}", f"{min(times[k]):.2f}", f"{1e6 / med:,.0f}", f"{ratio:.2f}"))
+    rows.append(("hexapod FK (Newton)", f"{fk_us:.1f}", "-", f"{1e6 / fk_us:,.0f}", "-"))
+    print()
+    print(table(["variant", "median us/sample", "min", "samples/s", "x serial (paired)"], rows))
+    rate = 1e6 / median(times["hexapod regressor"])
+    ok = rate >= TARGET
+    print(f"\nhexapod actuator-space regressor: {rate:,.0f} samples/s on one core "
+          f"(target >= {TARGET:,.0f}): {'OK' if ok else 'BELOW TARGET'}")
+    return 0 if ok or args.quick else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,346 @@
+"""Dynamics of closed-loop mechanisms in regressor form (virtual power).
+
+For a :class:`~dynid.model.mechanism.Mechanism` with velocity map :math:`\\dot q = G\\dot u`
+(DESIGN.md, "Closed-loop mechanisms"; Abdellatif & Heimann, paper 002, Jourdain's
+principle; Shang et al. 2009, paper 001, Eqs. 4–6):
+
+.. math::
+
+    G^T\\big(Y_{tree}(q,\\dot q,\\ddot q)\\,\\pi + F(\\dot q,\\ddot q)\\,\\varphi\\big)
+    = G^T S_a^T \\tau_a = G_a^T \\tau_a, \\qquad G_a = S_a G ,
+
+with :math:`Y_{tree}` pinocchio's joint-torque regressor of the open tree (all bodies,
+columns of massless bodies dropped), :math:`F` the joint-term columns (friction and rotor
+inertia of **every** joint, passive ones included) and :math:`\\tau_a` the actuator forces.
+
+* Non-redundant actuation (:math:`n_a = n_u`): :math:`\\tau_a = G_a^{-T} G^T (\\ldots)`;
+  with the actuated joints as independent coordinates :math:`G_a = I`.
+* Redundant actuation (:math:`n_a > n_u`) has no unique :math:`\\tau_a`. Two models:
+
+  - ``"projected"``: the :math:`n_u` equations above, with the measured forces projected
+    as :math:`y = G_a^T \\tau_a` -- no assumption about how the controller distributes
+    the forces;
+  - ``"min_norm"``: :math:`\\tau_a = (G_a^T)^+ G^T(\\ldots)`, the minimum-norm distribution
+    that a controller such as Shang's augmented PD (paper 001, Eqs. 5 and 22) applies.
+    With ``local_friction`` the actuators' own joint terms are added per actuator
+    instead of being distributed, exactly as in Shang's Eq. 5
+    (:math:`\\tau = (W^T)^+(M_e\\ddot q_e + C_e\\dot q_e) + f`). Both are assumptions
+    about the controller; results record which model was used.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import numpy as np
+import pinocchio as pin
+
+from dynid._typing import FloatArray
+from dynid.errors import InputError, ModelError
+from dynid.model.base_parameters import BaseParameters, _base_from_stack
+from dynid.model.mechanism import JointCoordinates, KinematicState, Mechanism
+
+__all__ = [
+    "DISTRIBUTIONS",
+    "ActuatorRegression",
+    "actuator_forces",
+    "actuator_regressor",
+    "mechanism_base_parameters",
+    "random_consistent_states",
+    "term_columns",
+    "term_forces",
+    "tree_regressor",
+]
+
+DISTRIBUTIONS = ("projected", "min_norm", "min_norm_local_friction")
+Distribution = Literal["projected", "min_norm", "min_norm_local_friction"]
+
+
+def term_columns(mech: Mechanism, dq: FloatArray, ddq: FloatArray) -> FloatArray:
+    """Joint-term columns :math:`F`, shape (n, n_v, n_terms) (see :class:`JointTerm`)."""
+    dq = np.atleast_2d(dq)
+    ddq = np.atleast_2d(ddq)
+    n, nv = dq.shape
+    F = np.zeros((n, nv, len(mech.terms)))
+    for k, t in enumerate(mech.terms):
+        j = list(t.joints)
+        v, a = dq[:, j], ddq[:, j]
+        if t.kind == "inertia":
+            b = a
+        elif t.kind == "viscous":
+            b = v
+        elif t.kind == "coulomb":
+            b = np.sign(v)
+        elif t.kind == "viscous+":
+            b = np.where(v > 0, v, 0.0)
+        elif t.kind == "viscous-":
+            b = np.where(v < 0, v, 0.0)
+        elif t.kind == "coulomb+":
+            b = (v > 0).astype(float)
+        elif t.kind == "coulomb-":
+            b = (v < 0).astype(float)
+        else:  # offset
+            b = np.ones_like(v)
+        F[:, j, k] += b
+    return F
+
+
+def term_forces(mech: Mechanism, params: FloatArray, dq: FloatArray, ddq: FloatArray) -> FloatArray:
+    """Generalized joint forces of the joint terms, computed term by term, shape (n, n_v)."""
+    params = np.asarray(params, dtype=float)
+    nb = mech.n_body_params
+    return np.einsum("nik,k->ni", term_columns(mech, dq, ddq), params[nb:])
+
+
+def tree_regressor(mech: Mechanism, q: FloatArray, dq: FloatArray, ddq: FloatArray, *, data: pin.Data | None = None) -> FloatArray:
+    """Open-tree regressor :math:`[Y_{tree}\\;F]`, shape (n, n_v, n_params).
+
+    ``tree_regressor(...)[i] @ params`` equals pinocchio's RNEA of the tree (inertias from
+    ``params``) plus the joint-term forces: the generalized forces the joints would need
+    if the loops were cut.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    dq = np.atleast_2d(np.asarray(dq, dtype=float))
+    ddq = np.atleast_2d(np.asarray(ddq, dtype=float))
+    n, nv = q.shape
+    if dq.shape != q.shape or ddq.shape != q.shape or nv != mech.nv:
+        raise InputError(f"q, dq, ddq must all have shape (n, {mech.nv}); got {q.shape}, {dq.shape}, {ddq.shape}")
+    model = mech.pin_model
+    data = model.createData() if data is None else data
+    nb = mech.n_body_params
+    out = np.empty((n, nv, mech.n_standard_params))
+    jtr = pin.computeJointTorqueRegressor
+    all_bodies = len(mech.bodies) == model.njoints - 1
+    cols = None if all_bodies else np.concatenate([np.arange(10 * (j - 1), 10 * j) for j in mech.bodies])
+    block = 256
+    for start in range(0, n, block):
+        stop = min(start + block, n)
+        Y = np.stack([jtr(model, data, qi, vi, ai) for qi, vi, ai in zip(q[start:stop], dq[start:stop], ddq[start:stop])])
+        out[start:stop, :, :nb] = Y if cols is None else Y[:, :, cols]
+    out[:, :, nb:] = term_columns(mech, dq, ddq)
+    return out
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ActuatorRegression:
+    """Closed-loop regression rows along samples.
+
+    Attributes
+    ----------
+    W : array, shape (n, n_out, n_params)
+        Regressor: ``W[i] @ params`` is the model output of sample ``i``.
+    distribution : str
+        ``"actuators"`` (non-redundant: outputs are the actuator forces),
+        ``"projected"`` (outputs are :math:`G_a^T\\tau_a`, one per independent
+        coordinate) or ``"min_norm"`` / ``"min_norm_local_friction"`` (outputs are the
+        actuator forces of that distribution).
+    Ga : array, shape (n, n_a, n_u)
+        Actuator velocity map :math:`\\dot q_a = G_a \\dot u`.
+    state : KinematicState
+    """
+
+    W: FloatArray
+    distribution: str
+    Ga: FloatArray
+    state: KinematicState
+
+    def outputs(self, tau_a: FloatArray) -> FloatArray:
+        """Measured outputs matching ``W``: the forces themselves, or :math:`G_a^T\\tau_a` (projected)."""
+        tau_a = np.atleast_2d(np.asarray(tau_a, dtype=float))
+        n, na = self.Ga.shape[0], self.Ga.shape[1]
+        if tau_a.shape != (n, na):
+            raise InputError(f"actuator forces must have shape ({n}, {na}), got {tau_a.shape}")
+        if self.distribution == "projected":
+            return np.einsum("nau,na->nu", self.Ga, tau_a)
+        return tau_a
+
+
+def actuator_regressor(
+    mech: Mechanism,
+    state: KinematicState,
+    *,
+    distribution: Distribution | None = None,
+    data: pin.Data | None = None,
+) -> ActuatorRegression:
+    """Actuator-space (or projected) regressor of a closed-loop mechanism.
+
+    Parameters
+    ----------
+    mech : Mechanism
+    state : KinematicState
+        From :meth:`Mechanism.states`.
+    distribution : {"projected", "min_norm", "min_norm_local_friction"}, optional
+        Required for redundant actuation, ignored (must be None) otherwise.
+
+    Returns
+    -------
+    ActuatorRegression
+    """
+    redundant = mech.redundant
+    if redundant and distribution is None:
+        raise ModelError(
+            f"{mech.name!r} is redundantly actuated ({mech.n_actuators} actuators, {mech.dof} DOF): "
+            f"choose a force model among {list(DISTRIBUTIONS)}"
+        )
+    if not redundant and distribution is not None:
+        raise ModelError(f"{mech.name!r} is not redundantly actuated: the actuator forces are unique, no distribution applies")
+    if distribution is not None and distribution not in DISTRIBUTIONS:
+        raise ModelError(f"unknown force distribution {distribution!r}; choose from {list(DISTRIBUTIONS)}")
+    G = state.G
+    n, nv, n_u = G.shape
+    act = list(mech.actuated)
+    Ga = G[:, act, :]  # (n, n_a, n_u)
+    GaT = Ga.transpose(0, 2, 1)  # (n, n_u, n_a)
+    # T maps projected equations (n_u rows) to outputs: tau_a = T @ G^T (...)
+    if distribution == "projected":
+        T, label = None, "projected"
+    elif not redundant:
+        label = "actuators"
+        ind = mech.independent
+        if isinstance(ind, JointCoordinates) and ind.joints == mech.actuated:
+            T = None  # G_a = I exactly: the projected equations are the actuator forces
+        else:
+            T = np.linalg.inv(GaT)
+    else:
+        T, label = np.linalg.pinv(GaT), str(distribution)
+    n_out = n_u if T is None else T.shape[1]
+    W = np.empty((n, n_out, mech.n_standard_params))
+    nb = mech.n_body_params
+    # body columns, block by block: pinocchio's tree regressor is projected at once (never
+    # stored for all samples; 24 joints x 240 columns would be 46 kB per sample)
+    model = mech.pin_model
+    data = model.createData() if data is None else data
+    jtr = pin.computeJointTorqueRegressor
+    all_bodies = len(mech.bodies) == model.njoints - 1
+    cols = None if all_bodies else np.concatenate([np.arange(10 * (j - 1), 10 * j) for j in mech.bodies])
+    q, dq, ddq = state.q, state.dq, state.ddq
+    block = 64
+    for start in range(0, n, block):
+        stop = min(start + block, n)
+        Y = np.stack([jtr(model, data, qi, vi, ai) for qi, vi, ai in zip(q[start:stop], dq[start:stop], ddq[start:stop])])
+        P = np.matmul(G[start:stop].transpose(0, 2, 1), Y)  # (b, n_u, 10 * n_joints)
+        if cols is not None:
+            P = P[:, :, cols]
+        W[start:stop, :, :nb] = P if T is None else np.matmul(T[start:stop], P)
+    # joint-term columns
+    F = term_columns(mech, dq, ddq)
+    local = None
+    if distribution == "min_norm_local_friction":
+        # the actuators' own joint terms stay local (Shang 2009, Eq. 5); the rest is distributed
+        local = F[:, act, :].copy()
+        F[:, act, :] = 0.0
+    PF = np.matmul(G.transpose(0, 2, 1), F)
+    W[:, :, nb:] = PF if T is None else np.matmul(T, PF)
+    if local is not None:
+        W[:, :, nb:] += local
+    return ActuatorRegression(W=W, distribution=label, Ga=Ga, state=state)
+
+
+def actuator_forces(
+    mech: Mechanism, params: FloatArray, state: KinematicState, *, distribution: Distribution | None = None
+) -> FloatArray:
+    """Actuator forces by pinocchio's RNEA on the tree plus the joint terms, then projected.
+
+    A second route to the forces (no regressor): :math:`\\tau_{tree}` = RNEA with inertias
+    from ``params`` + :func:`term_forces`; then the same projection/distribution as
+    :func:`actuator_regressor`. Shape (n, n_a) (or (n, n_u) for ``"projected"``).
+    """
+    params = np.asarray(params, dtype=float)
+    model = mech.with_parameters(params)
+    data = model.createData()
+    tau = np.array([pin.rnea(model, data, q, v, a) for q, v, a in zip(state.q, state.dq, state.ddq)])
+    terms = term_columns(mech, state.dq, state.ddq) * params[mech.n_body_params :]
+    act = list(mech.actuated)
+    local = np.zeros_like(tau)
+    if distribution == "min_norm_local_friction":
+        local[:, act] = terms[:, act, :].sum(axis=2)
+    tau = tau + terms.sum(axis=2) - local
+    G = state.G
+    proj = np.einsum("niu,ni->nu", G, tau)
+    Ga = G[:, act, :]
+    if distribution == "projected":
+        return proj
+    if not mech.redundant:
+        return np.linalg.solve(Ga.transpose(0, 2, 1), proj[..., None])[..., 0]
+    return np.einsum("nau,nu->na", np.linalg.pinv(Ga.transpose(0, 2, 1)), proj) + local[:, act]
+
+
+def random_consistent_states(
+    mech: Mechanism,
+    n_samples: int,
+    rng: np.random.Generator,
+    *,
+    spread: float = 0.3,
+    vel_scale: float = 1.0,
+    acc_scale: float = 3.0,
+    max_cond: float = 1e6,
+) -> KinematicState:
+    """Random constraint-consistent states around the reference configuration.
+
+    Independent coordinates are drawn uniformly in a box around ``u(q_ref)`` whose half-width
+    is ``spread / 2`` times the range of each coordinate (joint limits; for point
+    coordinates twice the mean link length); each pose is solved by Newton from ``q_ref``
+    and kept only if it converges, is well conditioned and respects the joint limits (20
+    rejections in a row halve the box). Velocities and accelerations of ``u`` are Gaussian.
+    """
+    u_ref = mech.coordinates(mech.q_ref)[0]
+    lo, hi = mech.position_limits()
+    ind = mech.independent
+    if isinstance(ind, JointCoordinates):
+        rng_u = np.array([hi[j] - lo[j] if np.isfinite(hi[j] - lo[j]) else 2.0 for j in ind.joints])
+    else:
+        # a length scale of the mechanism: the mean distance between consecutive joint origins
+        steps = [np.linalg.norm(mech.pin_model.jointPlacements[j].translation) for j in range(1, mech.pin_model.njoints)]
+        rng_u = np.full(ind.size, 2.0 * max(float(np.mean(steps)), 1e-3))
+    radius = 0.5 * spread * rng_u
+    qs: list[FloatArray] = []
+    tries, fails = 0, 0
+    while len(qs) < n_samples:
+        tries += 1
+        if tries > 50 * n_samples + 100:
+            raise ModelError(f"could not draw {n_samples} assembled configurations of {mech.name!r} (got {len(qs)})")
+        if fails >= 20:  # mostly out of reach: shrink the sampling box
+            radius, fails = radius / 2, 0
+        u = u_ref + radius * rng.uniform(-1.0, 1.0, size=u_ref.shape)
+        try:
+            q = mech.solve_positions(u[None], max_cond=max_cond)[0]
+        except ModelError:
+            fails += 1
+            continue
+        if np.any(q < lo - 1e-9) or np.any(q > hi + 1e-9):
+            fails += 1
+            continue
+        fails = 0
+        qs.append(q)
+    q = np.array(qs)
+    du = vel_scale * rng.standard_normal((n_samples, u_ref.size))
+    ddu = acc_scale * rng.standard_normal((n_samples, u_ref.size))
+    return mech.states(q, du, ddu, max_cond=max_cond)
+
+
+def mechanism_base_parameters(
+    mech: Mechanism,
+    *,
+    distribution: Distribution | None = None,
+    n_samples: int | None = None,
+    seed: int = 0,
+    spread: float = 0.3,
+    rank_tol: float = 1e-8,
+) -> BaseParameters:
+    """Base parameters of a closed-loop mechanism, on constraint-consistent random samples.
+
+    The projected equations :math:`G^T[Y\\;F]` are used for redundant actuation unless
+    another distribution is asked for (the minimum-norm rows span the same column space
+    only through the pseudo-inverse, which cannot create or remove dependencies among
+    the body parameters, but can among actuator terms with ``local_friction``).
+    """
+    p = mech.n_standard_params
+    n_samples = int(n_samples) if n_samples is not None else max(100, 2 * p // max(mech.dof, 1) + 20)
+    rng = np.random.default_rng(seed)
+    state = random_consistent_states(mech, n_samples, rng, spread=spread)
+    dist = distribution if mech.redundant else None
+    if mech.redundant and dist is None:
+        dist = "projected"
+    W = actuator_regressor(mech, state, distribution=dist).W
+    return _base_from_stack(W.reshape(-1, p), mech.parameter_names, rank_tol, n_samples, seed)

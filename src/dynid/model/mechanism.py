@@ -1,0 +1,539 @@
+"""Closed-loop mechanisms: kinematic tree + loop closures + actuators + independent coordinates.
+
+A parallel robot is described, as in DESIGN.md ("Closed-loop mechanisms"), by
+
+* a pinocchio kinematic tree with **all** bodies and all joints, active and passive
+  (1-DOF joints only: a universal joint is two revolutes with the cardan ring between
+  them, a platform pose is a chain of six 1-DOF joints with massless intermediate bodies,
+  a spherical joint at a cut is the loop closure itself);
+* loop-closure constraints :math:`c(q) = 0` (:class:`LoopClosure`: point coincidence
+  ``"3d"`` = MJCF ``<connect>``, or frame coincidence ``"6d"`` = ``<weld>``);
+* the actuated joints;
+* the independent coordinates :math:`u` (:class:`JointCoordinates`: a subset of joints,
+  typically the actuated ones; or :class:`PointCoordinates`: components of the world
+  position of a point, e.g. the end-effector of a planar robot);
+* the parameters: inertial parameters of the bodies that have mass, and joint terms
+  (:class:`JointTerm`) for rotor inertia, friction (symmetric, asymmetric, shared
+  between joints) and offsets, on **any** joint, passive ones included.
+
+Kinematics (:mod:`dynid.model.closed_loop` builds the dynamics on top): with the
+constraint Jacobian :math:`J_c` (redundant rows allowed) and the Jacobian :math:`J_u` of
+the independent coordinates,
+
+.. math::
+
+    \\begin{bmatrix} J_c \\\\ J_u \\end{bmatrix} \\dot q = \\begin{bmatrix} 0 \\\\ \\dot u \\end{bmatrix},
+    \\qquad
+    \\begin{bmatrix} J_c \\\\ J_u \\end{bmatrix} \\ddot q =
+    \\begin{bmatrix} -\\dot J_c \\dot q \\\\ \\ddot u - \\dot J_u \\dot q \\end{bmatrix},
+
+so :math:`\\dot q = G(q)\\,\\dot u` with :math:`J_c G = 0`, :math:`J_u G = I`. Redundant
+constraint rows (a planar loop closed by a 3-D point constraint has an identically zero
+``z`` row) are removed once, by a pivoted QR of :math:`J_c` at the assembled reference
+configuration, so that the stacked matrix is square and solved per sample in batch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from types import MappingProxyType
+
+import numpy as np
+import pinocchio as pin
+import scipy.linalg as sla
+
+from dynid._typing import FloatArray
+from dynid.errors import InputError, ModelError
+from dynid.model.closures import (
+    TERM_KINDS,
+    Coordinates,
+    JointCoordinates,
+    JointTerm,
+    KinematicState,
+    LoopClosure,
+    PointCoordinates,
+)
+from dynid.model.robot import BODY_PARAMS, inertia_from_parameters
+
+__all__ = [
+    "TERM_KINDS",
+    "JointCoordinates",
+    "JointTerm",
+    "LoopClosure",
+    "Mechanism",
+    "PointCoordinates",
+    "KinematicState",
+]
+
+_NONNEG_KINDS = ("inertia", "viscous", "coulomb", "viscous+", "viscous-", "coulomb+")
+
+
+def _skew(p: FloatArray) -> FloatArray:
+    return np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Mechanism:
+    """A closed-loop mechanism (see module docstring).
+
+    Parameters
+    ----------
+    pin_model : pinocchio.Model
+        Kinematic tree with all bodies and joints (1-DOF joints); copied.
+    closures : sequence of LoopClosure
+    actuated : sequence of int
+        Velocity indices (0-based) of the actuated joints, in actuator order.
+    independent : JointCoordinates or PointCoordinates, optional
+        Independent coordinates; default: the actuated joints (non-redundant actuation only).
+    terms : sequence of JointTerm
+        Joint terms (friction, rotor inertia, offsets) in parameter order.
+    massless : sequence of int
+        pinocchio joint indices whose bodies carry no parameters (virtual bodies, e.g. the
+        intermediate links of a 6-joint platform chain). Their inertias must be zero.
+    nominal_terms : mapping of str to float
+        Nominal values of the joint terms (missing ones are 0).
+    q_guess : array, shape (n_v,), optional
+        A configuration near an assembly of the loops (default: the neutral one). The
+        reference configuration ``q_ref`` is the assembly closest to it.
+    name, source : str
+    notes : sequence of str
+        Modelling choices a user should know (shown by ``dynid info``).
+    """
+
+    pin_model: pin.Model
+    closures: tuple[LoopClosure, ...]
+    actuated: tuple[int, ...]
+    independent: Coordinates | None = None
+    terms: tuple[JointTerm, ...] = ()
+    massless: tuple[int, ...] = ()
+    nominal_terms: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    q_guess: FloatArray | None = None
+    name: str = "mechanism"
+    source: str = ""
+    notes: tuple[str, ...] = ()
+
+    # derived
+    bodies: tuple[int, ...] = dataclasses.field(init=False)
+    parameter_names: tuple[str, ...] = dataclasses.field(init=False)
+    q_ref: FloatArray = dataclasses.field(init=False)
+    constraint_rows: np.ndarray = dataclasses.field(init=False)
+    mobility: int = dataclasses.field(init=False)
+
+    def __post_init__(self) -> None:
+        m = pin.Model(self.pin_model)
+        # rotor inertia is a joint term ("inertia"), never hidden in the tree: pinocchio's RNEA
+        # would add model.armature, its regressor would not
+        if np.any(np.asarray(m.armature) != 0.0):
+            raise ModelError(
+                f"mechanism {self.name!r}: the pinocchio model has a non-zero armature; "
+                "give rotor inertias as 'inertia' joint terms (loaders convert them)"
+            )
+        set_ = object.__setattr__
+        set_(self, "pin_model", m)
+        for j in range(1, m.njoints):
+            if m.joints[j].nv != 1 or m.joints[j].nq != 1:
+                raise ModelError(
+                    f"joint {m.names[j]!r} ({m.joints[j].shortname()}) is not a 1-DOF joint; "
+                    "model multi-DOF joints as chains of revolute/prismatic joints (a spherical joint at a cut is a '3d' closure)"
+                )
+        set_(self, "closures", tuple(self.closures))
+        set_(self, "actuated", tuple(int(a) for a in self.actuated))
+        set_(self, "terms", tuple(self.terms))
+        set_(self, "massless", tuple(sorted(int(j) for j in self.massless)))
+        set_(self, "notes", tuple(self.notes))
+        set_(self, "nominal_terms", MappingProxyType(dict(self.nominal_terms)))
+        nv = m.nv
+        if not self.closures:
+            raise ModelError(f"mechanism {self.name!r} has no loop closure; a robot without closures is a serial RobotModel")
+        names = [c.name for c in self.closures]
+        for c in self.closures:
+            for side, j in (("a", c.joint_a), ("b", c.joint_b)):
+                if not 0 <= j < m.njoints:
+                    raise ModelError(f"loop closure {c.name!r}: joint_{side} index {j} does not exist (model has {m.njoints - 1} joints)")
+            if c.joint_a == c.joint_b:
+                raise ModelError(f"loop closure {c.name!r} connects joint {m.names[c.joint_a]!r} to itself")
+        if len(set(names)) != len(names):
+            raise ModelError(f"duplicate loop-closure names in {names}")
+        if not self.actuated:
+            raise ModelError(f"mechanism {self.name!r} has no actuated joint")
+        bad = [a for a in self.actuated if not 0 <= a < nv]
+        if bad or len(set(self.actuated)) != len(self.actuated):
+            raise ModelError(f"actuated joints {list(self.actuated)} must be distinct velocity indices in [0, {nv})")
+        for t in self.terms:
+            badj = [j for j in t.joints if not 0 <= j < nv]
+            if badj:
+                raise ModelError(f"joint term {t.name!r} refers to joints {badj} outside [0, {nv})")
+        tnames = [t.name for t in self.terms]
+        if len(set(tnames)) != len(tnames):
+            raise ModelError("duplicate joint-term names")
+        unknown = sorted(set(self.nominal_terms) - set(tnames))
+        if unknown:
+            raise ModelError(f"nominal values given for unknown joint terms {unknown}")
+        for j in self.massless:
+            if not 1 <= j < m.njoints:
+                raise ModelError(f"massless body index {j} does not exist")
+            if np.any(np.abs(m.inertias[j].toDynamicParameters()) > 0.0):
+                raise ModelError(f"body of joint {m.names[j]!r} is declared massless but has non-zero inertia")
+        bodies = tuple(j for j in range(1, m.njoints) if j not in self.massless)
+        set_(self, "bodies", bodies)
+        pnames = [f"{p}_{m.names[j]}" for j in bodies for p in BODY_PARAMS] + tnames
+        set_(self, "parameter_names", tuple(pnames))
+        indep = self.independent if self.independent is not None else JointCoordinates(self.actuated)
+        if isinstance(indep, JointCoordinates):
+            badj = [j for j in indep.joints if not 0 <= j < nv]
+            if badj:
+                raise ModelError(f"independent joint coordinates {badj} outside [0, {nv})")
+        elif not 0 <= indep.joint < m.njoints:
+            raise ModelError(f"independent point attached to joint index {indep.joint}, which does not exist")
+        set_(self, "independent", indep)
+        self._check_topology()
+
+    # ------------------------------------------------------------------ set-up checks
+    def _check_topology(self) -> None:
+        """Assemble the loops, find independent constraint rows and check the mobility."""
+        m = self.pin_model
+        nv = m.nv
+        data = m.createData()
+        q0 = pin.neutral(m) if self.q_guess is None else np.asarray(self.q_guess, dtype=float)
+        if q0.shape != (nv,):
+            raise ModelError(f"q_guess must have shape ({nv},), got {q0.shape}")
+        q = self._assemble(q0, data)
+        object.__setattr__(self, "q_ref", q)
+        object.__setattr__(self, "constraint_rows", np.arange(sum(c.rows for c in self.closures)))
+        Jc = self._constraint_jacobian(q, data)
+        scale = max(np.abs(Jc).max(), 1e-300)
+        _, r, piv = sla.qr(Jc.T / scale, mode="economic", pivoting=True)
+        d = np.abs(np.diag(r)) if r.size else np.zeros(0)
+        rank = int(np.count_nonzero(d > 1e-9 * (d[0] if d.size else 1.0)))
+        rows = np.sort(piv[:rank])
+        object.__setattr__(self, "constraint_rows", rows)
+        mob = nv - rank
+        object.__setattr__(self, "mobility", mob)
+        if mob <= 0:
+            raise ModelError(f"mechanism {self.name!r} cannot move: the loop closures remove all {nv} degrees of freedom")
+        n_u = self.independent.size
+        if len(self.actuated) < mob:
+            raise ModelError(
+                f"actuated joints {self.actuated_names} are fewer than the mobility {mob}: the mechanism is under-actuated"
+            )
+        if n_u != mob:
+            raise ModelError(
+                f"mechanism {self.name!r} has mobility {mob} (n_v {nv} - {rank} independent constraint rows) "
+                f"but {n_u} independent coordinates were given"
+            )
+        Sa = np.zeros((len(self.actuated), nv))
+        Sa[np.arange(len(self.actuated)), list(self.actuated)] = 1.0
+        ra = np.linalg.matrix_rank(np.vstack([Jc[rows], Sa]), tol=1e-9 * max(1.0, np.abs(Jc).max()))
+        if ra < nv:
+            raise ModelError(
+                f"actuated joints {self.actuated_names} do not determine the motion: "
+                f"{nv - ra} degree(s) of freedom stay free at the reference configuration (mobility {mob})"
+            )
+        A = np.vstack([Jc[rows], self._coordinate_jacobian(q, data)])
+        cond = np.linalg.cond(A)
+        if not np.isfinite(cond) or cond > 1e10:
+            raise ModelError(
+                f"the independent coordinates do not determine the motion at the reference configuration "
+                f"(condition number of [J_c; J_u] = {cond:.3g})"
+            )
+
+    def _assemble(self, q0: FloatArray, data: pin.Data, tol: float = 1e-12, max_iter: int = 100) -> FloatArray:
+        """Closest assembly to ``q0``: Gauss–Newton on c(q) = 0 with minimum-norm steps."""
+        q = q0.copy()
+        for _ in range(max_iter):
+            c = self._constraint_residual(q, data)
+            if np.linalg.norm(c, np.inf) < tol:
+                return q
+            J = self._constraint_jacobian(q, data, exact=True)
+            step = np.linalg.lstsq(J, -c, rcond=1e-10)[0]
+            q = q + step
+        c = self._constraint_residual(q, data)
+        raise ModelError(
+            f"cannot assemble the loops of {self.name!r} near the given configuration "
+            f"(constraint residual {np.linalg.norm(c, np.inf):.3g} after {max_iter} iterations)"
+        )
+
+    # ------------------------------------------------------------------ sizes and names
+    @property
+    def nv(self) -> int:
+        return int(self.pin_model.nv)
+
+    @property
+    def dof(self) -> int:
+        """Degrees of freedom (mobility) of the closed mechanism."""
+        return int(self.mobility)
+
+    @property
+    def n_actuators(self) -> int:
+        return len(self.actuated)
+
+    @property
+    def redundant(self) -> bool:
+        """True when there are more actuators than degrees of freedom (actuation redundancy)."""
+        return self.n_actuators > self.dof
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(self.pin_model.names[1:])
+
+    @property
+    def actuated_names(self) -> list[str]:
+        return [self.pin_model.names[a + 1] for a in self.actuated]
+
+    @property
+    def n_standard_params(self) -> int:
+        return len(self.parameter_names)
+
+    @property
+    def n_body_params(self) -> int:
+        return 10 * len(self.bodies)
+
+    def term_index(self, name: str) -> int:
+        for k, t in enumerate(self.terms):
+            if t.name == name:
+                return self.n_body_params + k
+        raise ModelError(f"no joint term named {name!r}")
+
+    def position_limits(self) -> tuple[FloatArray, FloatArray]:
+        lo = np.array(self.pin_model.lowerPositionLimit, dtype=float)
+        hi = np.array(self.pin_model.upperPositionLimit, dtype=float)
+        bad = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi <= lo) | (np.abs(lo) > 1e6) | (np.abs(hi) > 1e6)
+        lo[bad], hi[bad] = -np.inf, np.inf
+        return lo, hi
+
+    def actuator_selection(self) -> FloatArray:
+        """:math:`S_a`, shape (n_a, n_v): ``q_a = S_a q``."""
+        Sa = np.zeros((self.n_actuators, self.nv))
+        Sa[np.arange(self.n_actuators), list(self.actuated)] = 1.0
+        return Sa
+
+    # ------------------------------------------------------------------ parameters
+    def nominal_parameters(self) -> FloatArray:
+        """Standard parameters of the model's own inertias and the nominal joint terms."""
+        m = self.pin_model
+        pi = np.zeros(self.n_standard_params)
+        for k, j in enumerate(self.bodies):
+            pi[10 * k : 10 * k + 10] = m.inertias[j].toDynamicParameters()
+        for k, t in enumerate(self.terms):
+            pi[self.n_body_params + k] = float(self.nominal_terms.get(t.name, 0.0))
+        return pi
+
+    def body_blocks(self) -> tuple[np.ndarray, ...]:
+        return tuple(np.arange(10 * k, 10 * k + 10) for k in range(len(self.bodies)))
+
+    def nonnegative_parameters(self) -> np.ndarray:
+        """Indices of joint terms that are non-negative physically (``coulomb-`` is not)."""
+        nb = self.n_body_params
+        return np.array([nb + k for k, t in enumerate(self.terms) if t.kind in _NONNEG_KINDS], dtype=int)
+
+    def with_parameters(self, params: FloatArray) -> pin.Model:
+        """A pinocchio tree whose body inertias come from ``params`` (joint terms are not in it)."""
+        params = np.asarray(params, dtype=float)
+        if params.shape != (self.n_standard_params,):
+            raise ModelError(f"expected {self.n_standard_params} standard parameters, got shape {params.shape}")
+        m = pin.Model(self.pin_model)
+        for k, j in enumerate(self.bodies):
+            m.inertias[j] = inertia_from_parameters(params[10 * k : 10 * k + 10])
+        return m
+
+    # ------------------------------------------------------------------ constraints (one sample)
+    def _points(self, data: pin.Data, joint: int, placement: pin.SE3) -> pin.SE3:
+        return data.oMi[joint] * placement
+
+    def _point_jacobian(self, data: pin.Data, joint: int, p: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """World linear Jacobian of the body point at world position ``p``, and angular Jacobian."""
+        nv = self.pin_model.nv
+        if joint == 0:
+            return np.zeros((3, nv)), np.zeros((3, nv))
+        J = pin.getJointJacobian(self.pin_model, data, joint, pin.ReferenceFrame.WORLD)
+        jl, ja = J[:3], J[3:]
+        return jl - _skew(p) @ ja, ja
+
+    def _constraint_residual(self, q: FloatArray, data: pin.Data) -> FloatArray:
+        pin.forwardKinematics(self.pin_model, data, q)
+        out = []
+        for c in self.closures:
+            Ma = self._points(data, c.joint_a, c.placement_a)
+            Mb = self._points(data, c.joint_b, c.placement_b)
+            out.append(Mb.translation - Ma.translation)
+            if c.kind == "6d":  # relative rotation vector, in world axes (matches the velocity rows)
+                out.append(Ma.rotation @ pin.log3(Ma.rotation.T @ Mb.rotation))
+        return np.concatenate(out)
+
+    def _constraint_jacobian(self, q: FloatArray, data: pin.Data, exact: bool = False) -> FloatArray:
+        """:math:`J_c` (all rows). ``exact``: rotation rows are :math:`\\partial\\log_3/\\partial q`
+        (for Newton); otherwise the relative angular velocity in the world frame (same null space)."""
+        m = self.pin_model
+        pin.computeJointJacobians(m, data, q)
+        rows = []
+        for c in self.closures:
+            Ma = self._points(data, c.joint_a, c.placement_a)
+            Mb = self._points(data, c.joint_b, c.placement_b)
+            la, aa = self._point_jacobian(data, c.joint_a, Ma.translation)
+            lb, ab = self._point_jacobian(data, c.joint_b, Mb.translation)
+            rows.append(lb - la)
+            if c.kind == "6d":
+                if exact:  # d/dt of Ra log3(Ra^T Rb), Ra held constant (exact at the solution)
+                    Rrel = Ma.rotation.T @ Mb.rotation
+                    rows.append(Ma.rotation @ pin.Jlog3(Rrel) @ Mb.rotation.T @ (ab - aa))
+                else:
+                    rows.append(ab - aa)
+        return np.vstack(rows)
+
+    def _coordinate_values(self, q: FloatArray, data: pin.Data) -> FloatArray:
+        ind = self.independent
+        if isinstance(ind, JointCoordinates):
+            return q[list(ind.joints)]
+        pin.forwardKinematics(self.pin_model, data, q)
+        p = self._points(data, ind.joint, ind.placement).translation
+        return p[list(ind.axes)]
+
+    def _coordinate_jacobian(self, q: FloatArray, data: pin.Data) -> FloatArray:
+        ind = self.independent
+        nv = self.pin_model.nv
+        if isinstance(ind, JointCoordinates):
+            J = np.zeros((ind.size, nv))
+            J[np.arange(ind.size), list(ind.joints)] = 1.0
+            return J
+        pin.computeJointJacobians(self.pin_model, data, q)
+        p = self._points(data, ind.joint, ind.placement).translation
+        return self._point_jacobian(data, ind.joint, p)[0][list(ind.axes)]
+
+    # ------------------------------------------------------------------ public kinematics
+    def constraint_residual(self, q: FloatArray) -> FloatArray:
+        """:math:`c(q)` stacked over closures: point gaps [m] and, for ``6d``, the relative
+        rotation vector :math:`R_a\\log_3(R_a^T R_b)` in world axes [rad].
+        Shape ``(n_c,)`` or ``(n, n_c)``."""
+        q = np.asarray(q, dtype=float)
+        data = self.pin_model.createData()
+        if q.ndim == 1:
+            return self._constraint_residual(self._check_q(q[None])[0], data)
+        return np.array([self._constraint_residual(qi, data) for qi in self._check_q(q)])
+
+    def constraint_jacobian(self, q: FloatArray) -> FloatArray:
+        """:math:`J_c(q)` with all (possibly redundant) rows, shape ``(n_c, n_v)``."""
+        q = self._check_q(np.atleast_2d(np.asarray(q, dtype=float)))[0]
+        return self._constraint_jacobian(q, self.pin_model.createData())
+
+    def coordinates(self, q: FloatArray) -> FloatArray:
+        """Independent coordinates :math:`u(q)`, shape ``(n, n_u)``."""
+        q = self._check_q(np.atleast_2d(np.asarray(q, dtype=float)))
+        data = self.pin_model.createData()
+        return np.array([self._coordinate_values(qi, data) for qi in q])
+
+    def _check_q(self, q: FloatArray, name: str = "q") -> FloatArray:
+        if q.ndim != 2 or q.shape[1] != self.nv:
+            raise InputError(f"{name} must have shape (n, {self.nv}), got {q.shape}")
+        if not np.all(np.isfinite(q)):
+            raise InputError(f"{name} contains NaN or infinite values")
+        return q
+
+    def solve_positions(
+        self,
+        u: FloatArray,
+        *,
+        q0: FloatArray | None = None,
+        tol: float = 1e-12,
+        max_iter: int = 30,
+        max_cond: float = 1e8,
+    ) -> FloatArray:
+        """Numeric forward kinematics: all joint positions from independent coordinates.
+
+        Newton's method on :math:`[c(q); u(q) - u^*] = 0` (independent constraint rows),
+        warm-started from the previous sample (the first from ``q0``, default ``q_ref``).
+
+        Parameters
+        ----------
+        u : array, shape (n, n_u)
+        q0 : array, shape (n_v,) or (n, n_v), optional
+            Initial guess(es); a 2-D array gives one guess per sample (e.g. a closed-form
+            inverse kinematics), which is then only refined.
+        tol : float
+            Convergence threshold on the infinity norm of the residual [m, rad];
+            1e-12 is far below any encoder resolution.
+        max_cond : float
+            Largest accepted condition number of :math:`[J_c; J_u]`.
+
+        Raises
+        ------
+        ModelError
+            When Newton does not converge (unreachable pose: the message gives the residual
+            and the condition number) or the configuration is singular.
+        """
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        n_u = self.independent.size
+        if u.ndim != 2 or u.shape[1] != n_u:
+            raise InputError(f"independent coordinates must have shape (n, {n_u}), got {u.shape}")
+        if not np.all(np.isfinite(u)):
+            raise InputError("independent coordinates contain NaN or infinite values")
+        n = u.shape[0]
+        per_sample = q0 is not None and np.ndim(q0) == 2
+        if per_sample and np.shape(q0) != (n, self.nv):
+            raise InputError(f"q0 must have shape ({n}, {self.nv}), got {np.shape(q0)}")
+        guess = self.q_ref if q0 is None else np.asarray(q0, dtype=float)
+        data = self.pin_model.createData()
+        rows = self.constraint_rows
+        out = np.empty((n, self.nv))
+        q = (guess[0] if per_sample else guess).copy()
+        for i in range(n):
+            if per_sample:
+                q = guess[i].copy()
+            for it in range(max_iter + 1):
+                F = np.concatenate([self._constraint_residual(q, data)[rows], self._coordinate_values(q, data) - u[i]])
+                if np.linalg.norm(F, np.inf) < tol:
+                    break
+                A = np.vstack([self._constraint_jacobian(q, data, exact=True)[rows], self._coordinate_jacobian(q, data)])
+                cond = np.linalg.cond(A)
+                if not np.isfinite(cond) or cond > max_cond:
+                    raise ModelError(
+                        f"sample {i}: singular configuration while solving the loops "
+                        f"(condition number of [J_c; J_u] = {cond:.3g}, residual {np.linalg.norm(F, np.inf):.3g})"
+                    )
+                if it == max_iter:
+                    raise ModelError(
+                        f"sample {i}: pose u = {np.array2string(u[i], precision=4)} is unreachable or too far from "
+                        f"the initial guess (residual {np.linalg.norm(F, np.inf):.3g} after {max_iter} Newton steps, "
+                        f"condition number {cond:.3g})"
+                    )
+                q = q - np.linalg.solve(A, F)
+            out[i] = q
+        return out
+
+    def states(
+        self,
+        q: FloatArray,
+        du: FloatArray,
+        ddu: FloatArray,
+        *,
+        max_cond: float = 1e8,
+    ) -> KinematicState:
+        """Velocities and accelerations of all joints from those of the independent coordinates.
+
+        Parameters
+        ----------
+        q : array, shape (n, n_v)
+            Constraint-consistent positions (e.g. from :meth:`solve_positions`).
+        du, ddu : array, shape (n, n_u)
+        max_cond : float
+            Largest accepted condition number of :math:`[J_c; J_u]` (1-norm); beyond it
+            the configuration is reported as singular.
+
+        Returns
+        -------
+        KinematicState
+            With :math:`\\dot q = G\\dot u` and :math:`\\ddot q = G\\ddot u + \\ddot q_0`,
+            :math:`\\ddot q_0` solving :math:`J_c \\ddot q_0 = -\\dot J_c \\dot q`,
+            :math:`J_u \\ddot q_0 = -\\dot J_u \\dot q` (batched over samples, see
+            :mod:`dynid.model.loop_kinematics`).
+        """
+        from dynid.model.loop_kinematics import states
+
+        return states(self, q, du, ddu, max_cond=max_cond)
+
+    def kinematic_state(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, *, max_cond: float = 1e8) -> KinematicState:
+        """Wrap given joint positions, velocities and accelerations (e.g. from a constrained
+        simulation) with the velocity map :math:`G(q)`; nothing is recomputed but G."""
+        from dynid.model.loop_kinematics import kinematic_state
+
+        return kinematic_state(self, q, dq, ddq, max_cond=max_cond)

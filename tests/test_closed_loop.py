@@ -1,0 +1,199 @@
+"""Closed-loop dynamics checked by independent routes, for every built-in mechanism.
+
+(i)   pinocchio's constrained forward dynamics (KKT, no regressor) integrated under given
+      actuator forces: the regressor-based model reproduces those forces along the motion;
+(ii)  power of the actuator forces = d/dt(kinetic + potential energy) + friction dissipation,
+      the energies from pinocchio's energy functions and differentiated numerically;
+(iii) base regressor · base parameters == full regressor · full parameters.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from dynid.model.closed_loop import (
+    actuator_forces,
+    actuator_regressor,
+    mechanism_base_parameters,
+    random_consistent_states,
+    term_columns,
+)
+from dynid.model.mechanism import JointCoordinates
+from dynid.model.robots import MECHANISMS, build_mechanism
+from dynid.simulation.closed_loop import ConstrainedSimulator
+
+NAMES = sorted(MECHANISMS)
+_CACHE: dict[str, object] = {}
+
+
+def mechanism(name):
+    if name not in _CACHE:
+        _CACHE[name] = build_mechanism(name)
+    return _CACHE[name]
+
+
+def _distributions(mech):
+    return ["projected", "min_norm", "min_norm_local_friction"] if mech.redundant else [None]
+
+
+def _amplitudes(mech):
+    """Motion amplitude per independent coordinate: 2 cm for lengths, 0.1 rad for angles."""
+    ind = mech.independent
+    if isinstance(ind, JointCoordinates):
+        return np.array([0.02 if "P" in mech.pin_model.joints[j + 1].shortname() else 0.1 for j in ind.joints])
+    return np.full(ind.size, 0.02)
+
+
+def smooth_motion(mech, t):
+    """u(t) = u_ref + A sin(w t + phase): analytic positions, velocities, accelerations."""
+    u_ref = mech.coordinates(mech.q_ref)[0]
+    k = np.arange(u_ref.size)
+    amp, w, ph = _amplitudes(mech), 2.0 + 1.3 * k, 0.7 * k
+    arg = np.outer(t, w) + ph
+    return u_ref + amp * np.sin(arg), amp * w * np.cos(arg), -amp * w**2 * np.sin(arg)
+
+
+def _test_params(mech, rng):
+    """Nominal parameters with the joint terms perturbed (so that no term is zero)."""
+    pi = mech.nominal_parameters()
+    nb = mech.n_body_params
+    theta = pi[nb:]
+    scale = np.where(theta != 0, np.abs(theta), 0.05)
+    signs = np.array([-1.0 if t.kind == "coulomb-" else 1.0 for t in mech.terms])
+    pi[nb:] = signs * scale * rng.uniform(0.5, 1.5, size=theta.size)
+    offsets = [nb + k for k, t in enumerate(mech.terms) if t.kind == "offset"]
+    pi[offsets] = 0.0  # an offset is not a physical force; it has no place in a power balance
+    return pi
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_constrained_forward_dynamics_reproduced_by_regressor(name):
+    """(i) forces -> pinocchio constraintDynamics -> motion -> regressor -> same forces."""
+    mech = mechanism(name)
+    rng = np.random.default_rng(1)
+    pi = _test_params(mech, rng)
+    dist = "projected" if mech.redundant else None
+    # force scale: the actuator forces of a unit acceleration of the independent coordinates
+    rest = mech.states(mech.q_ref[None], np.zeros((1, mech.dof)), np.ones((1, mech.dof)))
+    scale = np.abs(actuator_forces(mech, pi, rest, distribution="min_norm" if mech.redundant else None)).max()
+    hold = actuator_forces(mech, pi, mech.states(mech.q_ref[None], np.zeros((1, mech.dof)), np.zeros((1, mech.dof))),
+                           distribution="min_norm" if mech.redundant else None)[0]
+    phases = rng.uniform(0, 2 * np.pi, mech.n_actuators)
+    freqs = rng.uniform(2.0, 6.0, mech.n_actuators)
+
+    def tau_fn(t):
+        return hold + 3.0 * scale * np.sin(freqs * t + phases)
+
+    sim = ConstrainedSimulator(mech, pi, baumgarte=(100.0, 20.0))
+    motion = sim.simulate(mech.q_ref, np.zeros(mech.nv), tau_fn, duration=0.3, dt=1e-3)
+    assert np.abs(mech.constraint_residual(motion.q)).max() < 1e-6
+    u = mech.coordinates(motion.q)
+    assert np.ptp(u, axis=0).min() > 1e-3, "the test motion is too small to mean anything"
+    state = mech.kinematic_state(motion.q, motion.dq, motion.ddq)
+    reg = actuator_regressor(mech, state, distribution=dist)
+    predicted = reg.W @ pi
+    measured = reg.outputs(motion.tau_a)
+    rel = np.abs(predicted - measured).max() / np.abs(measured).max()
+    assert rel < 1e-6, rel
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if n == "shang2dof"])
+@pytest.mark.parametrize("dist", ["min_norm", "min_norm_local_friction"])
+def test_distributed_forces_drive_the_same_motion(name, dist):
+    """Redundant actuation: forces of a distribution model, applied to pinocchio's
+    constrained forward dynamics, produce the accelerations they were computed for."""
+    mech = mechanism(name)
+    rng = np.random.default_rng(2)
+    pi = _test_params(mech, rng)
+    t = np.linspace(0.0, 1.0, 25)
+    u, du, ddu = smooth_motion(mech, t)
+    q = mech.solve_positions(u)
+    state = mech.states(q, du, ddu)
+    tau = actuator_regressor(mech, state, distribution=dist).W @ pi
+    sim = ConstrainedSimulator(mech, pi)
+    ddq = np.array([sim.acceleration(q[i], state.dq[i], tau[i]) for i in range(t.size)])
+    rel = np.abs(ddq - state.ddq).max() / np.abs(state.ddq).max()
+    assert rel < 1e-6, rel
+    # and the two distributions differ (the internal force is a real modelling choice)
+    other = "min_norm" if dist != "min_norm" else "min_norm_local_friction"
+    assert np.abs(actuator_regressor(mech, state, distribution=other).W @ pi - tau).max() > 1e-3 * np.abs(tau).max()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_power_balance(name):
+    """(ii) actuator power = dE/dt + friction dissipation along a smooth closed-loop motion."""
+    mech = mechanism(name)
+    rng = np.random.default_rng(3)
+    pi = _test_params(mech, rng)
+    model = mech.with_parameters(pi)
+    data = model.createData()
+    nb = mech.n_body_params
+    theta = pi[nb:]
+    inertia = np.array([t.kind == "inertia" for t in mech.terms])
+    h = 1e-5
+    t0 = np.linspace(0.05, 0.9, 12)
+    tt = np.concatenate([t0 - h, t0, t0 + h])
+    u, du, ddu = smooth_motion(mech, tt)
+    q = mech.solve_positions(u)
+    state = mech.states(q, du, ddu)
+
+    def energy(i):
+        e = pin.computeKineticEnergy(model, data, state.q[i], state.dq[i]) + pin.computePotentialEnergy(model, data, state.q[i])
+        rotor = term_columns(mech, state.dq[i][None], state.dq[i][None])[0]  # inertia columns hold dq here
+        return e + 0.5 * float(np.einsum("ik,k,i->", rotor[:, inertia], theta[inertia], state.dq[i]))
+
+    E = np.array([energy(i) for i in range(tt.size)])
+    n = t0.size
+    dE = (E[2 * n :] - E[:n]) / (2 * h)
+    mid = slice(n, 2 * n)
+    F = term_columns(mech, state.dq[mid], state.ddq[mid])
+    dissipation = np.einsum("nik,k,ni->n", F[:, :, ~inertia], theta[~inertia], state.dq[mid])
+    for dist in _distributions(mech):
+        sub = type(state)(q=state.q[mid], dq=state.dq[mid], ddq=state.ddq[mid], G=state.G[mid], cond=state.cond[mid])
+        reg = actuator_regressor(mech, sub, distribution=dist)
+        y = reg.W @ pi
+        if dist == "projected":
+            power = np.einsum("nu,nu->n", y, du[mid])  # y = G_a^T tau_a, so u-dot . y = q_a-dot . tau_a
+        else:
+            power = np.einsum("na,na->n", y, state.dq[mid][:, list(mech.actuated)])
+        err = np.abs(power - dE - dissipation).max() / np.abs(power).max()
+        assert err < 1e-6, (dist, err)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_base_regressor_reproduces_full(name):
+    """(iii) on fresh constraint-consistent states and random parameters."""
+    mech = mechanism(name)
+    base = mechanism_base_parameters(mech)
+    rng = np.random.default_rng(4)
+    state = random_consistent_states(mech, 30, rng)
+    for dist in _distributions(mech):
+        W = actuator_regressor(mech, state, distribution=dist).W
+        for _ in range(3):
+            pi = rng.normal(size=mech.n_standard_params)
+            full = W @ pi
+            np.testing.assert_allclose(base.regressor(W) @ base.from_standard(pi), full, atol=1e-9 * np.abs(full).max())
+    # the base columns are independent on these fresh states
+    Wb = base.regressor(actuator_regressor(mech, state, distribution="projected" if mech.redundant else None).W)
+    assert np.linalg.matrix_rank(Wb.reshape(-1, base.n_base)) == base.n_base
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_velocity_and_acceleration_maps(name):
+    """J_c G = 0, J_u G = I, and accelerations equal finite differences of the velocities."""
+    mech = mechanism(name)
+    h = 1e-6
+    t0 = np.linspace(0.1, 0.8, 5)
+    tt = np.concatenate([t0 - h, t0, t0 + h])
+    u, du, ddu = smooth_motion(mech, tt)
+    state = mech.states(mech.solve_positions(u), du, ddu)
+    n = t0.size
+    for i in range(n, 2 * n):
+        Jc = mech.constraint_jacobian(state.q[i])
+        assert np.abs(Jc @ state.G[i]).max() < 1e-10
+        assert np.abs(Jc @ state.dq[i]).max() < 1e-10
+    fd = (state.dq[2 * n :] - state.dq[:n]) / (2 * h)
+    np.testing.assert_allclose(state.ddq[n : 2 * n], fd, atol=1e-5 * np.abs(fd).max())
+    np.testing.assert_allclose(mech.coordinates(state.q), u, atol=1e-10)
