@@ -57,32 +57,40 @@ DISTRIBUTIONS = ("projected", "min_norm", "min_norm_local_friction")
 Distribution = Literal["projected", "min_norm", "min_norm_local_friction"]
 
 
+def _basis(kind: str, v: FloatArray, a: FloatArray) -> FloatArray:
+    if kind == "inertia":
+        return a
+    if kind == "viscous":
+        return v
+    if kind == "coulomb":
+        return np.sign(v)
+    if kind == "viscous+":
+        return np.where(v > 0, v, 0.0)
+    if kind == "viscous-":
+        return np.where(v < 0, v, 0.0)
+    if kind == "coulomb+":
+        return (v > 0).astype(float)
+    if kind == "coulomb-":
+        return (v < 0).astype(float)
+    return np.ones_like(v)  # offset
+
+
 def term_columns(mech: Mechanism, dq: FloatArray, ddq: FloatArray) -> FloatArray:
-    """Joint-term columns :math:`F`, shape (n, n_v, n_terms) (see :class:`JointTerm`)."""
+    """Joint-term columns :math:`F`, shape (n, n_v, n_terms) (see :class:`JointTerm`).
+
+    Column ``k`` holds the basis function of term ``k`` on the rows of its joints; one
+    broadcast product per kind of term."""
     dq = np.atleast_2d(dq)
     ddq = np.atleast_2d(ddq)
     n, nv = dq.shape
-    F = np.zeros((n, nv, len(mech.terms)))
+    nt = len(mech.terms)
+    incidence = np.zeros((nv, nt))  # incidence[j, k] = 1 if term k acts on joint j
     for k, t in enumerate(mech.terms):
-        j = list(t.joints)
-        v, a = dq[:, j], ddq[:, j]
-        if t.kind == "inertia":
-            b = a
-        elif t.kind == "viscous":
-            b = v
-        elif t.kind == "coulomb":
-            b = np.sign(v)
-        elif t.kind == "viscous+":
-            b = np.where(v > 0, v, 0.0)
-        elif t.kind == "viscous-":
-            b = np.where(v < 0, v, 0.0)
-        elif t.kind == "coulomb+":
-            b = (v > 0).astype(float)
-        elif t.kind == "coulomb-":
-            b = (v < 0).astype(float)
-        else:  # offset
-            b = np.ones_like(v)
-        F[:, j, k] += b
+        incidence[list(t.joints), k] = 1.0
+    F = np.empty((n, nv, nt))
+    for kind in {t.kind for t in mech.terms}:
+        ks = [k for k, t in enumerate(mech.terms) if t.kind == kind]
+        F[:, :, ks] = _basis(kind, dq, ddq)[:, :, None] * incidence[None, :, ks]
     return F
 
 
@@ -113,7 +121,7 @@ def tree_regressor(mech: Mechanism, q: FloatArray, dq: FloatArray, ddq: FloatArr
     jtr = pin.computeJointTorqueRegressor
     all_bodies = len(mech.bodies) == model.njoints - 1
     cols = None if all_bodies else np.concatenate([np.arange(10 * (j - 1), 10 * j) for j in mech.bodies])
-    block = 256
+    block = 128
     for start in range(0, n, block):
         stop = min(start + block, n)
         Y = np.stack([jtr(model, data, qi, vi, ai) for qi, vi, ai in zip(q[start:stop], dq[start:stop], ddq[start:stop])])
@@ -162,6 +170,7 @@ def actuator_regressor(
     *,
     distribution: Distribution | None = None,
     data: pin.Data | None = None,
+    out: FloatArray | None = None,
 ) -> ActuatorRegression:
     """Actuator-space (or projected) regressor of a closed-loop mechanism.
 
@@ -172,10 +181,20 @@ def actuator_regressor(
         From :meth:`Mechanism.states`.
     distribution : {"projected", "min_norm", "min_norm_local_friction"}, optional
         Required for redundant actuation, ignored (must be None) otherwise.
+    data : pinocchio.Data, optional
+        Working memory to reuse across calls.
+    out : array, shape (n, n_out, n_params), optional
+        Preallocated output (overwritten), e.g. reused chunk after chunk of a long log.
 
     Returns
     -------
     ActuatorRegression
+
+    Notes
+    -----
+    The tree regressor is computed by pinocchio per sample and projected block by block
+    (128 samples), chain segment by chain segment on the supporting rows only
+    (see ``_chain_groups``).
     """
     redundant = mech.redundant
     if redundant and distribution is None:
@@ -205,23 +224,30 @@ def actuator_regressor(
     else:
         T, label = np.linalg.pinv(GaT), str(distribution)
     n_out = n_u if T is None else T.shape[1]
-    W = np.empty((n, n_out, mech.n_standard_params))
+    shape = (n, n_out, mech.n_standard_params)
+    if out is not None and (out.shape != shape or not out.flags.c_contiguous):
+        raise InputError(f"out must be a C-contiguous array of shape {shape}, got {out.shape}")
+    W = np.empty(shape) if out is None else out
     nb = mech.n_body_params
-    # body columns, block by block: pinocchio's tree regressor is projected at once (never
-    # stored for all samples; 24 joints x 240 columns would be 46 kB per sample)
     model = mech.pin_model
     data = model.createData() if data is None else data
     jtr = pin.computeJointTorqueRegressor
-    all_bodies = len(mech.bodies) == model.njoints - 1
-    cols = None if all_bodies else np.concatenate([np.arange(10 * (j - 1), 10 * j) for j in mech.bodies])
+    groups = _chain_groups(mech)
     q, dq, ddq = state.q, state.dq, state.ddq
-    block = 64
+    block = 128
+    Yb = np.empty((block, nv, 10 * (model.njoints - 1)))
+    Pb = np.empty((block, n_u, nb))
     for start in range(0, n, block):
         stop = min(start + block, n)
-        Y = np.stack([jtr(model, data, qi, vi, ai) for qi, vi, ai in zip(q[start:stop], dq[start:stop], ddq[start:stop])])
-        P = np.matmul(G[start:stop].transpose(0, 2, 1), Y)  # (b, n_u, 10 * n_joints)
-        if cols is not None:
-            P = P[:, :, cols]
+        m = stop - start
+        Y, P = Yb[:m], Pb[:m]
+        for k in range(m):
+            i = start + k
+            Y[k] = jtr(model, data, q[i], dq[i], ddq[i])
+        Gt = G[start:stop].transpose(0, 2, 1)
+        for rows, ycols, keep, wcols in groups:
+            prod = np.matmul(Gt[:, :, rows], Y[:, rows, ycols])
+            P[:, :, wcols] = prod if keep is None else prod[:, :, keep]
         W[start:stop, :, :nb] = P if T is None else np.matmul(T[start:stop], P)
     # joint-term columns
     F = term_columns(mech, dq, ddq)
@@ -235,6 +261,54 @@ def actuator_regressor(
     if local is not None:
         W[:, :, nb:] += local
     return ActuatorRegression(W=W, distribution=label, Ga=Ga, state=state)
+
+
+def _as_index(idx: np.ndarray):
+    """A slice when the indices are consecutive (a view instead of a copy)."""
+    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return slice(int(idx[0]), int(idx[0]) + idx.size)
+    return idx
+
+
+def _chain_groups(mech: Mechanism) -> list:
+    """Bodies grouped by serial chain segments, for the projection :math:`G^T Y`.
+
+    Body ``j``'s columns of the tree regressor are non-zero only on the rows of the joints
+    that support it. A segment of consecutive bodies, each the child of the previous one,
+    is projected at once on the rows supporting its last body (e.g. one strut of the
+    hexapod: 3 rows, 30 columns, instead of 24 rows). Returns tuples
+    ``(rows, tree columns, kept columns within the group or None, output columns)``.
+    """
+    cached = mech.__dict__.get("_chain_groups_cache")
+    if cached is not None:
+        return cached
+    model = mech.pin_model
+    out_index = {j: k for k, j in enumerate(mech.bodies)}
+    segments: list[list[int]] = []
+    for j in range(1, model.njoints):
+        if segments and model.parents[j] == segments[-1][-1]:
+            segments[-1].append(j)
+        else:
+            segments.append([j])
+    groups = []
+    for seg in segments:
+        rows = []
+        for a in model.supports[seg[-1]].tolist()[1:]:
+            rows.extend(range(model.joints[a].idx_v, model.joints[a].idx_v + model.joints[a].nv))
+        massive = [j for j in seg if j in out_index]
+        if not massive:
+            continue
+        tree_cols = np.arange(10 * (seg[0] - 1), 10 * seg[-1])
+        keep = np.concatenate([np.arange(10 * (j - seg[0]), 10 * (j - seg[0]) + 10) for j in massive])
+        wcols = np.concatenate([np.arange(10 * out_index[j], 10 * out_index[j] + 10) for j in massive])
+        groups.append((
+            _as_index(np.array(rows)),
+            _as_index(tree_cols),
+            None if keep.size == tree_cols.size else keep,
+            _as_index(wcols),
+        ))
+    object.__setattr__(mech, "_chain_groups_cache", groups)
+    return groups
 
 
 def actuator_forces(
