@@ -23,6 +23,7 @@ test: setup
 bench: setup
 	$(BIN)/python bench/regressor_throughput.py
 	$(BIN)/python bench/identify_scaling.py
+	$(BIN)/python bench/closed_loop_throughput.py
 
 clean:
 	rm -rf $(VENV) out build src/*.egg-info .pytest_cache
