@@ -273,6 +273,20 @@ for _mech in ("shang2dof", "rps3", "hexapod", "fivebar"):
 case("info_hexapod_text")(lambda d, logs: [["info", "builtin:hexapod"]])
 
 
+def _readme_mjcf(d: Path, name: str, old: str, new: str) -> str:
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text().split("## Parallel robots", 1)[1]
+    xml = re.search(r"```xml\n(.*?)```", text, re.S).group(1)
+    assert old in xml
+    (d / name).write_text(xml.replace(old, new))
+    return name
+
+
+case("info_mechanism_bad_closure_body")(
+    lambda d, logs: [["info", _readme_mjcf(d, "bad.xml", 'body1="dist1"', 'body1="dist9"')]])
+case("info_mechanism_under_actuated")(
+    lambda d, logs: [["info", _readme_mjcf(d, "one_motor.xml", '<motor joint="qa2"/>', "")]])
+
+
 @case("demo")
 def _(d, logs):
     return [["demo", "--out", str(d / "out"), "-q"]]
@@ -389,6 +403,12 @@ def test_info_text_of_a_mechanism(runs):
     out = r.stdout
     assert "degrees of freedom: 6" in out and "actuators        : 6" in out
     assert re.search(r"base params      : \d+ \(\d+ rigid-body \+ 14 joint terms\)", out), out
+
+
+def test_info_mechanism_errors_are_one_line(runs):
+    assert_input_error(runs["info_mechanism_bad_closure_body"], "bad.xml", "any body named dist9")
+    assert_input_error(runs["info_mechanism_under_actuated"], "one_motor.xml",
+                       "actuated joints ['qa1'] are fewer than the mobility 2: the mechanism is under-actuated")
 
 
 def test_info_unknown_robot(runs):

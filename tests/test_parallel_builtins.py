@@ -136,3 +136,44 @@ def test_base_parameter_counts(rps, hexa):
         bp = mechanism_base_parameters(mech)
         assert bp.n_base == n_base
         assert int(np.sum(bp.independent < mech.n_body_params)) == n_rigid
+
+
+def test_hexapod_base_count_reduces_to_the_papers_10(hexa):
+    """The 88 rigid-body base parameters become 23 with identical struts and exactly the 10 of
+    paper 002's Table 1 when the bodies are also symmetric (only Table 1's 15 standard
+    parameters), as the module docstring explains."""
+    from dynid.model.closed_loop import actuator_regressor, random_consistent_states
+
+    state = random_consistent_states(hexa, 60, np.random.default_rng(11))
+    W = actuator_regressor(hexa, state).W[:, :, : hexa.n_body_params].reshape(-1, hexa.n_body_params)
+    # bodies in order: 6 x (ring, stator, slider), then the platform
+    assert len(hexa.bodies) == 19
+
+    def tied(selection: dict[str, list[str]]) -> np.ndarray:
+        """Map shared parameters (per body type) to the 190 standard body parameters."""
+        names = ["m", "mx", "my", "mz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz"]
+        cols = []
+        for kind, params in selection.items():
+            bodies = [18] if kind == "platform" else [3 * j + ("ring", "stator", "slider").index(kind) for j in range(6)]
+            for p in params:
+                c = np.zeros(hexa.n_body_params)
+                for b in bodies:
+                    c[10 * b + names.index(p)] = 1.0
+                cols.append(c)
+        return np.array(cols).T
+
+    def rank(M: np.ndarray) -> int:
+        s = np.linalg.svd(M / np.linalg.norm(M, axis=0).clip(1e-300), compute_uv=False)
+        return int(np.sum(s > 1e-9 * s[0]))
+
+    every = ["m", "mx", "my", "mz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz"]
+    identical = tied({"ring": every, "stator": every, "slider": every, "platform": every})
+    assert rank(W @ identical) == 23
+    table1 = tied({
+        "ring": ["Ixx"],
+        "stator": ["Ixx", "Iyy", "Izz", "mz"],
+        "slider": ["m", "Ixx", "Iyy", "Izz", "mz"],
+        "platform": ["m", "mz", "Ixx", "Iyy", "Izz"],
+    })
+    assert table1.shape[1] == 15
+    assert rank(W @ table1) == 10
