@@ -40,31 +40,18 @@ Run: ``.venv/bin/python bench/regressor_throughput.py`` (``--quick`` for a smoke
 from __future__ import annotations
 
 import argparse
-import gc
 import sys
-import time
 
 import numpy as np
 import pinocchio as pin
 
-from _util import median, print_machine, table
+from _util import median, print_machine, table, timed
 
 from dynid.model import load_robot
 from dynid.model.base_parameters import random_states
 from dynid.model.regressor import regressor
 
 TARGET_PCT = 25.0
-
-
-def _timed(fn) -> float:
-    gc.collect()
-    gc.disable()
-    try:
-        t0 = time.perf_counter()
-        fn()
-        return time.perf_counter() - t0
-    finally:
-        gc.enable()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -120,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in range(args.repeats):
         order = names[r % len(names):] + names[: r % len(names)]
         for k in order:
-            times[k].append(_timed(variants[k]) / n * 1e6)
+            times[k].append(timed(variants[k]) / n * 1e6)
         print(f"  round {r + 1}/{args.repeats}: " + ", ".join(f"{k} {times[k][-1]:.2f}" for k in names) + " us/sample",
               flush=True)
 
