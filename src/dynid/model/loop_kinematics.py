@@ -28,7 +28,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.mechanism import JointCoordinates, KinematicState, Mechanism
 
-__all__ = ["kinematic_state", "states", "velocity_matrices"]
+__all__ = ["kinematic_state", "states"]
 
 
 class _Sides:
@@ -186,7 +186,7 @@ def _cross_m(p: FloatArray, M: FloatArray) -> FloatArray:
     return np.stack([py * mz - pz * my, pz * mx - px * mz, px * my - py * mx], axis=1)
 
 
-def velocity_matrices(mech: Mechanism, q: FloatArray, data: pin.Data | None = None) -> tuple[FloatArray, tuple]:
+def _velocity_rows(mech: Mechanism, q: FloatArray, data: pin.Data | None = None) -> tuple[FloatArray, tuple]:
     """Rows :math:`[J_c; J_u]` per sample, shape (n, n_v, n_v), and the geometry for reuse.
 
     For joint coordinates only the independent constraint rows are returned, shape
@@ -333,7 +333,7 @@ def states(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray, *, m
     G, cond = np.empty((n, mech.nv, n_u)), np.empty(n)
     for a in range(0, n, _BLOCK):
         b = min(a + _BLOCK, n)
-        rows, (J, p) = velocity_matrices(mech, q[a:b], data)
+        rows, (J, p) = _velocity_rows(mech, q[a:b], data)
         maps = _Maps(mech, rows, max_cond, offset=a)
         dq[a:b] = np.einsum("nij,nj->ni", maps.G, du[a:b])
         drift = _drift(mech, q[a:b], dq[a:b], J, p, data)
@@ -353,6 +353,6 @@ def kinematic_state(mech: Mechanism, q: FloatArray, dq: FloatArray, ddq: FloatAr
     G, cond = np.empty((n, mech.nv, mech.independent.size)), np.empty(n)
     for a in range(0, n, _BLOCK):
         b = min(a + _BLOCK, n)
-        maps = _Maps(mech, velocity_matrices(mech, q[a:b], data)[0], max_cond, offset=a)
+        maps = _Maps(mech, _velocity_rows(mech, q[a:b], data)[0], max_cond, offset=a)
         G[a:b], cond[a:b] = maps.G, maps.cond
     return KinematicState(q=q, dq=dq, ddq=ddq, G=G, cond=cond)

@@ -513,7 +513,8 @@ class Mechanism:
         Parameters
         ----------
         q : array, shape (n, n_v)
-            Constraint-consistent positions (e.g. from :meth:`solve_positions`).
+            Assembled positions, :math:`c(q) \\approx 0` (e.g. from :meth:`solve_positions`):
+            the Jacobian rows use the position of one side of each closure for both.
         du, ddu : array, shape (n, n_u)
         max_cond : float
             Largest accepted condition number of :math:`[J_c; J_u]` (1-norm); beyond it
@@ -533,7 +534,8 @@ class Mechanism:
 
     def kinematic_state(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, *, max_cond: float = 1e8) -> KinematicState:
         """Wrap given joint positions, velocities and accelerations (e.g. from a constrained
-        simulation) with the velocity map :math:`G(q)`; nothing is recomputed but G."""
+        simulation) with the velocity map :math:`G(q)`; nothing is recomputed but G.
+        ``q`` must be assembled (:math:`c(q) \\approx 0`), as for :meth:`states`."""
         from dynid.model.loop_kinematics import kinematic_state
 
         return kinematic_state(self, q, dq, ddq, max_cond=max_cond)
