@@ -78,3 +78,20 @@ def timed(fn) -> float:
         return time.perf_counter() - t0
     finally:
         gc.enable()
+
+
+def rounds(variants: dict, repeats: int, n: int) -> dict[str, list[float]]:
+    """Microseconds per sample of each variant over ``repeats`` rounds, after a warm-up.
+
+    Every round runs each variant once, in an order rotated from round to round so that none
+    always runs first or last; the per-round figures are printed as they come."""
+    names = list(variants)
+    for fn in variants.values():  # warm-up
+        fn()
+    times: dict[str, list[float]] = {k: [] for k in names}
+    for r in range(repeats):
+        for k in names[r % len(names):] + names[: r % len(names)]:
+            times[k].append(timed(variants[k]) / n * 1e6)
+        print(f"  round {r + 1}/{repeats}: " + ", ".join(f"{k} {times[k][-1]:.2f}" for k in names) + " us/sample",
+              flush=True)
+    return times

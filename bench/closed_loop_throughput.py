@@ -46,7 +46,7 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from _util import median, print_machine, table, timed
+from _util import median, print_machine, rounds, table
 
 from dynid.model import load_robot
 from dynid.model.base_parameters import random_states
@@ -113,15 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     variants = {"serial 6R": serial, "hexapod states": states, "hexapod regressor": full}
     names = list(variants)
     with threadpool_limits(1):
-        for fn in variants.values():
-            fn()
-        times: dict[str, list[float]] = {k: [] for k in names}
-        for r in range(args.repeats):
-            order = names[r % len(names):] + names[: r % len(names)]
-            for k in order:
-                times[k].append(timed(variants[k]) / n * 1e6)
-            print(f"  round {r + 1}/{args.repeats}: " + ", ".join(f"{k} {times[k][-1]:.2f}" for k in names)
-                  + " us/sample", flush=True)
+        times = rounds(variants, args.repeats, n)
         m = min(args.fk, n)
         u = mech.coordinates(q[:m])
         t0 = time.perf_counter()

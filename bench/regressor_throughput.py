@@ -45,7 +45,7 @@ import sys
 import numpy as np
 import pinocchio as pin
 
-from _util import median, print_machine, table, timed
+from _util import median, print_machine, rounds, table
 
 from dynid.model import load_robot
 from dynid.model.base_parameters import random_states
@@ -101,15 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         ref = jtr(model, data_pin, q[i], dq[i], ddq[i])
         assert np.array_equal(buf[i, :, : ref.shape[1]], ref) and np.array_equal(buf0[i], ref)
 
-    for fn in variants.values():  # warm-up
-        fn()
-    times: dict[str, list[float]] = {k: [] for k in names}
-    for r in range(args.repeats):
-        order = names[r % len(names):] + names[: r % len(names)]
-        for k in order:
-            times[k].append(timed(variants[k]) / n * 1e6)
-        print(f"  round {r + 1}/{args.repeats}: " + ", ".join(f"{k} {times[k][-1]:.2f}" for k in names) + " us/sample",
-              flush=True)
+    times = rounds(variants, args.repeats, n)
 
     base = times[names[0]]
     med_base = median(base)
