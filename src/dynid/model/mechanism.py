@@ -422,6 +422,34 @@ class Mechanism:
         data = self.pin_model.createData()
         return np.array([self._coordinate_values(qi, data) for qi in q])
 
+    def coordinate_velocities(self, q: FloatArray, dq: FloatArray) -> FloatArray:
+        """:math:`\\dot u = J_u(q)\\dot q`, shape ``(n, n_u)``."""
+        q = self._check_q(np.atleast_2d(np.asarray(q, dtype=float)))
+        dq = self._check_q(np.atleast_2d(np.asarray(dq, dtype=float)), "dq")
+        data = self.pin_model.createData()
+        return np.array([self._coordinate_jacobian(qi, data) @ vi for qi, vi in zip(q, dq)])
+
+    def project(self, q: FloatArray, dq: FloatArray | None = None, *, tol: float = 1e-12, max_iter: int = 10):
+        """The nearest assembled configuration (minimum-norm Gauss–Newton steps on the
+        independent constraint rows) and, if given, the velocity projected on the constraint
+        tangent space (:math:`\\dot q - J_c^+ J_c \\dot q`). Used to remove the drift of a
+        numerical integration; one sample, shapes ``(n_v,)``."""
+        q = np.array(q, dtype=float)
+        data = self.pin_model.createData()
+        rows = self.constraint_rows
+        for _ in range(max_iter):
+            c = self._constraint_residual(q, data)[rows]
+            if np.linalg.norm(c, np.inf) < tol:
+                break
+            q = q - np.linalg.lstsq(self._constraint_jacobian(q, data, exact=True)[rows], c, rcond=None)[0]
+        else:
+            raise ModelError(f"cannot project onto the loop closures (residual {np.linalg.norm(c, np.inf):.3g})")
+        if dq is None:
+            return q
+        J = self._constraint_jacobian(q, data)[rows]
+        dq = np.asarray(dq, dtype=float)
+        return q, dq - np.linalg.lstsq(J, J @ dq, rcond=None)[0]
+
     def _check_q(self, q: FloatArray, name: str = "q") -> FloatArray:
         if q.ndim != 2 or q.shape[1] != self.nv:
             raise InputError(f"{name} must have shape (n, {self.nv}), got {q.shape}")

@@ -20,7 +20,7 @@ from dynid.errors import InputError, ModelError
 from dynid.model.closed_loop import term_columns
 from dynid.model.mechanism import Mechanism
 
-__all__ = ["ConstrainedSimulator", "SimulatedMotion"]
+__all__ = ["AugmentedPD", "ConstrainedSimulator", "SimulatedMotion", "simulate_mechanism_control"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -48,9 +48,21 @@ class ConstrainedSimulator:
         (drift of the loop closures during integration).
     mu : float
         Proximal regularization of pinocchio's KKT solver (needed with redundant rows).
+    friction : callable, optional
+        Ground-truth friction ``friction(dq (n_v,)) -> generalized forces (n_v,)`` replacing
+        the joint terms' friction and offsets (rotor inertias stay), e.g. a Stribeck model of
+        :mod:`dynid.model.friction` on some joints.
     """
 
-    def __init__(self, mech: Mechanism, params: FloatArray, *, baumgarte: tuple[float, float] = (0.0, 0.0), mu: float = 1e-12) -> None:
+    def __init__(
+        self,
+        mech: Mechanism,
+        params: FloatArray,
+        *,
+        baumgarte: tuple[float, float] = (0.0, 0.0),
+        mu: float = 1e-12,
+        friction=None,
+    ) -> None:
         params = np.asarray(params, dtype=float)
         self.mech = mech
         self.params = params
@@ -83,9 +95,12 @@ class ConstrainedSimulator:
         pin.initConstraintDynamics(model, self.data, self.cmodels, self.cdatas)
         self.prox = pin.ProximalSettings(1e-14, mu, 100)
         self.Sa = mech.actuator_selection()
+        self.friction = friction
 
     def joint_forces(self, dq: FloatArray, tau_a: FloatArray) -> FloatArray:
         """Generalized forces on the tree: actuators minus the joint terms (rotor inertia excluded)."""
+        if self.friction is not None:
+            return self.Sa.T @ tau_a - np.asarray(self.friction(dq), dtype=float).reshape(-1)
         F = term_columns(self.mech, dq[None], np.zeros((1, dq.size)))[0]
         return self.Sa.T @ tau_a - F @ self._theta
 
@@ -126,3 +141,85 @@ class ConstrainedSimulator:
             q = q + dt / 6 * (k1q + 2 * k2q + 2 * k3q + k4q)
             v = v + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
         return SimulatedMotion(t=t, q=Q, dq=V, ddq=A, tau_a=T)
+
+
+class AugmentedPD:
+    """Model-based control of a mechanism in its independent coordinates.
+
+    :math:`\\tau_a = D\\,G^T\\big(Y(q,\\dot q,\\ddot q(a_u))\\hat\\pi\\big)` with
+    :math:`a_u = \\ddot u_d + K_v(\\dot u_d - \\dot u) + K_p(u_d - u)`: the closed-loop model
+    (:func:`~dynid.model.closed_loop.actuator_regressor`) evaluated at the commanded
+    acceleration and distributed to the actuators by ``distribution``. With
+    ``"min_norm_local_friction"`` this is the augmented PD of Shang et al. 2009 (Eq. 22:
+    :math:`\\tau = (S^T)^+(M_e(\\ddot x_d + K_v\\dot e + K_p e) + C_e\\dot x) + f_a`, paper gains
+    :math:`K_p = \\mathrm{diag}(35000)`, :math:`K_v = \\mathrm{diag}(300)`); for
+    non-redundant actuation the distribution is None (computed torque in ``u``).
+
+    Parameters
+    ----------
+    mech : Mechanism
+    params : array
+        Model parameters (nominal or identified standard parameters).
+    kp, kv : array, shape (n_u,)
+    distribution : str or None
+    """
+
+    def __init__(self, mech: Mechanism, params: FloatArray, kp: FloatArray, kv: FloatArray, distribution: str | None = None) -> None:
+        self.mech, self.params = mech, np.asarray(params, dtype=float)
+        self.kp, self.kv = np.asarray(kp, dtype=float), np.asarray(kv, dtype=float)
+        self.distribution = distribution
+
+    def __call__(self, dt: float, q: FloatArray, dq: FloatArray, ref: tuple[FloatArray, FloatArray, FloatArray]) -> FloatArray:
+        from dynid.model.closed_loop import actuator_regressor
+
+        u = self.mech.coordinates(q)[0]
+        du = self.mech.coordinate_velocities(q, dq)[0]
+        a = ref[2] + self.kv * (ref[1] - du) + self.kp * (ref[0] - u)
+        state = self.mech.states(q[None], du[None], a[None])
+        return actuator_regressor(self.mech, state, distribution=self.distribution).W[0] @ self.params
+
+
+def simulate_mechanism_control(
+    sim: ConstrainedSimulator,
+    controller,
+    reference,
+    *,
+    duration: float,
+    dt: float,
+    substeps: int = 4,
+    q0: FloatArray | None = None,
+) -> SimulatedMotion:
+    """Digital control of a mechanism with zero-order hold (see :func:`dynid.simulation.control.simulate_control`).
+
+    The controller ``(dt, q, dq, (u_d, du_d, ddu_d)) -> tau_a`` sees all joint positions and
+    velocities (true ones); ``reference(t)`` gives the independent coordinates. After every
+    control period the state is projected back on the loop closures
+    (:meth:`Mechanism.project`), so the constraint error stays at the 1e-12 level instead of
+    drifting. The initial state is the assembly at ``u_d(0)`` at rest unless ``q0`` is given.
+    """
+    mech = sim.mech
+    n = int(round(duration / dt)) + 1
+    t = np.arange(n) * dt
+    ur, dur, ddur = reference(t)
+    if ur.shape != (n, mech.dof):
+        raise InputError(f"the reference has {ur.shape[1]} coordinates, the mechanism {mech.dof} degrees of freedom")
+    q = mech.solve_positions(ur[:1])[0] if q0 is None else np.array(q0, dtype=float)
+    v = mech.states(q[None], dur[:1], ddur[:1]).dq[0]
+    nv, na = mech.nv, mech.n_actuators
+    Q, V, A, T = np.empty((n, nv)), np.empty((n, nv)), np.empty((n, nv)), np.empty((n, na))
+    h = dt / substeps
+    for k in range(n):
+        tau = np.asarray(controller(dt, q, v, (ur[k], dur[k], ddur[k])), dtype=float)
+        Q[k], V[k], T[k] = q, v, tau
+        A[k] = sim.acceleration(q, v, tau)
+        if k == n - 1:
+            break
+        for _ in range(substeps):
+            k1 = sim.acceleration(q, v, tau)
+            k2 = sim.acceleration(q + h / 2 * v, v + h / 2 * k1, tau)
+            k3 = sim.acceleration(q + h / 2 * (v + h / 2 * k1), v + h / 2 * k2, tau)
+            k4 = sim.acceleration(q + h * (v + h / 2 * k2), v + h * k3, tau)
+            q = q + h * v + h**2 / 6 * (k1 + k2 + k3)
+            v = v + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        q, v = mech.project(q, v)
+    return SimulatedMotion(t=t, q=Q, dq=V, ddq=A, tau_a=T)
