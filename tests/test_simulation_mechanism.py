@@ -12,6 +12,7 @@ from dynid.model.robots import build_mechanism, hexapod
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
 from dynid.simulation.paths import CirclePath
 from dynid.simulation.trajectories import FourierTrajectory
+from dynid.stats import tracking_errors
 
 
 @pytest.fixture(scope="module")
@@ -39,6 +40,10 @@ def test_augmented_pd_tracks_paper001_circle(shang):
     off = simulate_mechanism_control(sim, AugmentedPD(shang, wrong, *gains, "min_norm_local_friction"), path.sample,
                                      duration=path.duration, dt=0.002)
     assert np.abs(shang.coordinates(off.q) - u_ref).max() > 1.5 * err_true
+    # paper 001's metric (Eq. 23): the true model's P-RSME is the smaller
+    p_true = tracking_errors(u_ref, shang.coordinates(true.q))["p_rsme"]
+    p_off = tracking_errors(u_ref, shang.coordinates(off.q))["p_rsme"]
+    assert p_true < p_off
 
 
 def test_hexapod_computed_torque_with_stribeck_friction():

@@ -9,6 +9,7 @@ from dynid.simulation.paths import (
     Repeated,
     zyx_angular_velocity,
 )
+from dynid.simulation.sensors import Measurements, Sensors
 from dynid.simulation.trajectories import FourierTrajectory
 
 __all__ = [
@@ -16,8 +17,10 @@ __all__ = [
     "CirclePath",
     "FourierQuintic",
     "FourierTrajectory",
+    "Measurements",
     "PolylinePath",
     "Repeated",
+    "Sensors",
     "simulate_serial",
     "zyx_angular_velocity",
 ]
