@@ -64,3 +64,15 @@ def test_readme_python_example_runs(capsys):
     code = re.search(r"```python\n(.*?)```", _parallel_section(), re.S).group(1)
     exec(compile(code, "README.md", "exec"), {})
     assert capsys.readouterr().out.strip() == "25 projected (2, 2)"
+
+
+def test_readme_simulate_example_parses_and_matches_the_twin():
+    from dynid.config.simulate import load_simulate_config, parse_simulate_config
+
+    text = (REPO / "README.md").read_text().split("## Virtual experiments", 1)[1].split("\n## ", 1)[0]
+    block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
+    cfg = parse_simulate_config(tomllib.loads(block), REPO)
+    twin = load_simulate_config(REPO / "examples" / "twins" / "shang2dof_circle.toml")
+    assert cfg.trajectory == twin.trajectory and cfg.control == twin.control and cfg.robot == twin.robot
+    for section_name in ("[robot]", "[trajectory]", "[control]", "[sensors]", "[simulation]", "[output]"):
+        assert section_name in block

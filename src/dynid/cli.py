@@ -152,6 +152,22 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from dynid.config.simulate import load_simulate_config
+
+    _check_out(args.out)
+    cfg = load_simulate_config(args.config)  # config errors come before the heavy imports below
+    from dynid.pipeline.simulate import run_simulation, write_simulation
+
+    outcome = run_simulation(cfg)
+    written = write_simulation(outcome, args.out)
+    if not args.quiet:
+        print(outcome.summary_text())
+        print()
+    print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from dynid.pipeline.demo import run_demo
 
@@ -195,6 +211,12 @@ def build_parser() -> argparse.ArgumentParser:
     pid.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pid.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
     pid.set_defaults(func=_cmd_identify)
+
+    ps = sub.add_parser("simulate", help="run a virtual experiment as CONFIG.toml says; write the log and the truth")
+    ps.add_argument("config", help="TOML configuration (schema in the README, 'Virtual experiments')")
+    ps.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    ps.add_argument("-q", "--quiet", action="store_true", help="no summary")
+    ps.set_defaults(func=_cmd_simulate)
 
     pd = sub.add_parser("demo", help="simulate builtin:puma560, identify it and validate (needs nothing else)")
     pd.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

@@ -1,0 +1,246 @@
+"""The configuration of ``dynid simulate``: a strict, typed schema read from TOML.
+
+Sections (all keys optional unless said; unknown keys are errors naming the dotted key):
+
+``[robot]``
+    ``model`` (required): anything ``dynid info`` loads (serial or closed-loop);
+    ``perturbation``: relative standard deviation of a multiplicative perturbation of the
+    true parameters (body parameters and joint terms) away from the model's nominal values
+    (default 0: the truth is the nominal model); ``perturbation_seed``.
+``[trajectory]``
+    ``kind`` (required): ``"circle"`` (``centre``, ``radius``, ``speed``, ``turns``,
+    ``clockwise``, ``ramp``), ``"polyline"`` (``vertices``, ``speed``, ``ramp``) or
+    ``"fourier"`` (``base_frequency_hz``, ``harmonics``, ``fill``: fraction of the half range
+    of each coordinate, ``max_velocity``, ``max_acceleration``, ``periods``, ``quintic``:
+    rest-to-rest Fourier + quintic, ``seed``). Circles and polylines are paths of the
+    independent coordinates of a planar mechanism (its end-effector); Fourier series run
+    in the independent coordinates (the joints of a serial robot).
+``[control]``
+    ``kind``: ``"computed_torque"`` (default; for a mechanism the model-based control of
+    :class:`~dynid.simulation.closed_loop.AugmentedPD`) or, for serial robots, ``"pid"`` and
+    ``"feedforward_pid"``; ``rate_hz`` (default 1000); ``kp``, ``kd``, ``ki`` (numbers or
+    lists); ``model``: ``"nominal"`` (default) or ``"true"``; ``distribution`` for redundant
+    actuation (default ``"min_norm_local_friction"``, Shang 2009); ``substeps`` (RK4 steps
+    per period, default 4).
+``[sensors]``
+    ``log_rate_hz`` (default: the control rate, which it must divide), ``encoder_resolution``,
+    ``position_noise_std``, ``force_noise_std``, ``force_correlation`` (one correlation
+    coefficient between all actuators) or ``force_covariance`` (full matrix),
+    ``torque_constants`` (log currents), ``time_jitter_std``, ``seed``.
+``[simulation]``
+    ``duration`` [s] (default: the trajectory's).
+``[output]``
+    ``format``: ``"csv"`` (default) or ``"npz"``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from dynid.config import _bool, _int, _list, _num, _str, _table
+from dynid.errors import ConfigError, InputError
+
+__all__ = [
+    "ControlSimConfig",
+    "RobotSimConfig",
+    "SensorsConfig",
+    "SimulateConfig",
+    "TrajectoryConfig",
+    "load_simulate_config",
+    "parse_simulate_config",
+]
+
+_TRAJ_KEYS = {
+    "circle": {"centre", "radius", "speed", "turns", "clockwise", "ramp"},
+    "polyline": {"vertices", "speed", "ramp"},
+    "fourier": {"base_frequency_hz", "harmonics", "fill", "max_velocity", "max_acceleration", "periods", "quintic", "seed"},
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotSimConfig:
+    model: str
+    perturbation: float = 0.0
+    perturbation_seed: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class TrajectoryConfig:
+    kind: str
+    values: Mapping[str, Any]
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlSimConfig:
+    kind: str = "computed_torque"
+    rate_hz: float = 1000.0
+    kp: tuple[float, ...] | float = 400.0
+    kd: tuple[float, ...] | float = 40.0
+    ki: tuple[float, ...] | float = 0.0
+    model: str = "nominal"
+    distribution: str = "min_norm_local_friction"
+    substeps: int = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorsConfig:
+    log_rate_hz: float | None = None
+    encoder_resolution: tuple[float, ...] | float | None = None
+    position_noise_std: tuple[float, ...] | float = 0.0
+    force_noise_std: tuple[float, ...] | float = 0.0
+    force_correlation: float = 0.0
+    force_covariance: tuple[tuple[float, ...], ...] | None = None
+    torque_constants: tuple[float, ...] | None = None
+    time_jitter_std: float = 0.0
+    seed: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulateConfig:
+    robot: RobotSimConfig
+    trajectory: TrajectoryConfig
+    control: ControlSimConfig
+    sensors: SensorsConfig
+    duration: float | None
+    output_format: str
+    base_dir: Path
+    source: Path | None
+    raw: Mapping[str, Any]
+
+
+def _num_or_list(value: Any, where: str, positive: bool = False):
+    if isinstance(value, list):
+        return _list(value, where, lambda v, w: _num(v, w, positive))
+    return _num(value, where, positive)
+
+
+def _parse_trajectory(t: Any) -> TrajectoryConfig:
+    t = _table(t, "trajectory", {"kind"} | set().union(*_TRAJ_KEYS.values()), {"kind"})
+    kind = _str(t["kind"], "trajectory.kind", tuple(_TRAJ_KEYS))
+    extra = sorted(set(t) - {"kind"} - _TRAJ_KEYS[kind])
+    if extra:
+        raise ConfigError(f"trajectory: keys {extra} do not apply to kind {kind!r}; it takes {sorted(_TRAJ_KEYS[kind])}")
+    v: dict[str, Any] = {}
+    w = "trajectory"
+    if kind == "circle":
+        for k in ("centre", "radius", "speed"):
+            if k not in t:
+                raise ConfigError(f"trajectory: a circle needs {k!r}")
+        v["centre"] = _list(t["centre"], f"{w}.centre", _num, 2)
+        v["radius"] = _num(t["radius"], f"{w}.radius", True)
+        v["speed"] = _num(t["speed"], f"{w}.speed", True)
+        v["turns"] = _num(t.get("turns", 1.0), f"{w}.turns", True)
+        v["clockwise"] = _bool(t.get("clockwise", True), f"{w}.clockwise")
+        v["ramp"] = _num(t.get("ramp", 0.2), f"{w}.ramp", True)
+    elif kind == "polyline":
+        for k in ("vertices", "speed"):
+            if k not in t:
+                raise ConfigError(f"trajectory: a polyline needs {k!r}")
+        v["vertices"] = _list(t["vertices"], f"{w}.vertices", lambda x, ww: _list(x, ww, _num))
+        v["speed"] = _num(t["speed"], f"{w}.speed", True)
+        v["ramp"] = _num(t.get("ramp", 0.1), f"{w}.ramp", True)
+    else:
+        v["base_frequency_hz"] = _num(t.get("base_frequency_hz", 0.1), f"{w}.base_frequency_hz", True)
+        v["harmonics"] = _int(t.get("harmonics", 5), f"{w}.harmonics", 1)
+        v["fill"] = _num(t.get("fill", 0.5), f"{w}.fill", True)
+        v["max_velocity"] = _num_or_list(t.get("max_velocity", 1.0), f"{w}.max_velocity", True)
+        v["max_acceleration"] = _num_or_list(t.get("max_acceleration", 5.0), f"{w}.max_acceleration", True)
+        v["periods"] = _int(t.get("periods", 1), f"{w}.periods", 1)
+        v["quintic"] = _bool(t.get("quintic", False), f"{w}.quintic")
+        v["seed"] = _int(t.get("seed", 0), f"{w}.seed", 0)
+        if v["fill"] > 1:
+            raise ConfigError(f"trajectory.fill must be in (0, 1], got {v['fill']}")
+        if v["quintic"] and v["periods"] != 1:
+            raise ConfigError("trajectory: a rest-to-rest (quintic) Fourier trajectory has one period")
+    return TrajectoryConfig(kind, v)
+
+
+def _parse_control(t: Any) -> ControlSimConfig:
+    t = _table(t, "control", {"kind", "rate_hz", "kp", "kd", "ki", "model", "distribution", "substeps"})
+    c = ControlSimConfig(
+        kind=_str(t.get("kind", "computed_torque"), "control.kind", ("computed_torque", "pid", "feedforward_pid")),
+        rate_hz=_num(t.get("rate_hz", 1000.0), "control.rate_hz", True),
+        kp=_num_or_list(t.get("kp", 400.0), "control.kp"),
+        kd=_num_or_list(t.get("kd", 40.0), "control.kd"),
+        ki=_num_or_list(t.get("ki", 0.0), "control.ki"),
+        model=_str(t.get("model", "nominal"), "control.model", ("nominal", "true")),
+        distribution=_str(t.get("distribution", "min_norm_local_friction"), "control.distribution",
+                          ("min_norm", "min_norm_local_friction")),
+        substeps=_int(t.get("substeps", 4), "control.substeps", 1),
+    )
+    if "ki" in t and c.kind == "computed_torque":
+        raise ConfigError("control.ki applies to kind 'pid' or 'feedforward_pid', not 'computed_torque'")
+    return c
+
+
+def _parse_sensors(t: Any) -> SensorsConfig:
+    keys = {f.name for f in dataclasses.fields(SensorsConfig)}
+    t = _table(t, "sensors", keys)
+    cov = None
+    if "force_covariance" in t:
+        if "force_noise_std" in t or "force_correlation" in t:
+            raise ConfigError("sensors: give force_covariance or force_noise_std/force_correlation, not both")
+        cov = _list(t["force_covariance"], "sensors.force_covariance", lambda x, w: _list(x, w, _num))
+    corr = _num(t.get("force_correlation", 0.0), "sensors.force_correlation")
+    if not -1 < corr < 1:
+        raise ConfigError(f"sensors.force_correlation must be in (-1, 1), got {corr}")
+    return SensorsConfig(
+        log_rate_hz=_num(t["log_rate_hz"], "sensors.log_rate_hz", True) if "log_rate_hz" in t else None,
+        encoder_resolution=_num_or_list(t["encoder_resolution"], "sensors.encoder_resolution", True)
+        if "encoder_resolution" in t else None,
+        position_noise_std=_num_or_list(t.get("position_noise_std", 0.0), "sensors.position_noise_std"),
+        force_noise_std=_num_or_list(t.get("force_noise_std", 0.0), "sensors.force_noise_std"),
+        force_correlation=corr,
+        force_covariance=cov,
+        torque_constants=_list(t["torque_constants"], "sensors.torque_constants", _num) if "torque_constants" in t else None,
+        time_jitter_std=_num(t.get("time_jitter_std", 0.0), "sensors.time_jitter_std"),
+        seed=_int(t.get("seed", 0), "sensors.seed", 0),
+    )
+
+
+def parse_simulate_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = None) -> SimulateConfig:
+    """Validate a parsed TOML document (see module docstring)."""
+    doc = _table(dict(doc), "config", {"robot", "trajectory", "control", "sensors", "simulation", "output"},
+                 {"robot", "trajectory"})
+    r = _table(doc["robot"], "robot", {"model", "perturbation", "perturbation_seed"}, {"model"})
+    robot = RobotSimConfig(
+        model=_str(r["model"], "robot.model"),
+        perturbation=_num(r.get("perturbation", 0.0), "robot.perturbation"),
+        perturbation_seed=_int(r.get("perturbation_seed", 0), "robot.perturbation_seed", 0),
+    )
+    if robot.perturbation < 0:
+        raise ConfigError(f"robot.perturbation must be >= 0, got {robot.perturbation}")
+    sim = _table(doc.get("simulation", {}), "simulation", {"duration"})
+    out = _table(doc.get("output", {}), "output", {"format"})
+    model = robot.model
+    if not model.startswith("builtin:"):
+        p = Path(model).expanduser()
+        model = str((p if p.is_absolute() else base_dir / p).resolve())
+        robot = dataclasses.replace(robot, model=model)
+    return SimulateConfig(
+        robot=robot,
+        trajectory=_parse_trajectory(doc["trajectory"]),
+        control=_parse_control(doc.get("control", {})),
+        sensors=_parse_sensors(doc.get("sensors", {})),
+        duration=_num(sim["duration"], "simulation.duration", True) if "duration" in sim else None,
+        output_format=_str(out.get("format", "csv"), "output.format", ("csv", "npz")),
+        base_dir=base_dir,
+        source=source,
+        raw=doc,
+    )
+
+
+def load_simulate_config(path: str | Path) -> SimulateConfig:
+    """Read and validate a ``dynid simulate`` TOML file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"config file not found: {path}")
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+    return parse_simulate_config(doc, path.resolve().parent, source=path.resolve())

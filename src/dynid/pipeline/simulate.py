@@ -1,0 +1,289 @@
+"""``dynid simulate``: a virtual experiment from a config, with the ground truth attached.
+
+The true robot (the model's nominal parameters, optionally perturbed) follows a commanded
+trajectory under digital control (zero-order hold; serial robots: pinocchio ABA;
+closed-loop mechanisms: pinocchio constraint dynamics with projection on the loop
+closures); sensors turn the true signals into a log (see
+:mod:`dynid.simulation.sensors`). Outputs, written together or not at all:
+
+* ``log.csv`` or ``log.npz``: ``t`` [s], ``q_<actuator>`` [rad or m], ``tau_<actuator>``
+  [N·m or N] (or ``i_<actuator>`` [A] with torque constants), and the commanded independent
+  coordinates ``ref_<coordinate>`` at the logged instants;
+* ``truth.json``: the true and nominal standard parameters (names and values), the true
+  base parameters with their grouping expressions;
+* ``metadata.json``: what every column means, units, seeds, control and sensor settings,
+  tracking metrics (per-axis RMS, P-RSME of Shang 2009, Eq. 23), the largest loop-closure
+  error, the versions;
+* ``config.toml``: the configuration used.
+
+The same configuration (seeds included) gives bit-identical files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from dynid import __version__
+from dynid.config.simulate import SimulateConfig
+from dynid.dataset import Dataset
+from dynid.errors import ConfigError
+from dynid.io.output import staged_output
+from dynid.model.closed_loop import mechanism_base_parameters
+from dynid.model.loading import load_model
+from dynid.model.mechanism import JointCoordinates, Mechanism
+from dynid.model.base_parameters import robot_base_parameters
+from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
+from dynid.simulation.control import ComputedTorque, FeedforwardPID, JointPID, SerialPlant, model_inverse, simulate_control
+from dynid.simulation.paths import CirclePath, FourierQuintic, PolylinePath, Repeated
+from dynid.simulation.sensors import Sensors
+from dynid.simulation.trajectories import FourierTrajectory
+from dynid.stats import tracking_errors
+
+__all__ = ["SimulationOutcome", "run_simulation", "write_simulation", "SIMULATION_FILES"]
+
+SIMULATION_FILES = ("log.csv", "log.npz", "truth.json", "metadata.json", "config.toml")
+Progress = Callable[[str, int, int], None]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SimulationOutcome:
+    """A finished virtual experiment: the logged :class:`~dynid.dataset.Dataset` (its ``meta``
+    holds the truth and the settings), the columns as written, and the JSON documents."""
+
+    dataset: Dataset
+    columns: dict[str, np.ndarray]
+    truth: dict
+    metadata: dict
+    config: SimulateConfig
+    motion: object = None  # the true motion at the control instants (q, dq, ddq of all joints)
+
+    def summary_text(self) -> str:
+        m = self.metadata
+        lines = [
+            f"robot            : {m['robot']} ({m['kind']}, {m['n_actuators']} actuators)",
+            f"trajectory       : {m['trajectory']['kind']}, {m['duration_s']:.3f} s simulated",
+            f"control          : {m['control']['kind']} at {m['control']['rate_hz']:g} Hz with the {m['control']['model']} model",
+            f"log              : {m['n_samples']} samples at {m['log_rate_hz']:g} Hz, efforts as {m['effort_kind']}",
+            f"tracking         : P-RSME {m['tracking']['p_rsme']:.3e}, max |error| {max(m['tracking']['max_abs_per_axis']):.3e}",
+        ]
+        if m.get("constraint_error_max") is not None:
+            lines.append(f"loop closures    : largest constraint error {m['constraint_error_max']:.1e}")
+        return "\n".join(lines)
+
+
+def _true_parameters(nominal: np.ndarray, cfg: SimulateConfig) -> np.ndarray:
+    if cfg.robot.perturbation == 0:
+        return nominal.copy()
+    rng = np.random.default_rng(cfg.robot.perturbation_seed)
+    return nominal * (1.0 + cfg.robot.perturbation * rng.standard_normal(nominal.shape))
+
+
+def _coordinate_box(robot) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Range of the independent coordinates: joint limits (serial robots, joint coordinates
+    of a mechanism, centred on the assembled reference) or +-one link length (points)."""
+    if not isinstance(robot, Mechanism):
+        lo, hi = robot.position_limits()
+        return lo, hi, list(robot.joint_names)
+    u0 = robot.coordinates(robot.q_ref)[0]
+    ind = robot.independent
+    lo_j, hi_j = robot.position_limits()
+    if isinstance(ind, JointCoordinates):
+        half = np.array([min(u0[k] - lo_j[j], hi_j[j] - u0[k]) for k, j in enumerate(ind.joints)])
+        names = [robot.pin_model.names[j + 1] for j in ind.joints]
+    else:
+        steps = [np.linalg.norm(robot.pin_model.jointPlacements[j].translation) for j in range(1, robot.pin_model.njoints)]
+        half = np.full(ind.size, 0.5 * float(np.mean(steps)))
+        names = [f"{'xyz'[a]}" for a in ind.axes]
+    half = np.where(np.isfinite(half), half, 1.0)
+    return u0 - half, u0 + half, names
+
+
+def _trajectory(cfg: SimulateConfig, robot):
+    tc = cfg.trajectory
+    v = tc.values
+    lo, hi, names = _coordinate_box(robot)
+    n_u = lo.size
+    if tc.kind in ("circle", "polyline"):
+        dim = 2 if tc.kind == "circle" else len(v["vertices"][0])
+        if n_u != dim:
+            raise ConfigError(
+                f"trajectory.kind = {tc.kind!r} is a path of {dim} coordinates but the robot has {n_u} independent "
+                f"coordinates ({', '.join(names)})"
+            )
+        if tc.kind == "circle":
+            traj = CirclePath(v["centre"], v["radius"], v["speed"], turns=v["turns"], clockwise=v["clockwise"], ramp=v["ramp"])
+        else:
+            if len({len(p) for p in v["vertices"]}) != 1:
+                raise ConfigError("trajectory.vertices: every vertex needs the same number of coordinates")
+            traj = PolylinePath(np.array(v["vertices"]), v["speed"], ramp=v["ramp"])
+        return traj, names
+    rng = np.random.default_rng(v["seed"])
+    four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
+                                    max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"], fill=v["fill"])
+    if v["quintic"]:
+        return FourierQuintic(four), names
+    return (Repeated(four, v["periods"]) if v["periods"] > 1 else four), names
+
+
+def _gains(value, n: int, where: str) -> np.ndarray:
+    g = np.asarray(value, dtype=float)
+    if g.ndim == 1 and g.size != n:
+        raise ConfigError(f"control.{where} has {g.size} entries; the robot has {n} independent coordinates")
+    return np.broadcast_to(g, (n,)).copy()
+
+
+def _force_covariance(s, n_a: int) -> np.ndarray:
+    if s.force_covariance is not None:
+        cov = np.array(s.force_covariance, dtype=float)
+        if cov.shape != (n_a, n_a):
+            raise ConfigError(f"sensors.force_covariance must be {n_a} x {n_a}, got {cov.shape}")
+        return cov
+    std = np.asarray(s.force_noise_std, dtype=float)
+    if std.ndim == 1 and std.size != n_a:
+        raise ConfigError(f"sensors.force_noise_std has {std.size} entries for {n_a} actuators")
+    std = np.broadcast_to(std, (n_a,))
+    corr = (1 - s.force_correlation) * np.eye(n_a) + s.force_correlation * np.ones((n_a, n_a))
+    return std[:, None] * corr * std[None, :]
+
+
+def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> SimulationOutcome:
+    """Run the virtual experiment of ``cfg`` (nothing is written)."""
+    robot = load_model(cfg.robot.model)
+    mech = isinstance(robot, Mechanism)
+    nominal = robot.nominal_parameters()
+    true = _true_parameters(nominal, cfg)
+    model_params = true if cfg.control.model == "true" else nominal
+    traj, coord_names = _trajectory(cfg, robot)
+    duration = cfg.duration if cfg.duration is not None else float(getattr(traj, "duration", None) or traj.period)
+    c = cfg.control
+    dt = 1.0 / c.rate_hz
+    n_u = len(coord_names)
+    kp, kd = _gains(c.kp, n_u, "kp"), _gains(c.kd, n_u, "kd")
+    n_act = robot.n_actuators if mech else robot.dof
+    s = cfg.sensors
+    log_rate = s.log_rate_hz or c.rate_hz
+    ratio = c.rate_hz / log_rate
+    if abs(ratio - round(ratio)) > 1e-9 or ratio < 1:
+        raise ConfigError(f"sensors.log_rate_hz = {log_rate:g} must divide control.rate_hz = {c.rate_hz:g}")
+    sensors = Sensors(
+        encoder_resolution=s.encoder_resolution, position_noise_std=s.position_noise_std,
+        force_covariance=_force_covariance(s, n_act), torque_constants=s.torque_constants,
+        decimation=int(round(ratio)), time_jitter_std=s.time_jitter_std, seed=s.seed,
+    )
+    if mech:
+        if c.kind != "computed_torque":
+            raise ConfigError(f"control.kind = {c.kind!r} is for serial robots; a mechanism uses 'computed_torque'")
+        ctrl = AugmentedPD(robot, model_params, kp, kd, c.distribution if robot.redundant else None)
+        motion = simulate_mechanism_control(ConstrainedSimulator(robot, true), ctrl, traj.sample,
+                                            duration=duration, dt=dt, substeps=c.substeps)
+        q_act = motion.q[:, list(robot.actuated)]
+        tau = motion.tau_a
+        u = robot.coordinates(motion.q)
+        act_names = robot.actuated_names
+        constraint = float(np.abs(robot.constraint_residual(motion.q[:: max(1, motion.t.size // 200)])).max())
+    else:
+        plant = SerialPlant(robot, true)
+        inverse = model_inverse(robot, model_params)
+        if c.kind == "computed_torque":
+            ctrl = ComputedTorque(inverse, kp, kd)
+        else:
+            pid = JointPID(kp=kp, kd=kd, ki=_gains(c.ki, n_u, "ki"))
+            ctrl = pid if c.kind == "pid" else FeedforwardPID(inverse, pid)
+        motion = simulate_control(plant, ctrl, traj.sample, duration=duration, dt=dt, substeps=c.substeps)
+        q_act, tau, u = motion.q, motion.tau, motion.q
+        act_names = list(robot.joint_names)
+        constraint = None
+    u_ref = traj.sample(motion.t)[0]
+    meas = sensors.measure(motion.t, q_act, tau)
+    effort_prefix = "i" if meas.effort_kind == "current" else "tau"
+    columns: dict[str, np.ndarray] = {"t": meas.t}
+    for k, name in enumerate(act_names):
+        columns[f"q_{name}"] = meas.q[:, k]
+    for k, name in enumerate(act_names):
+        columns[f"{effort_prefix}_{name}"] = meas.effort[:, k]
+    for k, name in enumerate(coord_names):
+        columns[f"ref_{name}"] = u_ref[meas.index, k]
+    base = mechanism_base_parameters(robot) if mech else robot_base_parameters(robot)
+    truth = {
+        "model": cfg.robot.model,
+        "parameter_names": list(robot.parameter_names),
+        "true_parameters": true.tolist(),
+        "nominal_parameters": nominal.tolist(),
+        "perturbation": cfg.robot.perturbation,
+        "base_parameters": {
+            "names": list(base.names),
+            "true_values": base.from_standard(true).tolist(),
+            "expressions": list(base.expressions()),
+        },
+    }
+    track = tracking_errors(u_ref, u)
+    metadata = {
+        "dynid_version": __version__,
+        "robot": robot.name,
+        "kind": "closed-loop" if mech else "serial",
+        "n_actuators": len(act_names),
+        "actuators": act_names,
+        "independent_coordinates": coord_names,
+        "trajectory": {"kind": cfg.trajectory.kind, **{k: (list(v) if isinstance(v, tuple) else v)
+                                                       for k, v in cfg.trajectory.values.items()}},
+        "duration_s": float(motion.t[-1]),
+        "control": {**dataclasses.asdict(c), "distribution": (c.distribution if mech and robot.redundant else None)},
+        "log_rate_hz": log_rate,
+        "n_samples": int(meas.t.size),
+        "effort_kind": meas.effort_kind,
+        "columns": {
+            "t": "time [s] (with the configured jitter)",
+            "q_*": "actuator positions [rad or m], quantized and noisy",
+            f"{effort_prefix}_*": "actuator efforts " + ("[A] (torque / torque constant)" if meas.effort_kind == "current" else "[N*m or N]"),
+            "ref_*": "commanded independent coordinates at the nominal sample instants",
+        },
+        "sensors": {k: (np.asarray(v).tolist() if v is not None else None) for k, v in dataclasses.asdict(s).items()},
+        "tracking": {k: (np.asarray(v).tolist() if not isinstance(v, float) else v) for k, v in track.items()},
+        "constraint_error_max": constraint,
+    }
+    dataset = Dataset(
+        t=meas.t, q=meas.q, tau=meas.effort, names=tuple(act_names),
+        meta={"position_side": "joint", "effort_kind": meas.effort_kind, "effort_side": "joint",
+              "source": "simulation", "truth": truth, "simulation": metadata},
+    )
+    return SimulationOutcome(dataset=dataset, columns=columns, truth=truth, metadata=metadata, config=cfg, motion=motion)
+
+
+def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """An NPZ (zip of .npy) with fixed time stamps, so that equal data give equal bytes
+    (``numpy.savez`` stamps each member with the current time)."""
+    import io
+    import zipfile
+
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as z:
+        for name, arr in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
+            z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), buf.getvalue())
+
+
+def write_simulation(outcome: SimulationOutcome, out_dir: str | Path) -> list[str]:
+    """Write the files of the module docstring into ``out_dir`` (all or nothing)."""
+    cfg = outcome.config
+    names = []
+    with staged_output(out_dir) as stage:
+        if cfg.output_format == "csv":
+            header = ",".join(outcome.columns)
+            table = np.column_stack(list(outcome.columns.values()))
+            np.savetxt(stage / "log.csv", table, delimiter=",", header=header, comments="", fmt="%.17g")
+            names.append("log.csv")
+        else:
+            _write_npz(stage / "log.npz", outcome.columns)
+            names.append("log.npz")
+        (stage / "truth.json").write_text(json.dumps(outcome.truth, indent=2) + "\n")
+        (stage / "metadata.json").write_text(json.dumps(outcome.metadata, indent=2, default=str) + "\n")
+        names += ["truth.json", "metadata.json"]
+        if cfg.source is not None:
+            (stage / "config.toml").write_text(Path(cfg.source).read_text())
+            names.append("config.toml")
+    return names

@@ -1,0 +1,142 @@
+"""``dynid simulate``: virtual experiments from a config, the twins, determinism, bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import REPO
+
+from dynid.config.simulate import load_simulate_config, parse_simulate_config
+from dynid.errors import ConfigError
+from dynid.io import TableReader
+from dynid.model.closed_loop import actuator_regressor
+from dynid.model.robots import build_mechanism
+from dynid.pipeline.simulate import run_simulation, write_simulation
+
+TWINS = sorted((REPO / "examples" / "twins").glob("*.toml"))
+
+SHANG = """
+[robot]
+model = "builtin:shang2dof"
+perturbation = 0.1
+
+[trajectory]
+kind = "circle"
+centre = [0.29, 0.25]
+radius = 0.04
+speed = 0.2
+turns = 0.25
+ramp = 0.1
+
+[control]
+rate_hz = 500
+kp = 35000
+kd = 300
+
+[sensors]
+encoder_resolution = 1e-5
+force_noise_std = 0.02
+force_correlation = 0.5
+seed = 7
+
+[output]
+format = "{fmt}"
+"""
+
+
+def _dynid(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "dynid.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("fmt", ["csv", "npz"])
+def test_simulate_cli_writes_log_truth_and_is_deterministic(tmp_path, fmt):
+    (tmp_path / "sim.toml").write_text(SHANG.format(fmt=fmt))
+    for out in ("a", "b"):
+        r = _dynid("simulate", "sim.toml", "--out", out, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+    for name in (f"log.{fmt}", "truth.json", "metadata.json", "config.toml"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
+    log = TableReader(tmp_path / "a" / f"log.{fmt}")
+    assert set(log.available) >= {"t", "q_qa1", "q_qa3", "tau_qa2", "ref_x", "ref_y"}
+    truth = json.loads((tmp_path / "a" / "truth.json").read_text())
+    meta = json.loads((tmp_path / "a" / "metadata.json").read_text())
+    mech = build_mechanism("shang2dof")
+    true = np.array(truth["true_parameters"])
+    assert truth["parameter_names"] == list(mech.parameter_names)
+    assert not np.allclose(true, truth["nominal_parameters"])  # perturbed truth
+    assert meta["constraint_error_max"] < 1e-8 and meta["tracking"]["p_rsme"] < 1e-4
+    # positions on the encoder grid, force noise with the asked correlation is there
+    q = log.columns(["q_qa1", "q_qa2", "q_qa3"])
+    np.testing.assert_allclose(np.round(q / 1e-5) * 1e-5, q, atol=1e-12)
+
+
+def test_logged_forces_are_the_true_robot_s(tmp_path):
+    """Noise-free sensors: the logged actuator forces, projected, equal the closed-loop model
+    of the parameters in truth.json along the simulated motion (whose accelerations came from
+    pinocchio's constraint dynamics), and not the controller's nominal model."""
+    cfg = parse_simulate_config(
+        {"robot": {"model": "builtin:shang2dof", "perturbation": 0.2},
+         "trajectory": {"kind": "circle", "centre": [0.29, 0.25], "radius": 0.03, "speed": 0.1, "turns": 0.2},
+         "control": {"rate_hz": 500, "kp": 20000, "kd": 250}},
+        tmp_path,
+    )
+    out = run_simulation(cfg)
+    assert out.metadata["tracking"]["p_rsme"] < 1e-4
+    d = out.dataset
+    assert d.meta["effort_kind"] == "torque" and d.names == ("qa1", "qa2", "qa3")
+    mech = build_mechanism("shang2dof")
+    true = np.array(out.truth["true_parameters"])
+    m = out.motion
+    state = mech.kinematic_state(m.q, m.dq, m.ddq)
+    reg = actuator_regressor(mech, state, distribution="projected")
+    logged = np.column_stack([out.columns[f"tau_qa{i}"] for i in (1, 2, 3)])
+    np.testing.assert_allclose(reg.outputs(logged), reg.W @ true, atol=1e-8 * np.abs(logged).max())
+    # ... and not the nominal model's (the controller's), which differs by 20 %
+    nominal = np.array(out.truth["nominal_parameters"])
+    assert np.abs(reg.outputs(logged) - reg.W @ nominal).max() > 1e-3 * np.abs(logged).max()
+    np.testing.assert_allclose(np.column_stack([out.columns[f"q_qa{i}"] for i in (1, 2, 3)]), m.q[:, [0, 2, 4]])
+    written = write_simulation(out, tmp_path / "o")
+    assert written == ["log.csv", "truth.json", "metadata.json"]
+
+
+@pytest.mark.parametrize("path", TWINS, ids=[p.stem for p in TWINS])
+def test_twins_run(path):
+    """Every twin config is valid and runs (shortened to 0.3 s here)."""
+    cfg = dataclasses.replace(load_simulate_config(path), duration=0.3)
+    out = run_simulation(cfg)
+    m = out.metadata
+    assert m["n_samples"] > 100
+    if m["kind"] == "closed-loop":
+        assert m["constraint_error_max"] < 1e-8
+
+
+@pytest.mark.parametrize(
+    "patch, message",
+    [
+        ({"robot": {"model": "builtin:shang2dof", "colour": "red"}}, "unknown key robot.colour"),
+        ({"trajectory": {"kind": "circle", "radius": 0.04, "speed": 0.2}}, "a circle needs 'centre'"),
+        ({"robot": {"model": "builtin:rps3"}}, "is a path of 2 coordinates but the robot has 3"),
+        ({"control": {"kind": "pid"}}, "is for serial robots"),
+        ({"sensors": {"log_rate_hz": 300}}, "must divide control.rate_hz"),
+        ({"sensors": {"force_covariance": [[1, 0], [0, 1]], "force_noise_std": 1}}, "not both"),
+    ],
+)
+def test_bad_simulate_configs(tmp_path, patch, message):
+    doc = {"robot": {"model": "builtin:shang2dof"},
+           "trajectory": {"kind": "circle", "centre": [0.29, 0.25], "radius": 0.04, "speed": 0.2, "turns": 0.5},
+           "control": {"rate_hz": 500}}
+    doc.update(patch)
+    with pytest.raises(ConfigError, match=message):
+        run_simulation(parse_simulate_config(doc, tmp_path))
+
+
+def test_simulate_cli_errors_are_one_line(tmp_path):
+    (tmp_path / "bad.toml").write_text('[robot]\nmodel = "builtin:shang2dof"\n[trajectory]\nkind = "spiral"\n')
+    r = _dynid("simulate", "bad.toml", "--out", "o", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "trajectory.kind" in r.stderr
+    assert not (tmp_path / "o").exists()
