@@ -177,3 +177,29 @@ def test_hexapod_base_count_reduces_to_the_papers_10(hexa):
     })
     assert table1.shape[1] == 15
     assert rank(W @ table1) == 10
+
+
+def test_cobot6r_after_paper003():
+    """builtin:cobot6r: the reading of paper 003's Table 2 gives the 580 mm reach, Table 3's
+    friction is its nominal friction, and the inertial values are physically consistent."""
+    import pinocchio as pin
+
+    from dynid.model import load_robot
+    from dynid.model.base_parameters import pseudo_inertia
+
+    robot = load_robot("builtin:cobot6r")
+    model, data = robot.pin_model, robot.pin_model.createData()
+    tool = model.getFrameId("tool")
+    rng = np.random.default_rng(0)
+    reach = 0.0
+    for q in rng.uniform(*robot.position_limits(), size=(2000, 6)):
+        pin.framesForwardKinematics(model, data, q)
+        shoulder = data.oMi[2].translation
+        reach = max(reach, np.linalg.norm(data.oMf[tool].translation - shoulder))
+    assert 0.55 < reach <= 0.210 + 0.210 + 0.159 + 0.006 + 1e-9
+    pi = robot.nominal_parameters()
+    lay = robot.layout
+    np.testing.assert_allclose(pi[lay.extra_index["fc"]], [6.321, 4.831, 7.781, 1.033, 1.601, 1.109])
+    np.testing.assert_allclose(pi[lay.extra_index["fv"]], [7.167, 8.341, 8.516, 2.536, 3.175, 2.327])
+    for j in range(6):
+        assert np.linalg.eigvalsh(pseudo_inertia(pi[10 * j : 10 * j + 10])).min() > 0

@@ -1,5 +1,5 @@
 """Simulate, then identify: the estimators recover the true base parameters of a virtual
-experiment (closed-loop shang2dof and the serial generic 6R arm) within the intervals they
+experiment (closed-loop shang2dof and the serial 6R cobot of paper 003) within the intervals they
 report; on noise-free data to 1e-6 relative.
 
 The regressors are evaluated on the simulated motion's exact states (positions, velocities,
@@ -82,15 +82,16 @@ def test_shang2dof_intervals_cover_the_truth(shang_run):
     assert 0.90 <= coverage <= 0.98 and 0.8 <= z2 <= 1.25, (coverage, z2)
 
 
-def test_serial_6r_simulate_identify(tmp_path):
+def test_cobot6r_simulate_identify(tmp_path):
+    """The 6R arm after paper 003 (builtin:cobot6r) under computed torque."""
     cfg = parse_simulate_config(
-        {"robot": {"model": "builtin:generic6r", "perturbation": 0.1},
+        {"robot": {"model": "builtin:cobot6r", "perturbation": 0.1},
          "trajectory": {**FOURIER, "base_frequency_hz": 0.2, "max_velocity": 1.5, "max_acceleration": 6.0, "periods": 1},
          "control": {"rate_hz": 1000, "kp": 400, "kd": 40, "substeps": 2}},
         tmp_path,
     )
     out = run_simulation(cfg)
-    robot = load_robot("builtin:generic6r")
+    robot = load_robot("builtin:cobot6r")
     base = robot_base_parameters(robot)
     m = out.motion
     W = base.regressor(regressor(robot, m.q, m.dq, m.ddq))

@@ -22,6 +22,14 @@ def _generic6r(extras: tuple[str, ...] = JOINT_EXTRAS) -> RobotModel:
     return RobotModel(model, name=name, extras=extras, nominal_extras=nominal, source="builtin:generic6r")
 
 
+def _cobot6r(extras: tuple[str, ...] = JOINT_EXTRAS) -> RobotModel:
+    from dynid.model.dh import read_dh_toml
+
+    with resources.as_file(resources.files(__package__) / "cobot6r.toml") as path:
+        model, nominal, name = read_dh_toml(path)
+    return RobotModel(model, name=name, extras=extras, nominal_extras=nominal, source="builtin:cobot6r")
+
+
 def _puma560(extras: tuple[str, ...] = JOINT_EXTRAS) -> RobotModel:
     from dynid.model.robots import puma560
 
@@ -31,6 +39,7 @@ def _puma560(extras: tuple[str, ...] = JOINT_EXTRAS) -> RobotModel:
 BUILTINS: dict[str, Callable[..., RobotModel]] = {
     "puma560": _puma560,
     "generic6r": _generic6r,
+    "cobot6r": _cobot6r,
 }
 
 MECHANISMS: dict[str, str] = {
