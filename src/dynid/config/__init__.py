@@ -40,6 +40,7 @@ EFFORT_UNITS = {
     "current": {"A": 1.0, "mA": 1e-3},
 }
 _METHODS = ("ols", "wls")
+_FORCE_MODELS = ("projected", "min_norm", "min_norm_local_friction")
 _EXTRAS = ("Ia", "fv", "fc", "offset")
 
 
@@ -207,6 +208,7 @@ class IdentificationConfig:
     base_seed: int = 0
     base_samples: int | None = None
     min_joint_motion: float = 1e-3
+    force_model: str | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -358,7 +360,7 @@ def _parse_processing(t: Any) -> ProcessingConfig:
 
 def _parse_identification(t: Any) -> IdentificationConfig:
     where = "identification"
-    t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion"})
+    t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion", "force_model"})
     return IdentificationConfig(
         method=_str(t.get("method", "wls"), f"{where}.method", _METHODS),
         physical_consistency=_bool(t.get("physical_consistency", False), f"{where}.physical_consistency"),
@@ -366,6 +368,7 @@ def _parse_identification(t: Any) -> IdentificationConfig:
         base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),
         base_samples=_int(t["base_samples"], f"{where}.base_samples", 1) if "base_samples" in t else None,
         min_joint_motion=_num(t.get("min_joint_motion", 1e-3), f"{where}.min_joint_motion"),
+        force_model=_str(t["force_model"], f"{where}.force_model", _FORCE_MODELS) if "force_model" in t else None,
     )
 
 

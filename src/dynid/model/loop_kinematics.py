@@ -28,7 +28,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.mechanism import JointCoordinates, KinematicState, Mechanism
 
-__all__ = ["kinematic_state", "states"]
+__all__ = ["actuator_states", "kinematic_state", "states"]
 
 
 class _Sides:
@@ -83,6 +83,7 @@ class _Sides:
         else:
             order = np.arange(m.nv)
         self.u, self.w = (u, w) if isinstance(ind, JointCoordinates) else (None, None)
+        self.order = order
         position = np.empty(m.nv, dtype=int)
         position[order] = np.arange(m.nv)
         self.out_columns = [position[c] for c in self.columns]
@@ -356,3 +357,96 @@ def kinematic_state(mech: Mechanism, q: FloatArray, dq: FloatArray, ddq: FloatAr
         maps = _Maps(mech, _velocity_rows(mech, q[a:b], data)[0], max_cond, offset=a)
         G[a:b], cond[a:b] = maps.G, maps.cond
     return KinematicState(q=q, dq=dq, ddq=ddq, G=G, cond=cond)
+
+
+def actuator_states(
+    mech: Mechanism,
+    qa: FloatArray,
+    dqa: FloatArray,
+    ddqa: FloatArray,
+    *,
+    q0: FloatArray | None = None,
+    tol: float = 1e-10,
+    max_iter: int = 30,
+    max_cond: float = 1e8,
+    sample_offset: int = 0,
+) -> tuple[KinematicState, FloatArray]:
+    """States of all joints from measured actuator positions, velocities and accelerations.
+
+    What a log of a parallel robot gives: the actuated joints only. Positions by
+    Gauss–Newton on :math:`[c(q); S_a q - q_a] = 0` (independent constraint rows),
+    warm-started from the previous sample (the first from ``q0``, default ``q_ref``);
+    velocities and accelerations as the least-squares solutions of
+
+    .. math::
+
+        \\begin{bmatrix} J_c \\\\ S_a \\end{bmatrix}\\dot q = \\begin{bmatrix} 0 \\\\ \\dot q_a\\end{bmatrix},
+        \\qquad
+        \\begin{bmatrix} J_c \\\\ S_a \\end{bmatrix}\\ddot q =
+        \\begin{bmatrix} -\\dot J_c\\dot q \\\\ \\ddot q_a\\end{bmatrix},
+
+    exact for non-redundant actuation; with redundant actuators the measurements are
+    over-determined and the fit residual tells how consistent they are.
+
+    ``sample_offset`` is added to the sample numbers of error messages (chunked logs).
+
+    Returns
+    -------
+    state : KinematicState
+        With the velocity map of the mechanism's independent coordinates.
+    inconsistency : array, shape (n,)
+        Root-mean-square residual of the actuator rows of the position fit [rad or m]
+        (zero up to ``tol`` for non-redundant actuation).
+    """
+    qa = np.atleast_2d(np.asarray(qa, dtype=float))
+    n, na = qa.shape
+    if na != mech.n_actuators:
+        raise InputError(f"actuator positions have {na} columns; the mechanism has {mech.n_actuators} actuators")
+    dqa = _check(mech, dqa, (n, na), "actuator velocities")
+    ddqa = _check(mech, ddqa, (n, na), "actuator accelerations")
+    if not np.all(np.isfinite(qa)):
+        raise InputError("actuator positions contain NaN or infinite values")
+    data = mech.pin_model.createData()
+    rows = mech.constraint_rows
+    Sa = mech.actuator_selection()
+    act = list(mech.actuated)
+    nc = rows.size
+    q = np.array(mech.q_ref if q0 is None else q0, dtype=float)
+    Q = np.empty((n, mech.nv))
+    resid = np.empty(n)
+    for i in range(n):
+        for it in range(max_iter + 1):
+            c = mech._constraint_residual(q, data)[rows]
+            ea = q[act] - qa[i]
+            A = np.vstack([mech._constraint_jacobian(q, data, exact=True)[rows], Sa])
+            F = np.concatenate([c, ea])
+            step, *_ = np.linalg.lstsq(A, F, rcond=None)
+            if np.linalg.norm(step, np.inf) < tol:
+                break
+            if it == max_iter:
+                cond = np.linalg.cond(A)
+                raise ModelError(
+                    f"sample {sample_offset + i}: actuator positions {np.array2string(qa[i], precision=4)} cannot be assembled "
+                    f"(residual {np.linalg.norm(F, np.inf):.3g} after {max_iter} Gauss-Newton steps, condition number {cond:.3g})"
+                )
+            q = q - step
+        Q[i] = q
+        resid[i] = float(np.sqrt(np.mean((q[act] - qa[i]) ** 2)))
+    # velocities and accelerations: least squares on [J_c; S_a] (normal equations, batched)
+    Jrows, (J, p) = _velocity_rows(mech, Q, data)
+    sd = _sides(mech)
+    Jc = np.empty((n, nc, mech.nv))
+    Jc[:, :, sd.order] = Jrows[:, :nc]
+    A = np.concatenate([Jc, np.broadcast_to(Sa, (n, na, mech.nv))], axis=1)
+    At = A.transpose(0, 2, 1)
+    N = np.matmul(At, A)
+    rhs_v = np.concatenate([np.zeros((n, nc)), dqa], axis=1)
+    dq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_v)[..., None])[..., 0]
+    drift = _drift(mech, Q, dq, J, p, data)[:, :nc]
+    rhs_a = np.concatenate([-drift, ddqa], axis=1)
+    ddq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_a)[..., None])[..., 0]
+    try:
+        state = kinematic_state(mech, Q, dq, ddq, max_cond=max_cond)
+    except ModelError as exc:
+        raise ModelError(f"samples {sample_offset}..{sample_offset + n - 1}: {exc}") from None
+    return state, resid

@@ -34,21 +34,25 @@ from dynid.signals import central_difference, lowpass, padlen_for, resample_unif
 __all__ = ["build_robot", "read_log", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask"]
 
 
-def build_robot(cfg: RobotConfig) -> RobotModel:
-    """The robot model of ``[robot]`` with its transmission."""
-    transmission = None
-    if cfg.has_transmission:
-        robot0 = load_robot(cfg.model, extras=cfg.extras)
-        n = robot0.dof
-        for key, val in (("gear_ratios", cfg.gear_ratios), ("drive_gains", cfg.drive_gains), ("position_offset", cfg.position_offset)):
-            if val is not None and len(val) != n:
-                raise ConfigError(f"robot.{key}: {len(val)} entries for a robot with {n} joints")
-        transmission = Transmission.from_ratios(
-            cfg.gear_ratios if cfg.gear_ratios is not None else np.ones(n),
-            [Coupling(c.motor, c.joints, c.weights) for c in cfg.couplings],
-            drive_gains=cfg.drive_gains if cfg.drive_gains is not None else 1.0,
-            position_offset=cfg.position_offset if cfg.position_offset is not None else 0.0,
-        )
+def build_robot(cfg: RobotConfig):
+    """The robot model of ``[robot]`` with its transmission (a :class:`RobotModel`), or a
+    closed-loop :class:`~dynid.model.mechanism.Mechanism` when the model is one."""
+    from dynid.model.loading import load_model
+    from dynid.model.mechanism import Mechanism
+
+    robot0 = load_model(cfg.model, extras=cfg.extras)
+    if isinstance(robot0, Mechanism) or not cfg.has_transmission:
+        return robot0
+    n = robot0.dof
+    for key, val in (("gear_ratios", cfg.gear_ratios), ("drive_gains", cfg.drive_gains), ("position_offset", cfg.position_offset)):
+        if val is not None and len(val) != n:
+            raise ConfigError(f"robot.{key}: {len(val)} entries for a robot with {n} joints")
+    transmission = Transmission.from_ratios(
+        cfg.gear_ratios if cfg.gear_ratios is not None else np.ones(n),
+        [Coupling(c.motor, c.joints, c.weights) for c in cfg.couplings],
+        drive_gains=cfg.drive_gains if cfg.drive_gains is not None else 1.0,
+        position_offset=cfg.position_offset if cfg.position_offset is not None else 0.0,
+    )
     return load_robot(cfg.model, extras=cfg.extras, transmission=transmission)
 
 

@@ -20,6 +20,7 @@ from dynid.estimation import ESTIMATORS, IdentificationResult, ProblemBuilder, R
 from dynid.io.output import staged_output
 from dynid.model.base_parameters import BaseParameters, StandardMap, robot_base_parameters
 from dynid.model.regressor import regressor
+from dynid.model.mechanism import Mechanism
 from dynid.model.robot import RobotModel
 from dynid.pipeline.data import build_robot, check_joint_motion, preprocess, read_log, to_joint_space, velocity_mask
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos
@@ -221,8 +222,14 @@ def _versions() -> dict[str, str]:
 
 
 def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
-    """Run the whole identification described by ``cfg`` (nothing is written)."""
+    """Run the whole identification described by ``cfg`` (nothing is written).
+
+    Closed-loop mechanisms go through :func:`dynid.pipeline.identify_mechanism.identify_mechanism`."""
     robot = build_robot(cfg.robot)
+    if isinstance(robot, Mechanism):
+        from dynid.pipeline.identify_mechanism import identify_mechanism
+
+        return identify_mechanism(cfg, robot, progress, _versions())
     names = robot.joint_names
     readers: dict = {}
     raw_train = read_log(cfg.data, robot.dof, names, "data", readers)

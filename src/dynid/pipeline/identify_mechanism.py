@@ -1,0 +1,197 @@
+"""``dynid identify`` for closed-loop mechanisms (parallel robots).
+
+The log holds what a real parallel robot measures: actuator positions and actuator forces
+(or currents). After the same reading and processing as serial robots (units, windows,
+resampling, zero-phase low-pass, central differences, trimming, sample decimation), every
+sample goes through the closed loops:
+
+1. all joint positions by Gauss–Newton from the actuator positions, warm-started along the
+   log; velocities and accelerations of all joints by least squares (exact for
+   non-redundant actuation; :func:`dynid.model.loop_kinematics.actuator_states`);
+2. the actuator-space regressor by virtual power (:func:`dynid.model.closed_loop.actuator_regressor`);
+   for redundant actuation the force model of ``identification.force_model``
+   (default ``"projected"``: the measured forces enter as :math:`G_a^T\\tau_a`, one equation
+   per independent coordinate, with no assumption about the controller);
+3. the base regressor, compressed chunk by chunk into the regression problem; the
+   estimators, the validation on held-out data and the output files are those of serial
+   robots.
+
+Not available yet for mechanisms (refused with a one-line error, never replaced by
+something else): motor-side positions through a transmission, parallel decimation,
+``processing.min_velocity``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from dynid._typing import FloatArray
+from dynid.config import Config
+from dynid.dataset import Dataset
+from dynid.errors import ConfigError, IdentifiabilityError, InputError
+from dynid.estimation import ESTIMATORS, ProblemBuilder
+from dynid.model.base_parameters import BaseParameters, StandardMap
+from dynid.model.closed_loop import actuator_regressor, mechanism_base_parameters
+from dynid.model.loop_kinematics import actuator_states
+from dynid.model.mechanism import JointCoordinates, Mechanism
+from dynid.model.transmission import Transmission
+from dynid.pipeline.data import preprocess, read_log
+
+__all__ = ["identify_mechanism", "mechanism_channels"]
+
+
+def mechanism_channels(mech: Mechanism, force_model: str | None) -> tuple[str, ...]:
+    """Names of the regression outputs: the actuators, or the independent coordinates for
+    the projected equations of a redundantly actuated mechanism."""
+    if force_model == "projected":
+        ind = mech.independent
+        if isinstance(ind, JointCoordinates):
+            return tuple(f"u_{mech.pin_model.names[j + 1]}" for j in ind.joints)
+        return tuple(f"u_{'xyz'[a]}" for a in ind.axes)
+    return tuple(mech.actuated_names)
+
+
+def _force_model(cfg: Config, mech: Mechanism) -> str | None:
+    fm = cfg.identification.force_model
+    if mech.redundant:
+        return fm or "projected"
+    if fm is not None:
+        raise ConfigError(
+            f"identification.force_model applies to redundantly actuated mechanisms; {mech.name!r} has "
+            f"{mech.n_actuators} actuators for {mech.dof} degrees of freedom"
+        )
+    return None
+
+
+def _refuse_unsupported(cfg: Config) -> None:
+    r = cfg.robot
+    if r.has_transmission:
+        raise ConfigError("robot: gear ratios, couplings, drive gains and offsets are not available for closed-loop mechanisms yet")
+    if "extras" in cfg.raw.get("robot", {}):
+        raise ConfigError("robot.extras applies to serial robots; a mechanism's joint terms come from its description")
+    p = cfg.processing
+    if p.decimate > 1 and p.decimate_method == "parallel":
+        raise ConfigError("processing.decimate_method = 'parallel' is not available for closed-loop mechanisms yet; use 'samples'")
+    if p.min_velocity is not None:
+        raise ConfigError("processing.min_velocity is not available for closed-loop mechanisms yet")
+
+
+def _actuator_space(ds: Dataset, mech: Mechanism, label: str) -> tuple[Dataset, list[str]]:
+    notes: list[str] = []
+    if ds.meta["position_side"] == "motor" or ds.meta["effort_side"] == "motor":
+        raise ConfigError(f"{label}: motor-side signals need a transmission, not available for mechanisms yet")
+    tau = ds.tau
+    if ds.meta["effort_kind"] == "current":
+        tau = Transmission.identity(mech.n_actuators).joint_torques_from_currents(tau)
+        notes.append("efforts are motor currents with unit drive gains: parameters absorb the unknown gains")
+    out = ds.replace(tau=tau, names=tuple(mech.actuated_names),
+                     meta={"position_side": "joint", "effort_kind": "torque", "effort_side": "joint"})
+    return out, notes
+
+
+def _chunks(mech: Mechanism, base: BaseParameters, ds: Dataset, force_model: str | None, chunk: int,
+            progress, task: str) -> Iterator[tuple[FloatArray, FloatArray, FloatArray]]:
+    """Yield ``(W_base, y, inconsistency)`` chunk by chunk."""
+    n = ds.n_samples
+    q0 = None
+    data = mech.pin_model.createData()
+    for a in range(0, n, chunk):
+        b = min(a + chunk, n)
+        state, resid = actuator_states(mech, ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], q0=q0, sample_offset=a)
+        q0 = state.q[-1]
+        reg = actuator_regressor(mech, state, distribution=force_model, data=data)
+        yield base.regressor(reg.W), reg.outputs(ds.tau[a:b]), resid
+        progress(task, b, n)
+
+
+def _problem(mech, base, ds, force_model, chunk, progress, meta):
+    builder = ProblemBuilder(base.names, mechanism_channels(mech, force_model))
+    worst = 0.0
+    for W, y, resid in _chunks(mech, base, ds, force_model, chunk, progress, "compress"):
+        builder.add(W, y)
+        worst = max(worst, float(resid.max()))
+    standard = StandardMap(
+        standard_names=mech.parameter_names,
+        B=base.B,
+        body_blocks=mech.body_blocks(),
+        nonnegative=mech.nonnegative_parameters(),
+        reference=mech.nominal_parameters(),
+    )
+    return builder.build(expressions=base.expressions(), standard=standard, meta=meta), worst
+
+
+def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[str, str]):
+    """:func:`dynid.pipeline.identify.identify` for a :class:`Mechanism` (see module docstring)."""
+    from dynid.pipeline.identify import IdentifyOutcome, ValidationMetrics
+
+    _refuse_unsupported(cfg)
+    force_model = _force_model(cfg, mech)
+    names = tuple(mech.actuated_names)
+    readers: dict = {}
+    raw_train = read_log(cfg.data, mech.n_actuators, names, "data", readers)
+    raw_valid = read_log(cfg.validation, mech.n_actuators, names, "validation", readers)
+    train_a, notes = _actuator_space(raw_train, mech, "data")
+    valid_a, _ = _actuator_space(raw_valid, mech, "validation")
+    train, steps = preprocess(train_a, cfg.processing, "data")
+    held_out, _ = preprocess(valid_a, cfg.processing, "validation")
+    rng = np.ptp(train.q, axis=0)
+    still = [f"{n} (range {r:.3g})" for n, r in zip(names, rng) if r < cfg.identification.min_joint_motion]
+    if still:
+        raise IdentifiabilityError(f"data: actuator never moves: {', '.join(still)}")
+    progress("base parameters", 0, 1)
+    base = mechanism_base_parameters(mech, distribution=force_model, n_samples=cfg.identification.base_samples,
+                                     seed=cfg.identification.base_seed)
+    progress("base parameters", 1, 1)
+    channels = mechanism_channels(mech, force_model)
+    if train.n_samples * len(channels) <= base.n_base:
+        raise InputError(f"data: {train.n_samples} processed samples x {len(channels)} equations are fewer than "
+                         f"the {base.n_base} base parameters")
+    meta: dict[str, Any] = {
+        "versions": versions,
+        "config_file": str(cfg.source) if cfg.source else None,
+        "config": cfg.raw,
+        "robot": {"model": cfg.robot.model, "name": mech.name, "kind": "closed-loop", "dof": mech.dof,
+                  "actuators": list(names), "force_model": force_model or "actuator forces (non-redundant)"},
+        "training_data": dict(raw_train.meta),
+        "validation_data": dict(raw_valid.meta),
+        "processing": steps,
+        "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
+    }
+    chunk = max(1, min(int(cfg.identification.chunk_size), 2000))
+    problem, worst = _problem(mech, base, train, force_model, chunk, progress, meta)
+    icfg = cfg.identification
+    result = ESTIMATORS[(icfg.method, icfg.physical_consistency)]().fit(problem)
+    notes = list(notes)
+    if force_model == "projected":
+        notes.append("redundant actuation: projected equations G_a^T tau_a (no assumption about the force distribution)")
+    elif force_model is not None:
+        notes.append(f"redundant actuation: actuator forces assumed distributed as {force_model!r} (an assumption about the controller)")
+    if mech.redundant:
+        notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
+    result = result.with_notes(*notes) if notes else result
+    meas, pred = [], []
+    for W, y, _ in _chunks(mech, base, held_out, force_model, chunk, progress, "validate"):
+        meas.append(y)
+        pred.append(W @ result.params)
+    measured, predicted = np.concatenate(meas), np.concatenate(pred)
+    err = measured - predicted
+    centred = measured - measured.mean(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r2 = 1.0 - np.sum(err**2, axis=0) / np.sum(centred**2, axis=0)
+    src = held_out.meta.get("source")
+    metrics = ValidationMetrics(
+        channel_names=channels,
+        n_samples=int(measured.shape[0]),
+        rmse=np.sqrt(np.mean(err**2, axis=0)),
+        rms_measured=np.sqrt(np.mean(measured**2, axis=0)),
+        max_abs_error=np.abs(err).max(axis=0),
+        r2=r2,
+        t=np.asarray(held_out.t)[: measured.shape[0]],
+        measured=measured,
+        predicted=predicted,
+        source=dict(src) if isinstance(src, dict) else {"source": str(src)},
+    )
+    return IdentifyOutcome(cfg, mech, base, result, metrics, train, held_out, tuple(notes))
