@@ -81,7 +81,7 @@ def write_log(path: Path, table: np.ndarray) -> Path:
 
 
 def config(train: Path | str, valid: Path | str, *, plots: bool = False, lowpass: bool = True, extra: str = "") -> str:
-    """A configuration in the shape the demo writes (see dynid.pipeline.demo)."""
+    """A configuration of builtin:puma560 logs (the shape of README's example)."""
     lp = "lowpass = { cutoff_hz = 5.0, order = 4, filter_effort = false }" if lowpass else ""
     return f"""\
 [robot]
@@ -548,16 +548,23 @@ def test_bad_toml_syntax(runs):
 
 # ---------------------------------------------------------------------- demo
 def test_demo(runs):
+    """The parallel-robot study: simulate shang2dof, identify (WLS and OLS), validate, track again."""
     run = runs["demo"]
     r = run.last
     assert r.returncode == 0, r.stderr
-    m = re.search(r"Ground truth check: (\d+) of (\d+) true base parameters lie inside their 95 % intervals", r.stdout)
+    for label in ("WLS", "OLS"):
+        m = re.search(rf"Ground truth check \({label}\): (\d+) of (\d+) true base parameters", r.stdout)
+        assert m and int(m.group(2)) == 25, r.stdout
+    m = re.search(r"nominal\s+([0-9.e+-]+)\s+[0-9.e+-]+\nidentified \(WLS\)\s+([0-9.e+-]+)\s+[0-9.e+-]+\ntrue\s+([0-9.e+-]+)", r.stdout)
     assert m, r.stdout
-    assert int(m.group(2)) == 58 and int(m.group(1)) >= 50
-    for name in ("summary.txt", "result.json", "params.csv", "config.toml"):
+    nominal, identified, true = (float(x) for x in m.groups())
+    assert true < nominal and true < identified  # the true model tracks best (paper 001, Table 5)
+    for name in ("summary.txt", "result.json", "params.csv", "config.toml", "tracking.png", "tracking.json"):
         assert f"{run.out / name}" in r.stdout
         assert (run.out / name).is_file()
-    assert (run.out / "data" / "train.csv").is_file()
+    assert (run.out / "ols" / "result.json").is_file()
+    for part in ("train", "validation"):
+        assert (run.out / "data" / part / "log.csv").is_file() and (run.out / "data" / part / "truth.json").is_file()
     assert "Ground truth check" in (run.out / "summary.txt").read_text()
 
 

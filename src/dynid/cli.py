@@ -178,16 +178,21 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     print()
     print(demo.truth_table())
     print()
+    print(demo.tracking_table())
+    print()
     out = Path(args.out)
     print(f"outputs in {out}/:")
     for name, what in (
         ("summary.txt", "this summary"),
-        ("result.json", "method, parameters (value, std, rel. std %, 95 % CI), validation"),
+        ("result.json", "WLS: method, parameters (value, std, rel. std %, 95 % CI), validation"),
         ("params.csv", "identified base parameters with grouping expressions"),
-        ("validation.png", "held-out torques, measured vs predicted"),
+        ("validation.png", "held-out projected forces, measured vs predicted"),
         ("report.html", "HTML report"),
-        ("config.toml", "the configuration used (rerun: dynid identify config.toml --out DIR)"),
-        ("data/", "simulated logs (train.csv, validation.csv); truth.json holds the true parameters"),
+        ("tracking.png", "rectangle tracked with the nominal, identified and true models"),
+        ("tracking.json", "P-RSME and errors of the three tracking runs"),
+        ("config.toml", "the identification config (rerun: dynid identify config.toml --out DIR)"),
+        ("ols/", "the same identification with OLS"),
+        ("data/", "simulated logs (train: circle, validation: rectangle), each with truth.json and metadata.json"),
     ):
         if (out / name.rstrip("/")).exists():
             print(f"  {out / name}  - {what}")
@@ -218,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
     ps.add_argument("-q", "--quiet", action="store_true", help="no summary")
     ps.set_defaults(func=_cmd_simulate)
 
-    pd = sub.add_parser("demo", help="simulate builtin:puma560, identify it and validate (needs nothing else)")
+    pd = sub.add_parser("demo", help="simulate builtin:shang2dof under control, identify it, validate, track again (needs nothing else)")
     pd.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     pd.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     pd.set_defaults(func=_cmd_demo)

@@ -1,6 +1,6 @@
 """Human-facing output: plots (matplotlib, optional extra ``plot``) and an HTML report."""
 
 from dynid.report.html import write_html_report
-from dynid.report.plots import plot_validation
+from dynid.report.plots import plot_tracking, plot_validation
 
-__all__ = ["plot_validation", "write_html_report"]
+__all__ = ["plot_tracking", "plot_validation", "write_html_report"]

@@ -7,7 +7,7 @@ from typing import Any
 
 from dynid.errors import require
 
-__all__ = ["plot_validation"]
+__all__ = ["plot_tracking", "plot_validation"]
 
 _MAX_POINTS = 4000
 
@@ -42,6 +42,40 @@ def plot_validation(metrics: Any, path: str | Path) -> Path:
     axes[0, 0].legend(loc="upper left", fontsize=8, ncol=3)
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle("Held-out validation: measured vs predicted joint torques", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_tracking(reference, paths: dict[str, Any], path: str | Path, *, title: str = "") -> Path:
+    """End-effector paths of a planar robot under several controllers, and their errors.
+
+    ``reference`` (n, 2) and each of ``paths`` (label -> (n, 2)) in metres.
+    """
+    import numpy as np
+
+    plt = _pyplot()
+    ref = np.asarray(reference)
+    fig, (ax, axe) = plt.subplots(1, 2, figsize=(11, 4.6))
+    ax.plot(ref[:, 0], ref[:, 1], color="0.3", lw=1.0, ls="--", label="commanded")
+    t = np.arange(ref.shape[0])
+    for label, p in paths.items():
+        p = np.asarray(p)
+        ax.plot(p[:, 0], p[:, 1], lw=0.9, label=label)
+        axe.plot(t, 1e6 * np.linalg.norm(p - ref, axis=1), lw=0.8, label=label)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    axe.set_xlabel("sample")
+    axe.set_ylabel("position error [µm]")
+    axe.legend(fontsize=8)
+    axe.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
