@@ -113,6 +113,15 @@ def test_twins_run(path):
     assert m["n_samples"] > 100
     if m["kind"] == "closed-loop":
         assert m["constraint_error_max"] < 1e-8
+    if path.stem == "hexapod_fourier":  # task-space excitation (paper 004): pose and angular velocity logged
+        assert m["independent_coordinates"] == ["PX", "PY", "PZ", "RZ", "RY", "RX"]
+        assert {"ref_wx", "ref_wy", "ref_wz"} <= set(out.columns)
+
+
+def test_task_space_needs_a_parallel_robot(tmp_path):
+    doc = {"robot": {"model": "builtin:generic6r"}, "trajectory": {"kind": "fourier", "coordinates": "task"}}
+    with pytest.raises(ConfigError, match="is for parallel robots"):
+        run_simulation(parse_simulate_config(doc, tmp_path))
 
 
 @pytest.mark.parametrize(

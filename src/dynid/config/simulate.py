@@ -8,6 +8,9 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     true parameters (body parameters and joint terms) away from the model's nominal values
     (default 0: the truth is the nominal model); ``perturbation_seed``.
 ``[trajectory]``
+    ``coordinates``: ``"independent"`` (default: the robot's independent coordinates) or
+    ``"task"`` (the platform pose of a parallel robot that declares one: x, y, z and the
+    z-y-x angles; the commanded angular velocity of paper 004, Eq. 16 is logged too);
     ``kind`` (required): ``"circle"`` (``centre``, ``radius``, ``speed``, ``turns``,
     ``clockwise``, ``ramp``), ``"polyline"`` (``vertices``, ``speed``, ``ramp``) or
     ``"fourier"`` (``base_frequency_hz``, ``harmonics``, ``fill``: fraction of the half range
@@ -119,12 +122,12 @@ def _num_or_list(value: Any, where: str, positive: bool = False):
 
 
 def _parse_trajectory(t: Any) -> TrajectoryConfig:
-    t = _table(t, "trajectory", {"kind"} | set().union(*_TRAJ_KEYS.values()), {"kind"})
+    t = _table(t, "trajectory", {"kind", "coordinates"} | set().union(*_TRAJ_KEYS.values()), {"kind"})
     kind = _str(t["kind"], "trajectory.kind", tuple(_TRAJ_KEYS))
-    extra = sorted(set(t) - {"kind"} - _TRAJ_KEYS[kind])
+    extra = sorted(set(t) - {"kind", "coordinates"} - _TRAJ_KEYS[kind])
     if extra:
         raise ConfigError(f"trajectory: keys {extra} do not apply to kind {kind!r}; it takes {sorted(_TRAJ_KEYS[kind])}")
-    v: dict[str, Any] = {}
+    v: dict[str, Any] = {"coordinates": _str(t.get("coordinates", "independent"), "trajectory.coordinates", ("independent", "task"))}
     w = "trajectory"
     if kind == "circle":
         for k in ("centre", "radius", "speed"):

@@ -99,6 +99,11 @@ class Mechanism:
     name, source : str
     notes : sequence of str
         Modelling choices a user should know (shown by ``dynid info``).
+    task_coordinates : sequence of str
+        Names of the joints whose positions are the platform (end-effector) pose when the tree
+        reaches the platform through a chain of 1-DOF joints (``PX, PY, PZ, RZ, RY, RX`` in
+        the built-ins), as many as the degrees of freedom: the task-space coordinates
+        :meth:`in_task_space` switches to.
     """
 
     pin_model: pin.Model
@@ -112,6 +117,7 @@ class Mechanism:
     name: str = "mechanism"
     source: str = ""
     notes: tuple[str, ...] = ()
+    task_coordinates: tuple[str, ...] = ()
 
     # derived
     bodies: tuple[int, ...] = dataclasses.field(init=False)
@@ -142,6 +148,10 @@ class Mechanism:
         set_(self, "terms", tuple(self.terms))
         set_(self, "massless", tuple(sorted(int(j) for j in self.massless)))
         set_(self, "notes", tuple(self.notes))
+        set_(self, "task_coordinates", tuple(self.task_coordinates))
+        missing = [n for n in self.task_coordinates if n not in m.names[1:]]
+        if missing:
+            raise ModelError(f"task coordinates {missing} are not joints of {self.name!r}")
         set_(self, "nominal_terms", MappingProxyType(dict(self.nominal_terms)))
         nv = m.nv
         if not self.closures:
@@ -253,6 +263,14 @@ class Mechanism:
             f"cannot assemble the loops of {self.name!r} near the given configuration "
             f"(constraint residual {np.linalg.norm(c, np.inf):.3g} after {max_iter} iterations)"
         )
+
+    def in_task_space(self) -> Mechanism:
+        """The same mechanism with the platform pose (``task_coordinates``) as independent
+        coordinates, e.g. for task-space trajectories and control (paper 004, Eq. 16)."""
+        if not self.task_coordinates:
+            raise ModelError(f"{self.name!r} declares no task coordinates (a platform reached through a joint chain)")
+        joints = tuple(list(self.pin_model.names).index(n) - 1 for n in self.task_coordinates)
+        return dataclasses.replace(self, independent=JointCoordinates(joints), q_guess=self.q_ref)
 
     # ------------------------------------------------------------------ sizes and names
     @property

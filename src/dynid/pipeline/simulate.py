@@ -39,7 +39,7 @@ from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.base_parameters import robot_base_parameters
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
 from dynid.simulation.control import ComputedTorque, FeedforwardPID, JointPID, SerialPlant, model_inverse, simulate_control
-from dynid.simulation.paths import CirclePath, FourierQuintic, PolylinePath, Repeated
+from dynid.simulation.paths import CirclePath, FourierQuintic, PolylinePath, Repeated, zyx_angular_velocity
 from dynid.simulation.sensors import Sensors
 from dynid.simulation.trajectories import FourierTrajectory
 from dynid.stats import tracking_errors
@@ -155,6 +155,10 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
     """Run the virtual experiment of ``cfg`` (nothing is written)."""
     robot = load_model(cfg.robot.model)
     mech = isinstance(robot, Mechanism)
+    if cfg.trajectory.values["coordinates"] == "task":
+        if not mech:
+            raise ConfigError("trajectory.coordinates = 'task' is for parallel robots (a serial robot moves in joint space here)")
+        robot = robot.in_task_space()
     nominal = robot.nominal_parameters()
     true = _true_parameters(nominal, cfg)
     model_params = true if cfg.control.model == "true" else nominal
@@ -208,6 +212,12 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
         columns[f"{effort_prefix}_{name}"] = meas.effort[:, k]
     for k, name in enumerate(coord_names):
         columns[f"ref_{name}"] = u_ref[meas.index, k]
+    if {"RZ", "RY", "RX"} <= set(coord_names):  # commanded angular velocity, paper 004 Eq. 16
+        sel = [coord_names.index(n) for n in ("RZ", "RY", "RX")]
+        _, du_ref, ddu_ref = traj.sample(motion.t)
+        omega, _ = zyx_angular_velocity(u_ref[:, sel], du_ref[:, sel], ddu_ref[:, sel])
+        for k, axis in enumerate("xyz"):
+            columns[f"ref_w{axis}"] = omega[meas.index, k]
     base = mechanism_base_parameters(robot) if mech else robot_base_parameters(robot)
     truth = {
         "model": cfg.robot.model,
@@ -241,6 +251,8 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
             "q_*": "actuator positions [rad or m], quantized and noisy",
             f"{effort_prefix}_*": "actuator efforts " + ("[A] (torque / torque constant)" if meas.effort_kind == "current" else "[N*m or N]"),
             "ref_*": "commanded independent coordinates at the nominal sample instants",
+            "ref_w*": "commanded angular velocity of the platform [rad/s], world axes (paper 004, Eq. 16), when the "
+                      "coordinates include the z-y-x angles",
         },
         "sensors": {k: (np.asarray(v).tolist() if v is not None else None) for k, v in dataclasses.asdict(s).items()},
         "tracking": {k: (np.asarray(v).tolist() if not isinstance(v, float) else v) for k, v in track.items()},

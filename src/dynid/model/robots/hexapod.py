@@ -183,6 +183,7 @@ def build(extras: object = None) -> Mechanism:
         q_guess=inverse_kinematics(HOME[None])[0],
         name="hexapod",
         source="builtin:hexapod",
+        task_coordinates=PLATFORM_JOINTS,
         notes=(
             "6-UPS hexapod modelled like PaLiDA (papers 002/004): 19 bodies, cardan ring + stator + slider per strut",
             "dimensions are our choice; body values reproduce the a priori p1..p10 of paper 002, Table 2",
