@@ -149,3 +149,27 @@ def test_simulate_cli_errors_are_one_line(tmp_path):
     r = _dynid("simulate", "bad.toml", "--out", "o", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "trajectory.kind" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_ground_truth_friction_and_payload(tmp_path):
+    """[robot.friction] replaces the linear friction of the truth (a Stribeck friction on the
+    five-bar's motors) and [robot.payload] loads a serial arm: both reach the logged forces."""
+    base = {"trajectory": {"kind": "fourier", "base_frequency_hz": 1.0, "harmonics": 2, "fill": 0.1, "seed": 1},
+            "control": {"rate_hz": 500}, "simulation": {"duration": 0.2}}
+    runs = {}
+    for label, robot in (("plain", {"model": "builtin:fivebar"}),
+                         ("stribeck", {"model": "builtin:fivebar",
+                                       "friction": {"model": "stribeck", "fc": 2.0, "fs": 3.0, "fv": 1.0, "vs": 0.05}})):
+        runs[label] = run_simulation(parse_simulate_config({**base, "robot": robot}, tmp_path))
+    extra = runs["stribeck"].columns["tau_qa1"] - runs["plain"].columns["tau_qa1"]
+    assert np.abs(extra).max() > 1.0  # N*m: about the 2-3 N*m of the Stribeck drive friction
+    assert runs["stribeck"].truth["ground_truth_friction"]["model"] == "stribeck"
+    arm = {"model": "builtin:generic6r"}
+    heavy = {**arm, "payload": {"mass": 5.0, "com": [0.0, 0.0, 0.1], "inertia": [0.01, 0.01, 0.01]}}
+    t_arm = run_simulation(parse_simulate_config({**base, "robot": arm}, tmp_path)).columns["tau_joint_2"]
+    t_heavy = run_simulation(parse_simulate_config({**base, "robot": heavy}, tmp_path)).columns["tau_joint_2"]
+    assert np.abs(t_heavy - t_arm).max() > 5.0  # N*m: 5 kg on the wrist loads the shoulder
+    with pytest.raises(ConfigError, match="needs \\['fs', 'vs'\\]"):
+        parse_simulate_config({**base, "robot": {"model": "builtin:fivebar", "friction": {"model": "stribeck", "fc": 1, "fv": 1}}}, tmp_path)
+    with pytest.raises(ConfigError, match="for serial robots"):
+        run_simulation(parse_simulate_config({**base, "robot": {"model": "builtin:fivebar", "payload": {"mass": 1.0}}}, tmp_path))

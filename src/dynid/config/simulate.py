@@ -7,6 +7,16 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     ``perturbation``: relative standard deviation of a multiplicative perturbation of the
     true parameters (body parameters and joint terms) away from the model's nominal values
     (default 0: the truth is the nominal model); ``perturbation_seed``.
+``[robot.friction]``
+    Ground-truth friction replacing the linear joint terms of the joints of a serial robot or
+    the actuated joints of a parallel one (passive joints keep theirs): ``model`` =
+    ``"coulomb_viscous"`` (``fc``, ``fv``, optional ``fc_neg``, ``fv_neg``, ``offset``),
+    ``"stribeck"`` (paper 000 Eq. 32: ``fc``, ``fs``, ``fv``, ``vs``, ``delta``), ``"power_law"``
+    or ``"smooth_stribeck"`` (paper 003: ``fc``, ``fv``, ``alpha``, ``offset`` / ``fc``, ``fs``,
+    ``fv``, ``vs``, ``kv``, ``alpha``).
+``[robot.payload]``
+    Serial robots: a load on the last body, ``mass`` [kg], ``com`` [m] and principal
+    ``inertia`` about the centre of mass [kg·m²] in the last joint's frame.
 ``[trajectory]``
     ``coordinates``: ``"independent"`` (default: the robot's independent coordinates) or
     ``"task"`` (the platform pose of a parallel robot that declares one: x, y, z and the
@@ -69,6 +79,8 @@ class RobotSimConfig:
     model: str
     perturbation: float = 0.0
     perturbation_seed: int = 0
+    friction: Mapping[str, Any] | None = None
+    payload: Mapping[str, Any] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,6 +131,41 @@ def _num_or_list(value: Any, where: str, positive: bool = False):
     if isinstance(value, list):
         return _list(value, where, lambda v, w: _num(v, w, positive))
     return _num(value, where, positive)
+
+
+FRICTION_MODELS = {
+    "coulomb_viscous": ({"fc", "fv"}, {"fc_neg", "fv_neg", "offset"}),
+    "stribeck": ({"fc", "fs", "fv", "vs"}, {"delta"}),
+    "power_law": ({"fc", "fv", "alpha"}, {"offset"}),
+    "smooth_stribeck": ({"fc", "fs", "fv", "vs", "kv"}, {"alpha"}),
+}
+"""Ground-truth friction models of ``[robot.friction]``: required and optional coefficients
+(numbers or one per joint / actuator; see :mod:`dynid.model.friction`)."""
+
+
+def _parse_friction(t: Any) -> dict[str, Any]:
+    where = "robot.friction"
+    keys = {"model"} | set().union(*(a | b for a, b in FRICTION_MODELS.values()))
+    t = _table(t, where, keys, {"model"})
+    model = _str(t["model"], f"{where}.model", tuple(FRICTION_MODELS))
+    required, optional = FRICTION_MODELS[model]
+    missing = sorted(required - set(t))
+    extra = sorted(set(t) - {"model"} - required - optional)
+    if missing:
+        raise ConfigError(f"{where}: model {model!r} needs {missing}")
+    if extra:
+        raise ConfigError(f"{where}: keys {extra} do not apply to model {model!r}")
+    return {"model": model, **{k: _num_or_list(v, f"{where}.{k}") for k, v in t.items() if k != "model"}}
+
+
+def _parse_payload(t: Any) -> dict[str, Any]:
+    where = "robot.payload"
+    t = _table(t, where, {"mass", "com", "inertia"}, {"mass"})
+    return {
+        "mass": _num(t["mass"], f"{where}.mass", True),
+        "com": _list(t.get("com", [0.0, 0.0, 0.0]), f"{where}.com", _num, 3),
+        "inertia": _list(t.get("inertia", [0.0, 0.0, 0.0]), f"{where}.inertia", _num, 3),
+    }
 
 
 def _parse_trajectory(t: Any) -> TrajectoryConfig:
@@ -209,11 +256,13 @@ def parse_simulate_config(doc: Mapping[str, Any], base_dir: Path, source: Path |
     """Validate a parsed TOML document (see module docstring)."""
     doc = _table(dict(doc), "config", {"robot", "trajectory", "control", "sensors", "simulation", "output"},
                  {"robot", "trajectory"})
-    r = _table(doc["robot"], "robot", {"model", "perturbation", "perturbation_seed"}, {"model"})
+    r = _table(doc["robot"], "robot", {"model", "perturbation", "perturbation_seed", "friction", "payload"}, {"model"})
     robot = RobotSimConfig(
         model=_str(r["model"], "robot.model"),
         perturbation=_num(r.get("perturbation", 0.0), "robot.perturbation"),
         perturbation_seed=_int(r.get("perturbation_seed", 0), "robot.perturbation_seed", 0),
+        friction=_parse_friction(r["friction"]) if "friction" in r else None,
+        payload=_parse_payload(r["payload"]) if "payload" in r else None,
     )
     if robot.perturbation < 0:
         raise ConfigError(f"robot.perturbation must be >= 0, got {robot.perturbation}")

@@ -137,6 +137,43 @@ def _gains(value, n: int, where: str) -> np.ndarray:
     return np.broadcast_to(g, (n,)).copy()
 
 
+def _friction_model(spec: dict | None, n: int):
+    """The ground-truth friction model of ``[robot.friction]`` for ``n`` joints, or None."""
+    if spec is None:
+        return None
+    from dynid.model import friction as fr
+
+    cls = {"coulomb_viscous": fr.CoulombViscous, "stribeck": fr.Stribeck, "power_law": fr.PowerLawViscous,
+           "smooth_stribeck": fr.SmoothStribeck}[spec["model"]]
+    kw = {}
+    for k, v in spec.items():
+        if k == "model":
+            continue
+        a = np.asarray(v, dtype=float)
+        if a.ndim == 1 and a.size != n:
+            raise ConfigError(f"robot.friction.{k} has {a.size} entries; the friction acts on {n} joints")
+        kw[k] = a
+    return cls(**kw)
+
+
+def _mechanism_friction(mech: Mechanism, params: np.ndarray, model):
+    """Generalized friction forces: the joint terms' friction on the passive joints and
+    ``model`` on the actuated ones (rotor inertias stay in the simulator)."""
+    from dynid.model.closed_loop import term_columns
+
+    nb = mech.n_body_params
+    theta = np.array(params[nb:], dtype=float)
+    theta[[k for k, t in enumerate(mech.terms) if t.kind == "inertia"]] = 0.0
+    act = list(mech.actuated)
+
+    def forces(dq):
+        f = term_columns(mech, dq[None], np.zeros((1, dq.size)))[0] @ theta
+        f[act] = model.force(dq[act])[0]
+        return f
+
+    return forces
+
+
 def _force_covariance(s, n_a: int) -> np.ndarray:
     if s.force_covariance is not None:
         cov = np.array(s.force_covariance, dtype=float)
@@ -183,7 +220,13 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
         if c.kind != "computed_torque":
             raise ConfigError(f"control.kind = {c.kind!r} is for serial robots; a mechanism uses 'computed_torque'")
         ctrl = AugmentedPD(robot, model_params, kp, kd, c.distribution if robot.redundant else None)
-        motion = simulate_mechanism_control(ConstrainedSimulator(robot, true), ctrl, traj.sample,
+        if cfg.robot.payload is not None:
+            raise ConfigError("robot.payload is for serial robots (a parallel robot's load is part of its platform)")
+        fmodel = _friction_model(cfg.robot.friction, robot.n_actuators)
+        override = None
+        if fmodel is not None:
+            override = _mechanism_friction(robot, true, fmodel)
+        motion = simulate_mechanism_control(ConstrainedSimulator(robot, true, friction=override), ctrl, traj.sample,
                                             duration=duration, dt=dt, substeps=c.substeps)
         q_act = motion.q[:, list(robot.actuated)]
         tau = motion.tau_a
@@ -191,7 +234,13 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
         act_names = robot.actuated_names
         constraint = float(np.abs(robot.constraint_residual(motion.q[:: max(1, motion.t.size // 200)])).max())
     else:
-        plant = SerialPlant(robot, true)
+        payload = None
+        if cfg.robot.payload is not None:
+            import pinocchio as pin
+
+            pl = cfg.robot.payload
+            payload = pin.Inertia(pl["mass"], np.asarray(pl["com"], float), np.diag(np.asarray(pl["inertia"], float)))
+        plant = SerialPlant(robot, true, friction=_friction_model(cfg.robot.friction, robot.dof), payload=payload)
         inverse = model_inverse(robot, model_params)
         if c.kind == "computed_torque":
             ctrl = ComputedTorque(inverse, kp, kd)
@@ -225,6 +274,9 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
         "true_parameters": true.tolist(),
         "nominal_parameters": nominal.tolist(),
         "perturbation": cfg.robot.perturbation,
+        "ground_truth_friction": (dict(cfg.robot.friction) if cfg.robot.friction is not None else
+                                  "the joint terms of true_parameters"),
+        "payload": dict(cfg.robot.payload) if cfg.robot.payload is not None else None,
         "base_parameters": {
             "names": list(base.names),
             "true_values": base.from_standard(true).tolist(),
