@@ -417,15 +417,20 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
     )
 
 
-def load_config(path: str | Path) -> Config:
-    """Read and validate a TOML configuration file."""
-    path = Path(path)
+def read_toml(path: Path) -> dict[str, Any]:
+    """A TOML document, or a one-line error naming the file (missing, not text, invalid)."""
     if not path.is_file():
         raise InputError(f"config file not found: {path}")
     try:
-        doc = tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML ({exc})") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a text file") from None
+
+
+def load_config(path: str | Path) -> Config:
+    """Read and validate a TOML configuration file."""
+    path = Path(path)
+    doc = read_toml(path)
     return parse_config(doc, path.resolve().parent, source=path.resolve())

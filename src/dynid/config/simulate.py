@@ -49,13 +49,12 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from dynid.config import _bool, _int, _list, _num, _str, _table
-from dynid.errors import ConfigError, InputError
+from dynid.config import _bool, _int, _list, _num, _str, _table, read_toml
+from dynid.errors import ConfigError
 
 __all__ = [
     "ControlSimConfig",
@@ -289,10 +288,5 @@ def parse_simulate_config(doc: Mapping[str, Any], base_dir: Path, source: Path |
 def load_simulate_config(path: str | Path) -> SimulateConfig:
     """Read and validate a ``dynid simulate`` TOML file."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"config file not found: {path}")
-    try:
-        doc = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+    doc = read_toml(path)
     return parse_simulate_config(doc, path.resolve().parent, source=path.resolve())

@@ -19,6 +19,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.closed_loop import term_columns
 from dynid.model.mechanism import Mechanism
+from dynid.simulation._integrate import rk4_step
 
 __all__ = ["AugmentedPD", "ConstrainedSimulator", "SimulatedMotion", "simulate_mechanism_control"]
 
@@ -215,11 +216,6 @@ def simulate_mechanism_control(
         if k == n - 1:
             break
         for _ in range(substeps):
-            k1 = sim.acceleration(q, v, tau)
-            k2 = sim.acceleration(q + h / 2 * v, v + h / 2 * k1, tau)
-            k3 = sim.acceleration(q + h / 2 * (v + h / 2 * k1), v + h / 2 * k2, tau)
-            k4 = sim.acceleration(q + h * (v + h / 2 * k2), v + h * k3, tau)
-            q = q + h * v + h**2 / 6 * (k1 + k2 + k3)
-            v = v + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            q, v = rk4_step(lambda a, b: sim.acceleration(a, b, tau), q, v, h)
         q, v = mech.project(q, v)
     return SimulatedMotion(t=t, q=Q, dq=V, ddq=A, tau_a=T)

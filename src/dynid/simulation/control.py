@@ -32,6 +32,7 @@ from dynid.errors import InputError
 from dynid.model.friction import CoulombViscous, FrictionModel
 from dynid.model.regressor import inverse_dynamics
 from dynid.model.robot import RobotModel
+from dynid.simulation._integrate import rk4_step
 
 __all__ = ["ComputedTorque", "ControlledMotion", "FeedforwardPID", "JointPID", "SerialPlant", "simulate_control"]
 
@@ -204,10 +205,5 @@ def simulate_control(
         if k == n - 1:
             break
         for _ in range(substeps):
-            k1v = plant.acceleration(q, v, tau)
-            k2v = plant.acceleration(q + h / 2 * v, v + h / 2 * k1v, tau)
-            k3v = plant.acceleration(q + h / 2 * (v + h / 2 * k1v), v + h / 2 * k2v, tau)
-            k4v = plant.acceleration(q + h * (v + h / 2 * k2v), v + h * k3v, tau)
-            q = q + h * v + h**2 / 6 * (k1v + k2v + k3v)
-            v = v + h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
+            q, v = rk4_step(lambda a, b: plant.acceleration(a, b, tau), q, v, h)
     return ControlledMotion(t=t, q=Q, dq=V, ddq=A, tau=T, q_ref=qr, dq_ref=dqr, ddq_ref=ddqr)

@@ -1,0 +1,17 @@
+"""One step of classical Runge–Kutta 4 for :math:`\\ddot q = f(q, \\dot q)` (the held torque is
+inside ``f``), shared by the serial and the closed-loop simulators."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from dynid._typing import FloatArray
+
+
+def rk4_step(acc: Callable[[FloatArray, FloatArray], FloatArray], q: FloatArray, v: FloatArray, h: float) -> tuple[FloatArray, FloatArray]:
+    """Positions and velocities after ``h`` seconds (RK4 on the first-order system (q, v))."""
+    k1 = acc(q, v)
+    k2 = acc(q + h / 2 * v, v + h / 2 * k1)
+    k3 = acc(q + h / 2 * (v + h / 2 * k1), v + h / 2 * k2)
+    k4 = acc(q + h * (v + h / 2 * k2), v + h * k3)
+    return q + h * v + h**2 / 6 * (k1 + k2 + k3), v + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
