@@ -168,6 +168,26 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_design(args: argparse.Namespace) -> int:
+    from dynid.config.design import load_design_config
+
+    _check_out(args.out)
+    cfg = load_design_config(args.config)
+    from dynid.pipeline.design import run_design, write_design
+
+    with _progress_bar(not args.quiet) as progress:
+        outcome = run_design(cfg, progress)
+    written = write_design(outcome, args.out)
+    if not args.quiet:
+        print(outcome.summary_text())
+        print()
+    print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    if not outcome.design.success:
+        print(f"dynid: error: the design violates a limit: {outcome.design.violation}", file=sys.stderr)
+        return EXIT_INPUT
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from dynid.pipeline.demo import run_demo
 
@@ -222,6 +242,12 @@ def build_parser() -> argparse.ArgumentParser:
     ps.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     ps.add_argument("-q", "--quiet", action="store_true", help="no summary")
     ps.set_defaults(func=_cmd_simulate)
+
+    pg = sub.add_parser("design", help="optimize an excitation trajectory under actuator and workspace limits")
+    pg.add_argument("config", help="TOML configuration (schema in the README, 'Excitation design')")
+    pg.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    pg.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+    pg.set_defaults(func=_cmd_design)
 
     pd = sub.add_parser("demo", help="simulate builtin:shang2dof under control, identify it, validate, track again (needs nothing else)")
     pd.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

@@ -104,6 +104,12 @@ class Mechanism:
         reaches the platform through a chain of 1-DOF joints (``PX, PY, PZ, RZ, RY, RX`` in
         the built-ins), as many as the degrees of freedom: the task-space coordinates
         :meth:`in_task_space` switches to.
+    task_ik : callable, optional
+        Closed-form inverse kinematics ``task_ik(pose (n, n_task)) -> q (n, n_v)`` for the task
+        coordinates; :meth:`solve_positions` of the task-space mechanism starts Newton from it
+        (one step checks it) instead of walking from the previous sample.
+    position_guess : callable, optional
+        Set by :meth:`in_task_space`: initial guesses of :meth:`solve_positions` from ``u``.
     """
 
     pin_model: pin.Model
@@ -118,6 +124,8 @@ class Mechanism:
     source: str = ""
     notes: tuple[str, ...] = ()
     task_coordinates: tuple[str, ...] = ()
+    task_ik: object = None
+    position_guess: object = None
 
     # derived
     bodies: tuple[int, ...] = dataclasses.field(init=False)
@@ -270,7 +278,7 @@ class Mechanism:
         if not self.task_coordinates:
             raise ModelError(f"{self.name!r} declares no task coordinates (a platform reached through a joint chain)")
         joints = tuple(list(self.pin_model.names).index(n) - 1 for n in self.task_coordinates)
-        return dataclasses.replace(self, independent=JointCoordinates(joints), q_guess=self.q_ref)
+        return dataclasses.replace(self, independent=JointCoordinates(joints), q_guess=self.q_ref, position_guess=self.task_ik)
 
     # ------------------------------------------------------------------ sizes and names
     @property
@@ -514,6 +522,11 @@ class Mechanism:
         if not np.all(np.isfinite(u)):
             raise InputError("independent coordinates contain NaN or infinite values")
         n = u.shape[0]
+        if q0 is None and self.position_guess is not None:
+            try:
+                q0 = np.asarray(self.position_guess(u), dtype=float)
+            except ModelError:
+                q0 = None  # out of the closed form's reach: Newton from q_ref says why
         per_sample = q0 is not None and np.ndim(q0) == 2
         if per_sample and np.shape(q0) != (n, self.nv):
             raise InputError(f"q0 must have shape ({n}, {self.nv}), got {np.shape(q0)}")

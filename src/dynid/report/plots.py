@@ -7,7 +7,7 @@ from typing import Any
 
 from dynid.errors import require
 
-__all__ = ["plot_tracking", "plot_validation"]
+__all__ = ["plot_design", "plot_tracking", "plot_validation"]
 
 _MAX_POINTS = 4000
 
@@ -81,3 +81,47 @@ def plot_tracking(reference, paths: dict[str, Any], path: str | Path, *, title: 
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_design(t, qa, dqa, ddqa, actuators, limits, u, coordinates, path_traj, path_spectrum) -> None:
+    """Actuator positions, velocities, accelerations of a design against their limits, and the
+    amplitude spectrum of the design coordinates."""
+    import numpy as np
+
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    lo, hi = limits.position
+    for ax, arr, label, lim in ((axes[0], qa, "position", None), (axes[1], dqa, "velocity", limits.velocity),
+                                (axes[2], ddqa, "acceleration", limits.acceleration)):
+        for j, name in enumerate(actuators):
+            line, = ax.plot(t, arr[:, j], lw=0.9, label=name)
+            if label == "position":
+                ax.axhline(lo[j], color=line.get_color(), lw=0.6, ls=":")
+                ax.axhline(hi[j], color=line.get_color(), lw=0.6, ls=":")
+            elif lim is not None:
+                b = np.broadcast_to(np.asarray(lim, float), (arr.shape[1],))[j]
+                ax.axhline(b, color=line.get_color(), lw=0.6, ls=":")
+                ax.axhline(-b, color=line.get_color(), lw=0.6, ls=":")
+        ax.set_ylabel(label, fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=min(6, len(actuators)), loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle("actuators along the design (dotted: limits)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path_traj, dpi=100)
+    plt.close(fig)
+    n = u.shape[0]
+    dt = t[1] - t[0]
+    f = np.fft.rfftfreq(n, dt)
+    amp = np.abs(np.fft.rfft(u - u.mean(axis=0), axis=0)) * 2 / n
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for k, name in enumerate(coordinates):
+        ax.semilogy(f[1:], np.maximum(amp[1:, k], 1e-12), marker="o", ms=3, lw=0.8, label=name)
+    ax.set_xlim(0, min(f[-1], 20 * f[1]))
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("amplitude")
+    ax.legend(fontsize=7, ncol=3)
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path_spectrum, dpi=100)
+    plt.close(fig)

@@ -184,6 +184,7 @@ def build(extras: object = None) -> Mechanism:
         name="hexapod",
         source="builtin:hexapod",
         task_coordinates=PLATFORM_JOINTS,
+        task_ik=inverse_kinematics,
         notes=(
             "6-UPS hexapod modelled like PaLiDA (papers 002/004): 19 bodies, cardan ring + stator + slider per strut",
             "dimensions are our choice; body values reproduce the a priori p1..p10 of paper 002, Table 2",

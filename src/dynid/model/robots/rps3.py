@@ -178,6 +178,7 @@ def build(extras: Sequence[str] | None = None) -> Mechanism:
         name="rps3",
         source="builtin:rps3",
         task_coordinates=INDEPENDENT_POSE,
+        task_ik=inverse_kinematics,
         notes=(
             "3-RPS after paper 000 (Mata, Farhat et al.); dimensions and body values are our choices (the chapter gives none)",
             "platform pose: chain PX, PY, PZ, RZ, RY, RX with massless intermediate bodies; (z, θ, φ) independent",
