@@ -36,7 +36,7 @@ from dynid.model import load_robot
 from dynid.model.robots import build_mechanism
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
 from dynid.simulation.control import ComputedTorque, SerialPlant, model_inverse, simulate_control
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories import FourierTrajectory
 
 TARGET_S = 30.0
 

@@ -23,6 +23,7 @@ LAYERS = {
     "learning": 5,
     "model": 4,
     "signals": 3,
+    "trajectories": 3,
     "stats": 3,
     "dataset": 2,
     "_typing": 1,

@@ -1,4 +1,4 @@
-"""Trajectories of dynid.simulation.paths: analytic derivatives against finite differences,
+"""Trajectories of dynid.trajectories: analytic derivatives against finite differences,
 boundary conditions, constant speeds, periodicity."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pinocchio as pin
 import pytest
 
 from dynid.errors import InputError
-from dynid.simulation.paths import (
+from dynid.trajectories import (
     BidirectionalVelocity,
     CirclePath,
     FourierQuintic,
@@ -16,7 +16,7 @@ from dynid.simulation.paths import (
     Repeated,
     zyx_angular_velocity,
 )
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories import FourierTrajectory
 
 
 def _fourier(rng, n_joints=3):

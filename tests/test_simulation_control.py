@@ -19,7 +19,7 @@ from dynid.simulation.control import (
     model_inverse,
     simulate_control,
 )
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories import FourierTrajectory
 
 
 def test_friction_models_follow_their_equations():

@@ -10,8 +10,8 @@ from dynid.model.closed_loop import actuator_regressor
 from dynid.model.friction import Stribeck
 from dynid.model.robots import build_mechanism, hexapod
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
-from dynid.simulation.paths import CirclePath
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories import CirclePath
+from dynid.trajectories import FourierTrajectory
 from dynid.stats import tracking_errors
 
 

@@ -3,7 +3,7 @@
 coordinates, or the platform pose in task space).
 
 Design variables: the Fourier coefficients :math:`a_{jk}, b_{jk}` and offsets :math:`q_{0,j}`
-of :class:`~dynid.simulation.trajectories.FourierTrajectory` in the chosen coordinates (and
+of :class:`~dynid.trajectories.FourierTrajectory` in the chosen coordinates (and
 the fundamental frequency when asked); with ``quintic`` the rest-to-rest Fourier + quintic of
 paper 003. One period is sampled at ``samples`` instants; along it:
 
@@ -42,8 +42,8 @@ from dynid.model.base_parameters import robot_base_parameters
 from dynid.model.closed_loop import actuator_regressor, mechanism_base_parameters
 from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.regressor import regressor
-from dynid.simulation.paths import FourierQuintic
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories import FourierQuintic
+from dynid.trajectories import FourierTrajectory
 
 __all__ = ["DesignLimits", "DesignError", "ExcitationDesign", "ExcitationProblem", "Violation"]
 

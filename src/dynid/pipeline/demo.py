@@ -32,7 +32,7 @@ from dynid.model.robots import build_mechanism
 from dynid.pipeline.identify import IdentifyOutcome, Progress, _no_progress, identify, write_files
 from dynid.pipeline.simulate import run_simulation, write_simulation
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
-from dynid.simulation.paths import PolylinePath
+from dynid.trajectories import PolylinePath
 from dynid.stats import tracking_errors
 
 __all__ = ["DemoOutcome", "run_demo", "DEMO_SEED"]

@@ -21,8 +21,8 @@ from dynid.excitation.criteria import predicted_std
 from dynid.excitation.design import DesignLimits, ExcitationDesign, ExcitationProblem
 from dynid.io.output import staged_output
 from dynid.model.loading import load_model
-from dynid.simulation.paths import CirclePath
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories import CirclePath
+from dynid.trajectories import FourierTrajectory
 
 __all__ = ["DesignOutcome", "run_design", "write_design"]
 

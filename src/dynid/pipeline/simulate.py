@@ -39,9 +39,9 @@ from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.base_parameters import robot_base_parameters
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
 from dynid.simulation.control import ComputedTorque, FeedforwardPID, JointPID, SerialPlant, model_inverse, simulate_control
-from dynid.simulation.paths import CirclePath, FourierQuintic, PolylinePath, Repeated, zyx_angular_velocity
+from dynid.trajectories import CirclePath, FourierQuintic, PolylinePath, Repeated, zyx_angular_velocity
 from dynid.simulation.sensors import Sensors
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories import FourierTrajectory
 from dynid.stats import tracking_errors
 
 __all__ = ["SimulationOutcome", "run_simulation", "write_simulation", "SIMULATION_FILES"]

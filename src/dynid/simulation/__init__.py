@@ -1,26 +1,8 @@
-"""Virtual experiments: trajectories and simulated measurements with known ground truth."""
+"""Virtual experiments: plants, controllers, sensors and simulated measurements with known
+ground truth (the trajectories they follow are in :mod:`dynid.trajectories`)."""
 
 from dynid.simulation.measurements import simulate_serial
-from dynid.simulation.paths import (
-    BidirectionalVelocity,
-    CirclePath,
-    FourierQuintic,
-    PolylinePath,
-    Repeated,
-    zyx_angular_velocity,
-)
 from dynid.simulation.sensors import Measurements, Sensors
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories import FourierTrajectory
 
-__all__ = [
-    "BidirectionalVelocity",
-    "CirclePath",
-    "FourierQuintic",
-    "FourierTrajectory",
-    "Measurements",
-    "PolylinePath",
-    "Repeated",
-    "Sensors",
-    "simulate_serial",
-    "zyx_angular_velocity",
-]
+__all__ = ["FourierTrajectory", "Measurements", "Sensors", "simulate_serial"]

@@ -8,7 +8,7 @@ from dynid._typing import FloatArray
 from dynid.dataset import Dataset
 from dynid.model.regressor import inverse_dynamics
 from dynid.model.robot import RobotModel
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories import FourierTrajectory
 
 __all__ = ["simulate_serial"]
 

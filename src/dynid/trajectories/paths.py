@@ -1,7 +1,7 @@
 """More trajectories with analytic position, velocity and acceleration (issue 4, item 1).
 
 Every class here has ``sample(t) -> (x, dx, ddx)``, arrays of shape (n, dim), and a
-``duration`` [s] like :class:`~dynid.simulation.trajectories.FourierTrajectory`:
+``duration`` [s] like :class:`~dynid.trajectories.FourierTrajectory`:
 
 * :class:`FourierQuintic`: a Fourier series plus one quintic polynomial per coordinate so
   that velocity and acceleration are zero at both ends and the end position equals the
@@ -33,7 +33,7 @@ from scipy.interpolate import PPoly
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError
-from dynid.simulation.trajectories import FourierTrajectory
+from dynid.trajectories.fourier import FourierTrajectory
 
 __all__ = [
     "BidirectionalVelocity",
