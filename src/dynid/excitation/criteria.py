@@ -75,7 +75,12 @@ def predicted_std(W: FloatArray, noise_std: FloatArray, repetitions: float = 1.0
     """Predicted standard deviations of the base parameters estimated from ``repetitions``
     repetitions of the design (weighted least squares with the given noise)."""
     M = information_matrix(W, noise_std) * repetitions
-    try:
-        return np.sqrt(np.diag(np.linalg.inv(M)))
-    except np.linalg.LinAlgError:
+    lam, V = np.linalg.eigh(M)
+    if lam[-1] <= 0:
         return np.full(M.shape[0], np.inf)
+    # diag(M^-1) from the eigen-decomposition: never negative; an unexcited direction -> inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(lam > 1e-14 * lam[-1], 1.0 / lam, np.inf)
+        var = np.where(V**2 > 0, V**2, 0.0) @ np.where(np.isfinite(inv), inv, 0.0)
+        lost = (V**2 > 1e-24) @ ~np.isfinite(inv)  # parameters that touch an unexcited direction
+    return np.where(lost > 0, np.inf, np.sqrt(var))

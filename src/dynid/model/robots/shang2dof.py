@@ -110,8 +110,8 @@ def build(extras: object = None) -> Mechanism:
         model.appendBodyToJoint(ja, _link_inertia(ma, ra, izz_a), pin.SE3.Identity())
         jb = model.addJoint(ja, pin.JointModelRZ(), pin.SE3(np.eye(3), np.array([LINK, 0.0, 0.0])), f"qb{i + 1}")
         model.appendBodyToJoint(jb, _link_inertia(mb, rb, b), pin.SE3.Identity())
-        lo += [-np.pi, 0.0]
-        hi += [np.pi, np.pi]
+        lo += [-2 * np.pi, 0.0]  # the motors turn freely: no wrap at +-pi (chain 3 rests near -pi)
+        hi += [2 * np.pi, np.pi]
     model.lowerPositionLimit = np.array(lo)
     model.upperPositionLimit = np.array(hi)
     tip = pin.SE3(np.eye(3), np.array([LINK, 0.0, 0.0]))
