@@ -25,6 +25,7 @@ bench: setup
 	$(BIN)/python bench/identify_scaling.py
 	$(BIN)/python bench/closed_loop_throughput.py
 	$(BIN)/python bench/simulate_hexapod.py
+	$(BIN)/python bench/design_time.py
 
 clean:
 	rm -rf $(VENV) out build src/*.egg-info .pytest_cache

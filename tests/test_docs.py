@@ -76,3 +76,13 @@ def test_readme_simulate_example_parses_and_matches_the_twin():
     assert cfg.trajectory == twin.trajectory and cfg.control == twin.control and cfg.robot == twin.robot
     for section_name in ("[robot]", "[trajectory]", "[control]", "[sensors]", "[simulation]", "[output]"):
         assert section_name in block
+
+
+def test_readme_design_example_parses():
+    from dynid.config.design import parse_design_config
+
+    text = (REPO / "README.md").read_text().split("## Excitation design", 1)[1].split("\n## ", 1)[0]
+    block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
+    cfg = parse_design_config(tomllib.loads(block), REPO)
+    assert (cfg.criterion, cfg.harmonics, cfg.starts) == ("d_opt", 5, 2)
+    assert cfg.limits["velocity"] == 2.0

@@ -20,8 +20,10 @@ violation). The criterion is one of
 :data:`~dynid.excitation.criteria.CRITERIA`.
 
 Optimizer: ``starts`` random designs made feasible by shrinking their amplitude (bisection),
-each refined by SLSQP (finite-difference gradients, evaluations cached), then checked on a grid
-8 times finer; a design still violating a limit there is shrunk again, and if it cannot be made
+each refined by SLSQP (finite-difference gradients, evaluations cached; for the D-, A- and
+E-optimal criteria, whose logarithms are flat for the nearly rank-deficient random starts, a
+first SLSQP pass minimizes the condition number), keeping the better of SLSQP's point and the
+best feasible point it visited, then checked on a grid 8 times finer; a design still violating a limit there is shrunk again, and if it cannot be made
 feasible it is reported with its worst violation and never as a success. Seeded: the same
 seed gives the same design.
 """
@@ -208,6 +210,7 @@ class ExcitationProblem:
         self.evaluations = 0
         self._cache: dict[bytes, tuple[float, FloatArray]] = {}
         self._q_warm: FloatArray | None = None
+        self._best: dict[str, tuple[float, FloatArray]] = {}
         if self.mech:
             u_ref = robot.coordinates(robot.q_ref)[0]
             self.centre = np.clip(u_ref, box_lo, box_hi)
@@ -309,28 +312,37 @@ class ExcitationProblem:
             worst.append(("condition number", -1, float(cond.max()), float(L.max_condition), float(m.min())))
         return np.concatenate(parts), worst
 
-    def _evaluate(self, x: FloatArray) -> tuple[float, FloatArray]:
+    def _evaluate(self, x: FloatArray, criterion: str | None = None) -> tuple[float, FloatArray]:
+        """Objective (``criterion``, default the problem's; log for condition numbers) and
+        constraint margins of design ``x``; all criteria are cached, so switching criterion
+        costs nothing."""
+        crit_name = criterion or self.criterion
         key = np.asarray(x, float).tobytes()
         hit = self._cache.get(key)
-        if hit is not None:
-            return hit
-        self.evaluations += 1
-        traj = self.trajectory(x)
-        try:
-            qa, dqa, ddqa, W_full, cond, _ = self.signals(traj, self.samples)
-        except ModelError:  # unreachable or singular: infeasible, with a usable objective
-            out = (1e6, -np.ones(self._n_constraints()))
-            self._cache[key] = out
-            return out
-        margins, _ = self._margins(qa, dqa, ddqa, W_full, cond, traj, self.samples)
-        value = criteria(self.base.regressor(W_full), self.noise, self.nominal_base)[self.criterion]
-        if self.criterion in ("cond", "weighted_cond"):
-            value = np.log(value)  # the optimizer minimizes log cond: same optimum, better scaled
-        out = (float(value), margins)
-        if len(self._cache) > 20000:
-            self._cache.clear()
-        self._cache[key] = out
-        return out
+        if hit is None:
+            self.evaluations += 1
+            traj = self.trajectory(x)
+            try:
+                qa, dqa, ddqa, W_full, cond, _ = self.signals(traj, self.samples)
+                margins, _ = self._margins(qa, dqa, ddqa, W_full, cond, traj, self.samples)
+                crit = criteria(self.base.regressor(W_full), self.noise, self.nominal_base)
+            except ModelError:  # unreachable or singular: infeasible
+                crit, margins = None, -np.ones(self._n_constraints())
+            if len(self._cache) > 20000:
+                self._cache.clear()
+            hit = (crit, margins)
+            self._cache[key] = hit
+        crit, margins = hit
+        if crit is None:
+            return 1e6, margins
+        value = crit[crit_name]
+        if crit_name in ("cond", "weighted_cond"):
+            value = np.log(value)  # minimize log cond: same optimum, better scaled
+        if margins.min() >= 0:
+            best = self._best.get(crit_name)
+            if best is None or value < best[0]:
+                self._best[crit_name] = (float(value), np.array(x, dtype=float))  # best feasible point visited
+        return float(value), margins
 
     def _n_constraints(self) -> int:
         n, na = self.samples, len(self.act)
@@ -388,6 +400,25 @@ class ExcitationProblem:
                 break
         return scaled(lo)
 
+    def _local_search(self, x0: FloatArray, criterion: str, max_iter: int, bounds) -> FloatArray | None:
+        """SLSQP from the feasible ``x0`` on ``criterion``; returns the best of SLSQP's point and
+        the best feasible point it visited, each shrunk onto the feasible set of the fine grid
+        (SLSQP's point may sit a hair outside the limits, or far outside when its line search
+        failed), or the start itself."""
+        self._best.pop(criterion, None)
+        f0 = self._evaluate(x0, criterion)[0]
+        res = minimize(lambda y: self._evaluate(y, criterion)[0], x0, method="SLSQP", bounds=bounds,
+                       constraints=[{"type": "ineq", "fun": lambda y: self._evaluate(y, criterion)[1]}],
+                       options={"maxiter": max_iter, "ftol": 1e-6})
+        fine_ok = lambda y: self.check(self.trajectory(y))[0]  # noqa: E731
+        candidates = [res.x] + ([self._best[criterion][1]] if criterion in self._best else [])
+        x, fx = None, f0
+        for c in candidates:
+            c = self._shrink_to_feasible(c, fine_ok) if self._evaluate(c, criterion)[0] < f0 else None
+            if c is not None and self._evaluate(c, criterion)[0] <= fx:
+                x, fx = c, self._evaluate(c, criterion)[0]
+        return x if x is not None else self._shrink_to_feasible(x0, fine_ok)
+
     def optimize(self, *, starts: int = 3, seed: int = 0, max_iter: int = 100,
                  progress: Callable[[str, int, int], None] | None = None) -> ExcitationDesign:
         """Multi-start SLSQP (see module docstring). Raises :class:`DesignError` when no start
@@ -411,15 +442,13 @@ class ExcitationProblem:
             if coarse_ok(inner):
                 x0 = inner
             f_init = self._evaluate(x0)[0]
-            res = minimize(lambda y: self._evaluate(y)[0], x0, method="SLSQP", bounds=bounds,
-                           constraints=[{"type": "ineq", "fun": lambda y: self._evaluate(y)[1]}],
-                           options={"maxiter": max_iter, "ftol": 1e-6})
-            # the SLSQP point may sit a hair outside the limits, or violate them between the
-            # samples: shrink it onto the feasible set of the fine grid (or keep the start)
-            fine_ok = lambda y: self.check(self.trajectory(y))[0]  # noqa: E731
-            x = self._shrink_to_feasible(res.x, fine_ok) if self._evaluate(res.x)[0] < f_init else None
-            if x is None or self._evaluate(x)[0] > f_init:
-                x = self._shrink_to_feasible(x0, fine_ok)
+            x = x0
+            if self.criterion in ("d_opt", "a_opt", "e_opt"):
+                # the logarithmic criteria are flat and ill-scaled for the nearly rank-deficient
+                # designs random starts give: first make the design well conditioned
+                x1 = self._local_search(x, "cond", max(1, max_iter // 2), bounds)
+                x = x0 if x1 is None else x1
+            x = self._local_search(x, self.criterion, max_iter, bounds)
             if x is None:
                 continue
             f = self._evaluate(x)[0]

@@ -1,0 +1,1 @@
+"""Studies: reproducible comparisons of the papers (runnable modules)."""
