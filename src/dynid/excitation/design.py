@@ -433,9 +433,12 @@ class ExcitationProblem:
         for s in range(starts):
             if progress:
                 progress("design", s, starts)
-            x0 = self._shrink_to_feasible(self._random_start(rng), coarse_ok)
-            if x0 is None:
-                worst_seen = self.check(self.trajectory(self._centre_vector()), factor=1)[1] or worst_seen
+            start = self._random_start(rng)
+            x0 = self._shrink_to_feasible(start, coarse_ok)
+            if x0 is None:  # even the smallest motion fails: say which limit, and by how much
+                tiny = start.copy()
+                tiny[: 2 * n * K] *= 1e-4
+                worst_seen = self.check(self.trajectory(tiny), factor=1)[1] or worst_seen
                 continue
             inner = x0.copy()
             inner[: 2 * n * K] *= 0.8  # start inside the feasible set, not on its boundary
