@@ -105,6 +105,13 @@ def _list(value: Any, where: str, item, n: int | None = None) -> tuple:
     return tuple(item(v, f"{where}[{i}]") for i, v in enumerate(value))
 
 
+def _num_or_list(value: Any, where: str, positive: bool = False):
+    """A number, or a list of numbers (per joint / actuator / channel)."""
+    if isinstance(value, list):
+        return _list(value, where, lambda v, w: _num(v, w, positive))
+    return _num(value, where, positive)
+
+
 def _path(value: Any, where: str, base: Path) -> Path:
     p = Path(_str(value, where)).expanduser()
     # canonical, so that one file named two ways is recognised as the same file

@@ -24,7 +24,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from dynid.config import _bool, _int, _list, _num, _str, _table, read_toml
+from dynid.config import _bool, _int, _list, _num, _num_or_list, _str, _table, read_toml
 from dynid.errors import ConfigError
 
 __all__ = ["DesignConfig", "load_design_config", "parse_design_config"]
@@ -54,12 +54,6 @@ class DesignConfig:
     plots: bool
     source: Path | None
     raw: Mapping[str, Any]
-
-
-def _num_or_list(value: Any, where: str, positive: bool = False):
-    if isinstance(value, list):
-        return _list(value, where, lambda v, w: _num(v, w, positive))
-    return _num(value, where, positive)
 
 
 def _range(t: Any, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:

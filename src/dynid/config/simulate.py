@@ -53,7 +53,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from dynid.config import _bool, _int, _list, _num, _str, _table, read_toml
+from dynid.config import _bool, _int, _list, _num, _num_or_list, _str, _table, read_toml
 from dynid.errors import ConfigError
 
 __all__ = [
@@ -124,12 +124,6 @@ class SimulateConfig:
     base_dir: Path
     source: Path | None
     raw: Mapping[str, Any]
-
-
-def _num_or_list(value: Any, where: str, positive: bool = False):
-    if isinstance(value, list):
-        return _list(value, where, lambda v, w: _num(v, w, positive))
-    return _num(value, where, positive)
 
 
 FRICTION_MODELS = {

@@ -114,6 +114,26 @@ class ValidationMetrics:
     predicted: FloatArray
     source: dict[str, Any]
 
+    @classmethod
+    def of(cls, channel_names, t: FloatArray, measured: FloatArray, predicted: FloatArray, source) -> ValidationMetrics:
+        """Errors of ``predicted`` against ``measured`` (n, channels) per channel."""
+        err = measured - predicted
+        centred = measured - measured.mean(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r2 = 1.0 - np.sum(err**2, axis=0) / np.sum(centred**2, axis=0)
+        return cls(
+            channel_names=tuple(channel_names),
+            n_samples=int(measured.shape[0]),
+            rmse=np.sqrt(np.mean(err**2, axis=0)),
+            rms_measured=np.sqrt(np.mean(measured**2, axis=0)),
+            max_abs_error=np.max(np.abs(err), axis=0),
+            r2=r2,
+            t=t,
+            measured=measured,
+            predicted=predicted,
+            source=dict(source) if isinstance(source, dict) else {"source": str(source)},
+        )
+
     @property
     def rel_rmse_pct(self) -> FloatArray:
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -164,25 +184,8 @@ def validate(
         pred.append(W @ result.params)
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
     k = max(1, parallel_decimate)
-    t = np.asarray(ds.t)[::k][: measured.shape[0]]
-    err = measured - predicted
-    rmse = np.sqrt(np.mean(err**2, axis=0))
-    centred = measured - measured.mean(axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r2 = 1.0 - np.sum(err**2, axis=0) / np.sum(centred**2, axis=0)
-    src = ds.meta.get("source")
-    return ValidationMetrics(
-        channel_names=robot.joint_names,
-        n_samples=int(measured.shape[0]),
-        rmse=rmse,
-        rms_measured=np.sqrt(np.mean(measured**2, axis=0)),
-        max_abs_error=np.max(np.abs(err), axis=0),
-        r2=r2,
-        t=t,
-        measured=measured,
-        predicted=predicted,
-        source=dict(src) if isinstance(src, dict) else {"source": str(src)},
-    )
+    return ValidationMetrics.of(robot.joint_names, np.asarray(ds.t)[::k][: measured.shape[0]], measured, predicted,
+                                ds.meta.get("source"))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -177,21 +177,6 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
         meas.append(y)
         pred.append(W @ result.params)
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
-    err = measured - predicted
-    centred = measured - measured.mean(axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r2 = 1.0 - np.sum(err**2, axis=0) / np.sum(centred**2, axis=0)
-    src = held_out.meta.get("source")
-    metrics = ValidationMetrics(
-        channel_names=channels,
-        n_samples=int(measured.shape[0]),
-        rmse=np.sqrt(np.mean(err**2, axis=0)),
-        rms_measured=np.sqrt(np.mean(measured**2, axis=0)),
-        max_abs_error=np.abs(err).max(axis=0),
-        r2=r2,
-        t=np.asarray(held_out.t)[: measured.shape[0]],
-        measured=measured,
-        predicted=predicted,
-        source=dict(src) if isinstance(src, dict) else {"source": str(src)},
-    )
+    metrics = ValidationMetrics.of(channels, np.asarray(held_out.t)[: measured.shape[0]], measured, predicted,
+                                   held_out.meta.get("source"))
     return IdentifyOutcome(cfg, mech, base, result, metrics, train, held_out, tuple(notes))
