@@ -209,3 +209,17 @@ def lowpass_sos(x: FloatArray, sos: FloatArray, axis: int = 0) -> FloatArray:
     if n < 4:
         raise InputError(f"signal of {n} samples is too short to filter")
     return signal.sosfiltfilt(sos, x, axis=axis, padtype="odd", padlen=min(3 * (2 * sos.shape[0] + 1), n - 1))
+
+
+from dynid.signals.filters import butter_spec_sos, lowess, moving_average, savgol  # noqa: E402
+from dynid.signals.periodic import fourier_filter, fourier_fit, period_average  # noqa: E402
+
+__all__ += [
+    "butter_spec_sos",
+    "fourier_filter",
+    "fourier_fit",
+    "lowess",
+    "moving_average",
+    "period_average",
+    "savgol",
+]
