@@ -23,6 +23,7 @@ __all__ = [
     "TimeConfig",
     "DataConfig",
     "LowpassConfig",
+    "PeriodicConfig",
     "ProcessingConfig",
     "IdentificationConfig",
     "OutputConfig",
@@ -195,6 +196,17 @@ class LowpassConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class PeriodicConfig:
+    """``[processing.periodic]``: frequency-domain processing of periodic excitation data
+    (paper 004 §3): period averaging and exact DFT filtering and differentiation."""
+
+    period_s: float
+    cutoff_hz: float
+    average: bool = True
+    filter_effort: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
 class ProcessingConfig:
     """``[processing]``: how raw logs become positions, velocities, accelerations, torques."""
 
@@ -205,6 +217,7 @@ class ProcessingConfig:
     decimate_method: str = "samples"
     trim_samples: int | None = None
     min_velocity: tuple[float, ...] | None = None
+    periodic: PeriodicConfig | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -335,7 +348,7 @@ def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
 
 def _parse_processing(t: Any) -> ProcessingConfig:
     where = "processing"
-    t = _table(t, where, {"resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity"})
+    t = _table(t, where, {"resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity", "periodic"})
     resample: str | float = "auto"
     if "resample" in t:
         r = t["resample"]
@@ -354,7 +367,20 @@ def _parse_processing(t: Any) -> ProcessingConfig:
         mv = (_num(v, f"{where}.min_velocity"),) if not isinstance(v, list) else _list(v, f"{where}.min_velocity", _num)
         if any(x < 0 for x in mv):
             raise ConfigError(f"{where}.min_velocity: must be >= 0")
+    periodic = None
+    if "periodic" in t:
+        pt = _table(t["periodic"], f"{where}.periodic", {"period_s", "cutoff_hz", "average", "filter_effort"}, {"period_s", "cutoff_hz"})
+        periodic = PeriodicConfig(
+            period_s=_num(pt["period_s"], f"{where}.periodic.period_s", positive=True),
+            cutoff_hz=_num(pt["cutoff_hz"], f"{where}.periodic.cutoff_hz", positive=True),
+            average=_bool(pt.get("average", True), f"{where}.periodic.average"),
+            filter_effort=_bool(pt.get("filter_effort", False), f"{where}.periodic.filter_effort"),
+        )
+        clash = [k for k in ("lowpass", "decimate", "trim_samples") if k in t] + (["derivatives"] if t.get("derivatives") == "measured" else [])
+        if clash:
+            raise ConfigError(f"{where}.periodic replaces {clash}: the frequency-domain processing filters, differentiates and keeps whole periods itself")
     return ProcessingConfig(
+        periodic=periodic,
         resample=resample,
         lowpass=lowpass,
         derivatives=_str(t.get("derivatives", "central"), f"{where}.derivatives", ("central", "measured")),

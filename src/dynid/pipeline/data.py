@@ -178,6 +178,8 @@ def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str) -> tuple[Dataset,
         steps.append({"step": "resample", "fs_hz": fs_new, "from_uniform": uniform, "positions": "cubic spline", "efforts": "linear"})
         t = t_new
     fs = 1.0 / float(np.median(np.diff(t)))
+    if cfg.periodic is not None:
+        return _preprocess_periodic(ds, t, q, tau, fs, cfg.periodic, steps, label)
     lp = cfg.lowpass
     if lp is not None:
         if not lp.cutoff_hz < fs / 2:
@@ -229,6 +231,39 @@ def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str) -> tuple[Dataset,
         t=t[keep], q=q[keep], tau=tau[keep], dq=dq[keep], ddq=ddq[keep], names=ds.names,
         meta={**ds.meta, "processing": steps},
     )
+    return out, steps
+
+
+def _preprocess_periodic(ds: Dataset, t, q, tau, fs: float, pc, steps: list, label: str):
+    """Whole periods -> period average (with the noise covariances) -> exact DFT filtering and
+    differentiation (paper 004 §3.2-3.3; :mod:`dynid.signals.periodic`)."""
+    from dynid.signals.periodic import fourier_filter, period_average
+
+    n_per = int(round(pc.period_s * fs))
+    if abs(n_per - pc.period_s * fs) > 1e-6 * n_per:
+        raise ConfigError(f"processing.periodic.period_s = {pc.period_s} s is not a whole number of samples at {fs:g} Hz")
+    n_m = t.shape[0] // n_per
+    if n_m < 1:
+        raise InputError(f"{label}: {t.shape[0]} samples are less than one period ({n_per} samples)")
+    used = n_m * n_per
+    record: dict[str, Any] = {"step": "periodic", "period_s": pc.period_s, "samples_per_period": n_per,
+                              "periods": n_m, "samples_dropped_at_end": int(t.shape[0] - used), "cutoff_hz": pc.cutoff_hz}
+    q, tau, t = q[:used], tau[:used], t[:used]
+    if pc.average and n_m >= 2:
+        q, cov_q = period_average(q, n_per)
+        tau, cov_tau = period_average(tau, n_per)
+        t = t[:n_per]
+        record.update(averaged=True, noise_covariance_position=cov_q.tolist(), noise_covariance_effort=cov_tau.tolist(),
+                      note="covariances of one sample's noise; the averaged period carries them divided by the number of periods")
+    else:
+        record.update(averaged=False)
+    q, dq, ddq = fourier_filter(q, fs, pc.cutoff_hz)
+    if pc.filter_effort:
+        tau = fourier_filter(tau, fs, pc.cutoff_hz)[0]
+    record["method"] = "DFT of whole periods, rectangular window at the cut-off, x jw and -w^2, inverse DFT"
+    record["efforts_filtered"] = pc.filter_effort
+    steps.append(record)
+    out = Dataset(t=t, q=q, tau=tau, dq=dq, ddq=ddq, names=ds.names, meta={**ds.meta, "processing": steps})
     return out, steps
 
 
