@@ -28,7 +28,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.mechanism import JointCoordinates, KinematicState, Mechanism
 
-__all__ = ["actuator_states", "kinematic_state", "states"]
+__all__ = ["actuator_states", "kinematic_state", "pose_states", "states"]
 
 
 class _Sides:
@@ -450,3 +450,33 @@ def actuator_states(
     except ModelError as exc:
         raise ModelError(f"samples {sample_offset}..{sample_offset + n - 1}: {exc}") from None
     return state, resid
+
+
+def pose_states(mech: Mechanism, qa: FloatArray, fs: float, cutoff_hz: float, *, q0: FloatArray | None = None):
+    """Platform pose reconstruction from measured actuator positions (paper 004 §3.3).
+
+    1. forward kinematics of every sample (Gauss–Newton from the actuator positions,
+       warm-started from the previous sample, :func:`actuator_states`);
+    2. the platform pose (the task coordinates of ``mech``), filtered and differentiated
+       exactly in the frequency domain (:func:`dynid.signals.periodic.fourier_filter`: the
+       record must span whole periods of the motion);
+    3. all joints from the filtered pose (closed-form inverse kinematics when the mechanism
+       has one, then Newton) and the velocity map of the task coordinates.
+
+    Returns
+    -------
+    state : KinematicState
+        Of the task-space mechanism (``mech.in_task_space()``).
+    pose, dpose, ddpose : arrays (n, n_task)
+        The filtered pose and its derivatives (z-y-x angle rates; the angular velocity of
+        paper 004 Eq. 16 is :func:`dynid.trajectories.zyx_angular_velocity` of them).
+    """
+    from dynid.signals.periodic import fourier_filter
+
+    task = mech.in_task_space()
+    zeros = np.zeros_like(np.atleast_2d(np.asarray(qa, dtype=float)))
+    raw, _ = actuator_states(mech, qa, zeros, zeros, q0=q0)
+    pose = task.coordinates(raw.q)
+    pose_f, dpose, ddpose = fourier_filter(pose, fs, cutoff_hz)
+    state = task.states(task.solve_positions(pose_f), dpose, ddpose)
+    return state, pose_f, dpose, ddpose
