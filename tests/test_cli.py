@@ -471,13 +471,14 @@ def test_identify_with_plots_writes_figure_and_report(runs):
     first, files = run.steps[0], run.after[0]
     assert first.returncode == 0, first.stderr
     assert first.stdout.strip() == (
-        f"outputs in {run.out}: params.csv, report.html, result.json, result.npz, summary.txt, validation.png"
+        f"outputs in {run.out}: params.csv, processing.png, report.html, result.json, result.npz, summary.txt, validation.png"
     )
-    png = files["validation.png"]
-    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    for name in ("validation.png", "processing.png"):
+        png = files[name]
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     html = files["report.html"].decode()
     assert "<html" in html.lower() and "validation.png" in html
-    assert sorted(files) == ["params.csv", "report.html", "result.json", "result.npz", "summary.txt", "validation.png"]
+    assert sorted(files) == ["params.csv", "processing.png", "report.html", "result.json", "result.npz", "summary.txt", "validation.png"]
 
 
 def test_rerun_lists_only_the_files_it_wrote(runs):

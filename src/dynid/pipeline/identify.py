@@ -198,6 +198,7 @@ class IdentifyOutcome:
     train: Dataset
     held_out: Dataset
     notes: tuple[str, ...]
+    raw_train: Dataset | None = None  # the training log before processing (for the processing plot)
 
     def summary_text(self) -> str:
         v = self.validation
@@ -276,10 +277,10 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
         result = result.with_notes(*notes)
     metrics = validate(result, robot, base, held_out, parallel_decimate=parallel,
                        chunk_size=cfg.identification.chunk_size, progress=progress)
-    return IdentifyOutcome(cfg, robot, base, result, metrics, train, held_out, tuple(notes))
+    return IdentifyOutcome(cfg, robot, base, result, metrics, train, held_out, tuple(notes), train_j)
 
 
-OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "report.html")
+OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html")
 
 
 def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Path]:
@@ -332,4 +333,8 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
         from dynid.report import plot_validation, write_html_report
 
         plot_validation(outcome.validation, stage / "validation.png")
+        if outcome.raw_train is not None:
+            from dynid.report.plots import plot_processing
+
+            plot_processing(outcome.raw_train, outcome.train, stage / "processing.png")
         write_html_report(res, outcome.validation, stage / "report.html", plot="validation.png")

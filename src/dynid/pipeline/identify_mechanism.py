@@ -179,4 +179,4 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
     metrics = ValidationMetrics.of(channels, np.asarray(held_out.t)[: measured.shape[0]], measured, predicted,
                                    held_out.meta.get("source"))
-    return IdentifyOutcome(cfg, mech, base, result, metrics, train, held_out, tuple(notes))
+    return IdentifyOutcome(cfg, mech, base, result, metrics, train, held_out, tuple(notes), train_a)

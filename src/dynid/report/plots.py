@@ -7,7 +7,7 @@ from typing import Any
 
 from dynid.errors import require
 
-__all__ = ["plot_design", "plot_tracking", "plot_validation"]
+__all__ = ["plot_design", "plot_processing", "plot_tracking", "plot_validation"]
 
 _MAX_POINTS = 4000
 
@@ -125,3 +125,41 @@ def plot_design(t, qa, dqa, ddqa, actuators, limits, u, coordinates, path_traj, 
     fig.tight_layout()
     fig.savefig(path_spectrum, dpi=100)
     plt.close(fig)
+
+
+def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: int = 6) -> Path:
+    """Raw against processed positions (left) and their amplitude spectra (right), one row per
+    channel: what the filters removed and what they kept."""
+    import numpy as np
+
+    plt = _pyplot()
+    n = min(raw.q.shape[1], max_channels)
+    fig, axes = plt.subplots(n, 2, figsize=(12, 1.8 * n + 0.8), squeeze=False)
+    step = max(1, raw.t.shape[0] // _MAX_POINTS)
+
+    def spectrum(t, x):  # Hann-windowed amplitude spectrum (records are not whole periods)
+        dt = float(np.median(np.diff(t)))
+        f = np.fft.rfftfreq(x.shape[0], dt)
+        w = np.hanning(x.shape[0])
+        return f[1:], (np.abs(np.fft.rfft((x - x.mean()) * w)) * 2 / w.sum())[1:]
+
+    for j in range(n):
+        ax, axs = axes[j, 0], axes[j, 1]
+        ax.plot(raw.t[::step] - raw.t[0], raw.q[::step, j], lw=0.7, color="0.6", label="raw")
+        ax.plot(processed.t - raw.t[0], processed.q[:, j], lw=0.9, color="tab:blue", label="processed")
+        ax.set_ylabel(f"{processed.names[j] if processed.names else j}", fontsize=8)
+        ax.grid(alpha=0.3)
+        for label, ds, color in (("raw", raw, "0.6"), ("processed", processed, "tab:blue")):
+            f, a = spectrum(ds.t, ds.q[:, j])
+            axs.loglog(f, np.maximum(a, 1e-14), lw=0.8, color=color, label=label)
+        axs.grid(alpha=0.3, which="both")
+    axes[0, 0].legend(fontsize=7)
+    axes[0, 1].legend(fontsize=7)
+    axes[-1, 0].set_xlabel("t [s]")
+    axes[-1, 1].set_xlabel("frequency [Hz]")
+    fig.suptitle("positions before and after processing, and their amplitude spectra", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
