@@ -173,3 +173,20 @@ def test_ground_truth_friction_and_payload(tmp_path):
         parse_simulate_config({**base, "robot": {"model": "builtin:fivebar", "friction": {"model": "stribeck", "fc": 1, "fv": 1}}}, tmp_path)
     with pytest.raises(ConfigError, match="for serial robots"):
         run_simulation(parse_simulate_config({**base, "robot": {"model": "builtin:fivebar", "payload": {"mass": 1.0}}}, tmp_path))
+
+
+def test_circle_of_a_platform_in_task_space(tmp_path):
+    """trajectory.axes places a 2-D path in two of the hexapod's six task coordinates (paper
+    004's validation circle); the others stay at the reference pose."""
+    cfg = parse_simulate_config({
+        "robot": {"model": "builtin:hexapod"},
+        "trajectory": {"kind": "circle", "coordinates": "task", "axes": ["PX", "PY"], "centre": [0.0, 0.0],
+                       "radius": 0.01, "speed": 0.02, "turns": 0.1, "ramp": 0.1},
+        "control": {"rate_hz": 500, "kp": 2500, "kd": 100, "model": "true", "substeps": 2},
+    }, tmp_path)
+    out = run_simulation(cfg)
+    c = out.columns
+    assert np.ptp(c["ref_PX"]) > 1e-3 and np.ptp(c["ref_PZ"]) == 0.0 and np.ptp(c["ref_RZ"]) == 0.0
+    np.testing.assert_allclose(np.hypot(c["ref_PX"], c["ref_PY"]), 0.01, atol=1e-12)
+    with pytest.raises(ConfigError, match="name 2 of the coordinates"):
+        run_simulation(parse_simulate_config({**cfg.raw, "trajectory": {**cfg.raw["trajectory"], "axes": ["PX", "QQ"]}}, tmp_path))

@@ -22,7 +22,9 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     ``"task"`` (the platform pose of a parallel robot that declares one: x, y, z and the
     z-y-x angles; the commanded angular velocity of paper 004, Eq. 16 is logged too);
     ``kind`` (required): ``"circle"`` (``centre``, ``radius``, ``speed``, ``turns``,
-    ``clockwise``, ``ramp``), ``"polyline"`` (``vertices``, ``speed``, ``ramp``) or
+    ``clockwise``, ``ramp``), ``"polyline"`` (``vertices``, ``speed``, ``ramp``) — with
+    ``axes`` (coordinate names) when the robot has more coordinates than the path, the others
+    staying at the reference assembly — or
     ``"fourier"`` (``base_frequency_hz``, ``harmonics``, ``fill``: fraction of the half range
     of each coordinate, ``max_velocity``, ``max_acceleration``, ``periods``, ``quintic``:
     rest-to-rest Fourier + quintic, ``seed``). Circles and polylines are paths of the
@@ -67,8 +69,8 @@ __all__ = [
 ]
 
 _TRAJ_KEYS = {
-    "circle": {"centre", "radius", "speed", "turns", "clockwise", "ramp"},
-    "polyline": {"vertices", "speed", "ramp"},
+    "circle": {"centre", "radius", "speed", "turns", "clockwise", "ramp", "axes"},
+    "polyline": {"vertices", "speed", "ramp", "axes"},
     "fourier": {"base_frequency_hz", "harmonics", "fill", "max_velocity", "max_acceleration", "periods", "quintic", "seed"},
 }
 
@@ -199,6 +201,8 @@ def _parse_trajectory(t: Any) -> TrajectoryConfig:
             raise ConfigError(f"trajectory.fill must be in (0, 1], got {v['fill']}")
         if v["quintic"] and v["periods"] != 1:
             raise ConfigError("trajectory: a rest-to-rest (quintic) Fourier trajectory has one period")
+    if kind in ("circle", "polyline") and "axes" in t:
+        v["axes"] = _list(t["axes"], f"{w}.axes", _str)
     return TrajectoryConfig(kind, v)
 
 

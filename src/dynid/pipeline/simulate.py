@@ -39,7 +39,7 @@ from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.base_parameters import robot_base_parameters
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
 from dynid.simulation.control import ComputedTorque, FeedforwardPID, JointPID, SerialPlant, model_inverse, simulate_control
-from dynid.trajectories import CirclePath, FourierQuintic, PolylinePath, Repeated, zyx_angular_velocity
+from dynid.trajectories import CirclePath, Embedded, FourierQuintic, PolylinePath, Repeated, zyx_angular_velocity
 from dynid.simulation.sensors import Sensors
 from dynid.trajectories import FourierTrajectory
 from dynid.stats import tracking_errors
@@ -110,10 +110,15 @@ def _trajectory(cfg: SimulateConfig, robot):
     n_u = lo.size
     if tc.kind in ("circle", "polyline"):
         dim = 2 if tc.kind == "circle" else len(v["vertices"][0])
-        if n_u != dim:
+        axes = v.get("axes")
+        if axes is not None:
+            unknown = [a for a in axes if a not in names]
+            if unknown or len(axes) != dim:
+                raise ConfigError(f"trajectory.axes must name {dim} of the coordinates {names}; got {list(axes)}")
+        elif n_u != dim:
             raise ConfigError(
                 f"trajectory.kind = {tc.kind!r} is a path of {dim} coordinates but the robot has {n_u} independent "
-                f"coordinates ({', '.join(names)})"
+                f"coordinates ({', '.join(names)}); name the ones it drives with trajectory.axes"
             )
         if tc.kind == "circle":
             traj = CirclePath(v["centre"], v["radius"], v["speed"], turns=v["turns"], clockwise=v["clockwise"], ramp=v["ramp"])
@@ -121,6 +126,9 @@ def _trajectory(cfg: SimulateConfig, robot):
             if len({len(p) for p in v["vertices"]}) != 1:
                 raise ConfigError("trajectory.vertices: every vertex needs the same number of coordinates")
             traj = PolylinePath(np.array(v["vertices"]), v["speed"], ramp=v["ramp"])
+        if axes is not None:
+            rest = robot.coordinates(robot.q_ref)[0] if isinstance(robot, Mechanism) else 0.5 * (lo + hi)
+            traj = Embedded(traj, tuple(names.index(a) for a in axes), rest)
         return traj, names
     rng = np.random.default_rng(v["seed"])
     four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,

@@ -6,6 +6,7 @@ from dynid.trajectories.fourier import FourierTrajectory
 from dynid.trajectories.paths import (
     BidirectionalVelocity,
     CirclePath,
+    Embedded,
     FourierQuintic,
     PolylinePath,
     Repeated,
@@ -15,6 +16,7 @@ from dynid.trajectories.paths import (
 __all__ = [
     "BidirectionalVelocity",
     "CirclePath",
+    "Embedded",
     "FourierQuintic",
     "FourierTrajectory",
     "PolylinePath",

@@ -38,6 +38,7 @@ from dynid.trajectories.fourier import FourierTrajectory
 __all__ = [
     "BidirectionalVelocity",
     "CirclePath",
+    "Embedded",
     "FourierQuintic",
     "PolylinePath",
     "Repeated",
@@ -364,3 +365,34 @@ def zyx_angular_velocity(
     omega = np.einsum("nij,nj->ni", H, r)
     domega = np.einsum("nij,nj->ni", H, acc) + np.einsum("nij,nj->ni", dH, r)
     return omega, domega
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Embedded:
+    """A path of ``k`` coordinates placed in ``n`` coordinates: the path drives the coordinates
+    ``axes``, the others stay at ``rest`` (e.g. a circle of a hexapod platform in the x-y plane
+    at its home height and orientation)."""
+
+    path: object
+    axes: tuple[int, ...]
+    rest: FloatArray
+
+    def __post_init__(self) -> None:
+        rest = np.array(self.rest, dtype=float, ndmin=1)
+        axes = tuple(int(a) for a in self.axes)
+        if len(set(axes)) != len(axes) or any(not 0 <= a < rest.size for a in axes):
+            raise InputError(f"axes {axes} must be distinct indices of the {rest.size} coordinates")
+        object.__setattr__(self, "rest", rest)
+        object.__setattr__(self, "axes", axes)
+
+    @property
+    def duration(self) -> float:
+        return float(self.path.duration)
+
+    def sample(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        x, dx, ddx = self.path.sample(t)
+        n = x.shape[0]
+        q = np.tile(self.rest, (n, 1))
+        dq, ddq = np.zeros_like(q), np.zeros_like(q)
+        q[:, self.axes], dq[:, self.axes], ddq[:, self.axes] = x, dx, ddx
+        return q, dq, ddq
