@@ -147,3 +147,29 @@ def test_force_limits_and_reproducibility(arm):
     tight = DesignLimits(velocity=np.full(6, 1.5), force=np.array([60.0, 50.0, 30.0, 8.0, 8.0, 4.0]))
     with pytest.raises(DesignError, match="force of joint_2"):
         ExcitationProblem(arm, harmonics=2, samples=16, limits=tight).optimize(starts=1, seed=0, max_iter=5)
+
+
+def test_a_design_is_simulated_as_designed(tmp_path):
+    """dynid design -> design.json -> dynid simulate (trajectory.design): the commanded motion is
+    the designed one."""
+    from dynid.config.design import parse_design_config
+    from dynid.config.simulate import parse_simulate_config
+    from dynid.pipeline.design import run_design, write_design
+    from dynid.pipeline.simulate import run_simulation
+
+    dcfg = parse_design_config({"robot": {"model": "builtin:generic6r"},
+                                "design": {"harmonics": 2, "base_frequency_hz": 0.5, "samples": 16, "starts": 1, "max_iter": 5},
+                                "limits": {"velocity": 1.0, "acceleration": 4.0}, "output": {"plots": False}}, tmp_path)
+    out = run_design(dcfg)
+    write_design(out, tmp_path / "design")
+    scfg = parse_simulate_config({"robot": {"model": "builtin:generic6r"},
+                                  "trajectory": {"kind": "fourier", "design": "design/design.json", "periods": 2},
+                                  "control": {"rate_hz": 200, "model": "true"}}, tmp_path)
+    sim = run_simulation(scfg)
+    t = sim.columns["t"]
+    q_ref = out.design.trajectory.sample(t)[0]
+    np.testing.assert_allclose(sim.columns["ref_joint_3"], q_ref[:, 2], atol=1e-12)
+    assert sim.metadata["duration_s"] == pytest.approx(2 * out.design.trajectory.period)
+    with pytest.raises(DynidError, match="describe a random series"):
+        parse_simulate_config({"robot": {"model": "builtin:generic6r"},
+                               "trajectory": {"kind": "fourier", "design": "design/design.json", "harmonics": 3}}, tmp_path)

@@ -27,7 +27,8 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     staying at the reference assembly — or
     ``"fourier"`` (``base_frequency_hz``, ``harmonics``, ``fill``: fraction of the half range
     of each coordinate, ``max_velocity``, ``max_acceleration``, ``periods``, ``quintic``:
-    rest-to-rest Fourier + quintic, ``seed``). Circles and polylines are paths of the
+    rest-to-rest Fourier + quintic, ``seed``; or ``design``: the ``design.json`` of
+    ``dynid design``, whose coefficients and coordinates are used, with ``periods``). Circles and polylines are paths of the
     independent coordinates of a planar mechanism (its end-effector); Fourier series run
     in the independent coordinates (the joints of a serial robot).
 ``[control]``
@@ -71,7 +72,7 @@ __all__ = [
 _TRAJ_KEYS = {
     "circle": {"centre", "radius", "speed", "turns", "clockwise", "ramp", "axes"},
     "polyline": {"vertices", "speed", "ramp", "axes"},
-    "fourier": {"base_frequency_hz", "harmonics", "fill", "max_velocity", "max_acceleration", "periods", "quintic", "seed"},
+    "fourier": {"base_frequency_hz", "harmonics", "fill", "max_velocity", "max_acceleration", "periods", "quintic", "seed", "design"},
 }
 
 
@@ -197,6 +198,12 @@ def _parse_trajectory(t: Any) -> TrajectoryConfig:
         v["periods"] = _int(t.get("periods", 1), f"{w}.periods", 1)
         v["quintic"] = _bool(t.get("quintic", False), f"{w}.quintic")
         v["seed"] = _int(t.get("seed", 0), f"{w}.seed", 0)
+        if "design" in t:  # the optimized excitation of `dynid design` (its design.json)
+            p = Path(_str(t["design"], f"{w}.design")).expanduser()
+            v["design"] = str(p if p.is_absolute() else p)
+            random_keys = sorted({"base_frequency_hz", "harmonics", "fill", "max_velocity", "max_acceleration", "seed"} & set(t))
+            if random_keys:
+                raise ConfigError(f"trajectory: {random_keys} describe a random series; a design file gives its own coefficients")
         if v["fill"] > 1:
             raise ConfigError(f"trajectory.fill must be in (0, 1], got {v['fill']}")
         if v["quintic"] and v["periods"] != 1:

@@ -31,7 +31,7 @@ import numpy as np
 from dynid import __version__
 from dynid.config.simulate import SimulateConfig
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError
+from dynid.errors import ConfigError, InputError
 from dynid.io.output import staged_output
 from dynid.model.closed_loop import mechanism_base_parameters
 from dynid.model.loading import load_model
@@ -130,12 +130,35 @@ def _trajectory(cfg: SimulateConfig, robot):
             rest = robot.coordinates(robot.q_ref)[0] if isinstance(robot, Mechanism) else 0.5 * (lo + hi)
             traj = Embedded(traj, tuple(names.index(a) for a in axes), rest)
         return traj, names
-    rng = np.random.default_rng(v["seed"])
-    four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
-                                    max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"], fill=v["fill"])
+    if "design" in v:
+        four = _design_trajectory(cfg, names)
+    else:
+        rng = np.random.default_rng(v["seed"])
+        four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
+                                        max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"], fill=v["fill"])
     if v["quintic"]:
         return FourierQuintic(four), names
     return (Repeated(four, v["periods"]) if v["periods"] > 1 else four), names
+
+
+def _design_trajectory(cfg: SimulateConfig, names: list[str]) -> FourierTrajectory:
+    """The Fourier series of a ``dynid design`` result (its design.json)."""
+    path = Path(cfg.trajectory.values["design"])
+    path = path if path.is_absolute() else cfg.base_dir / path
+    if not path.is_file():
+        raise InputError(f"design file not found: {path}")
+    try:
+        doc = json.loads(path.read_text())
+        traj = doc["trajectory"]
+        coords = doc["coordinates"]
+    except (ValueError, KeyError) as exc:
+        raise ConfigError(f"{path}: not a design.json of dynid design ({exc})") from None
+    if traj.get("kind") != "fourier":
+        raise ConfigError(f"{path}: a {traj.get('kind')!r} design; trajectory.design takes periodic Fourier designs")
+    if list(coords) != list(names):
+        raise ConfigError(f"{path}: the design moves {coords}, the simulated robot's coordinates are {names} "
+                          "(set trajectory.coordinates as the design did)")
+    return FourierTrajectory(traj["base_frequency_hz"], np.array(traj["a"]), np.array(traj["b"]), np.array(traj["q0"]))
 
 
 def _gains(value, n: int, where: str) -> np.ndarray:
