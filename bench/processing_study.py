@@ -76,7 +76,7 @@ def study(quick: bool = False) -> dict:
         fourier = {"kind": "fourier", "coordinates": "task", "design": str(d / "design.json"), "periods": periods}
         _simulate(d / "train", fourier, rate, None, 1)
         circle = {"kind": "circle", "coordinates": "task", "axes": ["PX", "PY"], "centre": [0.0, 0.0],
-                  "radius": 0.015, "speed": 0.05, "turns": 1 if quick else 2, "ramp": 0.2}
+                  "radius": 0.015, "speed": 0.05, "turns": 1 if quick else 4, "ramp": 0.2}
         _simulate(d / "circle", circle, rate, None, 2)
         q = [f"q_P{j}" for j in range(1, 7)]
         tau = [f"tau_P{j}" for j in range(1, 7)]
