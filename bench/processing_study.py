@@ -8,7 +8,10 @@ its platform in the x-y plane for validation. The same log is identified (WLS, `
 (a) raw: central differences of the unfiltered actuator positions;
 (b) time domain: zero-phase Butterworth (order 4) + central differences;
 (c) frequency domain: period averaging + exact DFT filtering and differentiation of the actuator
-    positions (``[processing.periodic]``, window at ``CUTOFF`` times the fundamental; see below).
+    positions (``[processing.periodic]``, window at ``CUTOFF`` times the fundamental; see below);
+(d) frequency domain on the pose (paper 004): period averaging, forward kinematics of every
+    sample, the platform pose windowed at the excited band and differentiated exactly
+    (``domain = "pose"``).
 
 Each model predicts the drive forces along the circle (processed in the time domain, the same
 for all three); the table gives the prediction error variance per drive. Then the leakage of
@@ -84,6 +87,7 @@ def study(quick: bool = False) -> dict:
             "(a) raw": {"derivatives": "central", "trim_samples": 2},
             "(b) time domain": {"lowpass": {"cutoff_hz": 4.0 * harmonics * f0, "order": 4, "filter_effort": False}},
             "(c) frequency domain": {"periodic": {"period_s": 1.0 / f0, "cutoff_hz": CUTOFF * f0}},
+            "(d) frequency, pose": {"periodic": {"period_s": 1.0 / f0, "cutoff_hz": (harmonics + 0.5) * f0, "domain": "pose"}},
         }
         rows = {}
         for label, proc in processings.items():

@@ -86,3 +86,10 @@ def test_periodic_config_errors(tmp_path):
         parse_config(_config(tmp_path, {"periodic": {"period_s": 10.0, "cutoff_hz": 1.0}, "lowpass": {"cutoff_hz": 2.0}}), tmp_path)
     with pytest.raises(ConfigError, match="missing required keys \\['cutoff_hz'\\]"):
         parse_config(_config(tmp_path, {"periodic": {"period_s": 10.0}}), tmp_path)
+
+
+def test_pose_domain_is_for_parallel_robots(logs):
+    d, _, _ = logs
+    cfg = parse_config(_config(d, {"periodic": {"period_s": 10.0, "cutoff_hz": 0.55, "domain": "pose"}}), d)
+    with pytest.raises(ConfigError, match="is for parallel robots"):
+        identify(cfg)

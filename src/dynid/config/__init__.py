@@ -204,6 +204,7 @@ class PeriodicConfig:
     cutoff_hz: float
     average: bool = True
     filter_effort: bool = False
+    domain: str = "actuators"  # "pose": parallel robots, filter the reconstructed platform pose (paper 004)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -369,12 +370,13 @@ def _parse_processing(t: Any) -> ProcessingConfig:
             raise ConfigError(f"{where}.min_velocity: must be >= 0")
     periodic = None
     if "periodic" in t:
-        pt = _table(t["periodic"], f"{where}.periodic", {"period_s", "cutoff_hz", "average", "filter_effort"}, {"period_s", "cutoff_hz"})
+        pt = _table(t["periodic"], f"{where}.periodic", {"period_s", "cutoff_hz", "average", "filter_effort", "domain"}, {"period_s", "cutoff_hz"})
         periodic = PeriodicConfig(
             period_s=_num(pt["period_s"], f"{where}.periodic.period_s", positive=True),
             cutoff_hz=_num(pt["cutoff_hz"], f"{where}.periodic.cutoff_hz", positive=True),
             average=_bool(pt.get("average", True), f"{where}.periodic.average"),
             filter_effort=_bool(pt.get("filter_effort", False), f"{where}.periodic.filter_effort"),
+            domain=_str(pt.get("domain", "actuators"), f"{where}.periodic.domain", ("actuators", "pose")),
         )
         clash = [k for k in ("lowpass", "decimate", "trim_samples") if k in t] + (["derivatives"] if t.get("derivatives") == "measured" else [])
         if clash:

@@ -257,7 +257,11 @@ def _preprocess_periodic(ds: Dataset, t, q, tau, fs: float, pc, steps: list, lab
                       note="covariances of one sample's noise; the averaged period carries them divided by the number of periods")
     else:
         record.update(averaged=False)
-    q, dq, ddq = fourier_filter(q, fs, pc.cutoff_hz)
+    if pc.domain == "pose":  # positions stay as averaged: the pose is filtered after forward kinematics
+        dq = ddq = np.zeros_like(q)
+        record["positions"] = "averaged only; the platform pose is filtered after forward kinematics (paper 004 §3.3)"
+    else:
+        q, dq, ddq = fourier_filter(q, fs, pc.cutoff_hz)
     if pc.filter_effort:
         tau = fourier_filter(tau, fs, pc.cutoff_hz)[0]
     record["method"] = "DFT of whole periods, rectangular window at the cut-off, x jw and -w^2, inverse DFT"

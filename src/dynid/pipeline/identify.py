@@ -230,6 +230,10 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
 
     Closed-loop mechanisms go through :func:`dynid.pipeline.identify_mechanism.identify_mechanism`."""
     robot = build_robot(cfg.robot)
+    if cfg.processing.periodic is not None and cfg.processing.periodic.domain == "pose" and not isinstance(robot, Mechanism):
+        from dynid.errors import ConfigError
+
+        raise ConfigError("processing.periodic.domain = 'pose' is for parallel robots (serial robots have no platform pose)")
     if isinstance(robot, Mechanism):
         from dynid.pipeline.identify_mechanism import identify_mechanism
 

@@ -54,6 +54,16 @@ def mechanism_channels(mech: Mechanism, force_model: str | None) -> tuple[str, .
     return tuple(mech.actuated_names)
 
 
+def _check_pose_domain(cfg: Config, mech: Mechanism) -> None:
+    pc = cfg.processing.periodic
+    if pc is None or pc.domain != "pose":
+        return
+    if not mech.task_coordinates:
+        raise ConfigError(f"processing.periodic.domain = 'pose' needs a platform pose; {mech.name!r} declares no task coordinates")
+    if mech.redundant:
+        raise ConfigError("processing.periodic.domain = 'pose' is not available for redundantly actuated mechanisms yet")
+
+
 def _force_model(cfg: Config, mech: Mechanism) -> str | None:
     fm = cfg.identification.force_model
     if mech.redundant:
@@ -92,9 +102,25 @@ def _actuator_space(ds: Dataset, mech: Mechanism, label: str) -> tuple[Dataset, 
     return out, notes
 
 
+def _pose_chunks(mech: Mechanism, base: BaseParameters, ds: Dataset, periodic, progress, task: str):
+    """The whole averaged period at once: forward kinematics of every sample, the platform pose
+    filtered and differentiated in the frequency domain, the regressor in task coordinates
+    (paper 004 §3.3; :func:`dynid.model.loop_kinematics.pose_states`)."""
+    from dynid.model.loop_kinematics import pose_states
+
+    fs = 1.0 / float(np.median(np.diff(ds.t)))
+    state, *_ = pose_states(mech, ds.q, fs, periodic.cutoff_hz)
+    reg = actuator_regressor(mech.in_task_space(), state)
+    progress(task, ds.n_samples, ds.n_samples)
+    yield base.regressor(reg.W), reg.outputs(ds.tau), np.zeros(ds.n_samples)
+
+
 def _chunks(mech: Mechanism, base: BaseParameters, ds: Dataset, force_model: str | None, chunk: int,
-            progress, task: str) -> Iterator[tuple[FloatArray, FloatArray, FloatArray]]:
+            progress, task: str, periodic=None) -> Iterator[tuple[FloatArray, FloatArray, FloatArray]]:
     """Yield ``(W_base, y, inconsistency)`` chunk by chunk."""
+    if periodic is not None and periodic.domain == "pose":
+        yield from _pose_chunks(mech, base, ds, periodic, progress, task)
+        return
     n = ds.n_samples
     q0 = None
     data = mech.pin_model.createData()
@@ -107,10 +133,10 @@ def _chunks(mech: Mechanism, base: BaseParameters, ds: Dataset, force_model: str
         progress(task, b, n)
 
 
-def _problem(mech, base, ds, force_model, chunk, progress, meta):
+def _problem(mech, base, ds, force_model, chunk, progress, meta, periodic=None):
     builder = ProblemBuilder(base.names, mechanism_channels(mech, force_model))
     worst = 0.0
-    for W, y, resid in _chunks(mech, base, ds, force_model, chunk, progress, "compress"):
+    for W, y, resid in _chunks(mech, base, ds, force_model, chunk, progress, "compress", periodic):
         builder.add(W, y)
         worst = max(worst, float(resid.max()))
     standard = StandardMap(
@@ -128,6 +154,7 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
     from dynid.pipeline.identify import IdentifyOutcome, ValidationMetrics
 
     _refuse_unsupported(cfg)
+    _check_pose_domain(cfg, mech)
     force_model = _force_model(cfg, mech)
     names = tuple(mech.actuated_names)
     readers: dict = {}
@@ -161,7 +188,7 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
         "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
     }
     chunk = max(1, min(int(cfg.identification.chunk_size), 2000))
-    problem, worst = _problem(mech, base, train, force_model, chunk, progress, meta)
+    problem, worst = _problem(mech, base, train, force_model, chunk, progress, meta, cfg.processing.periodic)
     icfg = cfg.identification
     result = ESTIMATORS[(icfg.method, icfg.physical_consistency)]().fit(problem)
     notes = list(notes)
@@ -173,7 +200,7 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
         notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
     result = result.with_notes(*notes) if notes else result
     meas, pred = [], []
-    for W, y, _ in _chunks(mech, base, held_out, force_model, chunk, progress, "validate"):
+    for W, y, _ in _chunks(mech, base, held_out, force_model, chunk, progress, "validate", cfg.processing.periodic):
         meas.append(y)
         pred.append(W @ result.params)
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
