@@ -93,3 +93,39 @@ def test_pose_domain_is_for_parallel_robots(logs):
     cfg = parse_config(_config(d, {"periodic": {"period_s": 10.0, "cutoff_hz": 0.55, "domain": "pose"}}), d)
     with pytest.raises(ConfigError, match="is for parallel robots"):
         identify(cfg)
+
+
+def test_gauss_markov_with_the_period_averaging_covariance(logs):
+    """[identification] method = "gm", noise_covariance = "periodic": the estimator uses the
+    effort noise covariance measured by the period averaging (paper 004 §3.2), divided by the
+    number of periods, and its intervals hold the truth."""
+    d, robot, _ = logs
+    doc = _config(d, {"periodic": {"period_s": 10.0, "cutoff_hz": 0.55}})
+    doc["identification"] = {"method": "gm", "noise_covariance": "periodic"}
+    out = identify(parse_config(doc, d))
+    assert out.result.method == "GM"
+    cov = np.asarray(out.result.solver["noise_covariance"])
+    step = next(s for s in out.result.provenance["processing"] if s["step"] == "periodic")
+    np.testing.assert_allclose(cov, np.asarray(step["noise_covariance_effort"]) / step["periods"])
+    np.testing.assert_allclose(np.sqrt(np.diag(cov) * step["periods"]), [1.0, 1.0, 0.5, 0.2, 0.2, 0.1], rtol=0.1)
+    true = out.base.from_standard(robot.nominal_parameters())
+    z = (out.result.params - true) / out.result.bse
+    assert np.abs(z).max() < 4.5, np.abs(z).max()
+    assert out.result.scale < 2.0  # the averaged noise explains the residual
+
+
+def test_estimator_options_are_checked(logs):
+    d, _, _ = logs
+    doc = _config(d, {"lowpass": {"cutoff_hz": 2.0, "order": 4, "filter_effort": False}})
+    doc["identification"] = {"method": "gm", "noise_covariance": "periodic"}
+    with pytest.raises(ConfigError, match="needs \\[processing.periodic\\] averaging"):
+        identify(parse_config(doc, d))
+    doc["identification"] = {"method": "wls", "noise_covariance": "periodic"}
+    with pytest.raises(ConfigError, match="is for method = 'gm'"):
+        parse_config(doc, d)
+    doc["identification"] = {"method": "gm", "noise_covariance": [[1.0, 0.0], [0.0, 1.0]]}
+    with pytest.raises(ConfigError, match="is 2 x 2; there are 6 channels"):
+        identify(parse_config(doc, d))
+    doc["identification"] = {"method": "wls", "nominal_weighting": True}
+    out = identify(parse_config(doc, d))
+    assert "cond_Zww" in out.result.solver

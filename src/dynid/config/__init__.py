@@ -40,7 +40,7 @@ EFFORT_UNITS = {
     "torque": {"N*m": 1.0, "Nm": 1.0, "N.m": 1.0, "mN*m": 1e-3, "N": 1.0},
     "current": {"A": 1.0, "mA": 1e-3},
 }
-_METHODS = ("ols", "wls")
+_METHODS = ("ols", "wls", "gm", "irls", "tls", "ml")
 _FORCE_MODELS = ("projected", "min_norm", "min_norm_local_friction")
 _EXTRAS = ("Ia", "fv", "fc", "offset")
 
@@ -230,6 +230,11 @@ class IdentificationConfig:
     base_samples: int | None = None
     min_joint_motion: float = 1e-3
     force_model: str | None = None
+    noise_covariance: str | tuple[tuple[float, ...], ...] = "residuals"  # ml: "periodic" by default
+    iterations: int = 1
+    nominal_weighting: bool = False
+    position_covariance: str | tuple[tuple[float, ...], ...] = "periodic"  # ml only
+    cutoff_range_hz: tuple[float, float] | None = None  # ml only; None: 0.5-2 x processing.periodic.cutoff_hz
 
 
 @dataclasses.dataclass(frozen=True)
@@ -395,9 +400,42 @@ def _parse_processing(t: Any) -> ProcessingConfig:
 
 def _parse_identification(t: Any) -> IdentificationConfig:
     where = "identification"
-    t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion", "force_model"})
+    t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
+                          "force_model", "noise_covariance", "iterations", "nominal_weighting",
+                          "position_covariance", "cutoff_range_hz"})
+    method = _str(t.get("method", "wls"), f"{where}.method", _METHODS)
+    for key, need in (("noise_covariance", ("gm", "ml")), ("iterations", ("gm",)), ("nominal_weighting", ("wls",)),
+                      ("position_covariance", ("ml",)), ("cutoff_range_hz", ("ml",))):
+        if key in t and method not in need:
+            raise ConfigError(f"{where}.{key} is for method = {' or '.join(repr(m) for m in need)}, not {method!r}")
+
+    def matrix(key: str, words: tuple[str, ...]) -> Any:
+        v = t[key]
+        if isinstance(v, str):
+            return _str(v, f"{where}.{key}", words)
+        if isinstance(v, list) and v and all(isinstance(r, list) and len(r) == len(v) for r in v):
+            return tuple(tuple(_num(x, f"{where}.{key}") for x in r) for r in v)
+        raise ConfigError(f"{where}.{key} must be {' or '.join(repr(w) for w in words)} or a square matrix (list of rows)")
+
+    ncov: Any = "periodic" if method == "ml" else "residuals"
+    if "noise_covariance" in t:
+        ncov = matrix("noise_covariance", ("periodic",) if method == "ml" else ("residuals", "periodic"))
+    pcov = matrix("position_covariance", ("periodic",)) if "position_covariance" in t else "periodic"
+    crange = None
+    if "cutoff_range_hz" in t:
+        v = t["cutoff_range_hz"]
+        if not (isinstance(v, list) and len(v) == 2):
+            raise ConfigError(f"{where}.cutoff_range_hz must be [low, high] in Hz")
+        crange = (_num(v[0], f"{where}.cutoff_range_hz"), _num(v[1], f"{where}.cutoff_range_hz"))
+        if not 0 < crange[0] < crange[1]:
+            raise ConfigError(f"{where}.cutoff_range_hz must satisfy 0 < low < high, got {list(crange)}")
     return IdentificationConfig(
-        method=_str(t.get("method", "wls"), f"{where}.method", _METHODS),
+        noise_covariance=ncov,
+        position_covariance=pcov,
+        cutoff_range_hz=crange,
+        iterations=_int(t.get("iterations", 1), f"{where}.iterations", 1),
+        nominal_weighting=_bool(t.get("nominal_weighting", False), f"{where}.nominal_weighting"),
+        method=method,
         physical_consistency=_bool(t.get("physical_consistency", False), f"{where}.physical_consistency"),
         chunk_size=_int(t.get("chunk_size", 20000), f"{where}.chunk_size", 1),
         base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),

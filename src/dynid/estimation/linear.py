@@ -77,8 +77,9 @@ class _Solve:
     cond: float
 
 
-def whitened_solve(problem: RegressionProblem, weights: FloatArray) -> _Solve:
-    """Weighted least squares with per-channel weights on the compressed problem."""
+def whitened_solve(problem: RegressionProblem, weights: FloatArray, *, check: bool = True) -> _Solve:
+    """Weighted least squares with per-channel weights on the compressed problem
+    (``check=False`` skips the identifiability test, for a problem already checked)."""
     p = problem.n_params
     w = np.asarray(weights, dtype=float)
     if w.shape != (problem.n_channels,) or np.any(~np.isfinite(w)) or np.any(w <= 0):
@@ -87,7 +88,8 @@ def whitened_solve(problem: RegressionProblem, weights: FloatArray) -> _Solve:
     A = (problem.R * sw[:, None, None]).reshape(-1, p)
     b = (problem.z * sw[:, None]).reshape(-1)
     q, r = np.linalg.qr(A, mode="reduced")
-    check_identifiable(r, problem.names)
+    if check:
+        check_identifiable(r, problem.names)
     c = q.T @ b
     beta = sla.solve_triangular(r, c)
     rss = problem.rss_per_channel(beta)
@@ -158,9 +160,19 @@ class WLS:
     noise_std : array of shape (n_ch,), optional
         Known per-channel noise standard deviations; when given they set the weights
         directly instead of the OLS residual estimate.
+    nominal : array of shape (p,), optional
+        Nominal parameter values weighting the observation matrix, :math:`Z_{ww} = Z_w
+        \\mathrm{diag}(\\bar\\phi)` (paper 001 Eq. 17). The solve runs in the scaled variables
+        :math:`\\psi = \\phi / \\bar\\phi` and the result reports :math:`\\mathrm{cond}(Z_{ww})`: 1 means
+        every parameter is estimated with the same *relative* accuracy. The least-squares
+        estimate itself is invariant to this column scaling (exactly so in exact arithmetic);
+        what the weighting changes is the condition number, i.e. the excitation criterion
+        (:func:`dynid.excitation.criteria.weighted_cond`). Parameters with a zero nominal value
+        keep unit weight (named in the notes).
     """
 
     noise_std: tuple[float, ...] | None = None
+    nominal: tuple[float, ...] | None = None
 
     def fit(self, problem: RegressionProblem) -> IdentificationResult:
         if self.noise_std is not None:
@@ -171,7 +183,23 @@ class WLS:
         else:
             sigma = gautier_noise_std(problem)
             source = "OLS residuals (Gautier)"
-        s = whitened_solve(problem, 1.0 / sigma**2)
-        notes = (f"weights 1/sigma_j^2 per channel; sigma_j from {source}",)
+        notes = [f"weights 1/sigma_j^2 per channel; sigma_j from {source}"]
         solver = {"algorithm": "QR of whitened stacked per-channel factors", "weights_from": source, "sigma": sigma.tolist()}
-        return _result(problem, "WLS", s, sigma, solver, notes)
+        if self.nominal is None:
+            s = whitened_solve(problem, 1.0 / sigma**2)
+            return _result(problem, "WLS", s, sigma, solver, tuple(notes))
+        nom = np.asarray(self.nominal, dtype=float)
+        if nom.shape != (problem.n_params,) or not np.all(np.isfinite(nom)):
+            raise InputError(f"nominal must be {problem.n_params} finite values (one per parameter), got shape {nom.shape}")
+        scale = np.where(nom != 0, np.abs(nom), 1.0)
+        scaled = problem.replace(factors=problem.factors * np.append(scale, 1.0)[None, None, :], standard=None, cross=None)
+        w_unscaled = whitened_solve(problem, 1.0 / sigma**2).cond  # also the identifiability check
+        s = whitened_solve(scaled, 1.0 / sigma**2, check=False)
+        s = dataclasses.replace(s, beta=s.beta * scale, cov=s.cov * np.outer(scale, scale), rss=problem.rss_per_channel(s.beta * scale))
+        solver.update(nominal_weighting=True, cond_Zw=w_unscaled, cond_Zww=s.cond)
+        zero = [n for n, v in zip(problem.names, nom) if v == 0]
+        notes.append(f"observation matrix weighted by nominal values (Shang 2009 Eq. 17): cond(Z_ww) = {s.cond:.4g} "
+                     f"against cond(Z_w) = {w_unscaled:.4g}")
+        if zero:
+            notes.append(f"zero nominal value, unit weight: {', '.join(zero)}")
+        return _result(problem, "WLS", s, sigma, solver, tuple(notes))

@@ -59,6 +59,12 @@ class RegressionProblem:
         Map to physical standard parameters (needed by constrained estimators).
     meta : mapping
         Provenance of the problem (data sources, processing).
+    cross : array, shape (n_ch (p + 1), n_ch (p + 1)), optional
+        Upper-triangular factor of the *wide* matrix whose row ``i`` holds the augmented rows
+        ``[W_j(i) | y_j(i)]`` of every channel side by side (``ProblemBuilder(cross=True)``).
+        Its Gram matrix holds every cross-channel product, which Gauss–Markov estimation with
+        a full noise covariance across channels needs (see
+        :func:`dynid.estimation.linear.gls_solve`); per-channel factors cannot give it.
     """
 
     names: tuple[str, ...]
@@ -68,6 +74,7 @@ class RegressionProblem:
     expressions: tuple[str, ...] | None = None
     standard: StandardMap | None = None
     meta: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    cross: FloatArray | None = None
 
     def __post_init__(self) -> None:
         f = np.array(self.factors, dtype=float)
@@ -82,6 +89,13 @@ class RegressionProblem:
         object.__setattr__(self, "names", tuple(self.names))
         object.__setattr__(self, "channel_names", tuple(self.channel_names))
         object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+        if self.cross is not None:
+            c = np.array(self.cross, dtype=float)
+            m = len(self.channel_names) * (p + 1)
+            if c.shape != (m, m):
+                raise InputError(f"cross factor has shape {c.shape}, expected {(m, m)}")
+            c.setflags(write=False)
+            object.__setattr__(self, "cross", c)
         if self.standard is not None and self.standard.B.shape[0] != p:
             raise InputError(f"standard map has {self.standard.B.shape[0]} base parameters, the problem {p}")
 
@@ -132,6 +146,32 @@ class RegressionProblem:
     def replace(self, **changes: Any) -> RegressionProblem:
         return dataclasses.replace(self, **changes)
 
+    def select(self, names: Sequence[str]) -> RegressionProblem:
+        """The problem restricted to the parameters ``names`` (the others fixed at zero).
+
+        Exact: the columns of the augmented factors ``[R_j | z_j]`` that are kept are
+        re-triangularized, so the residual of the dropped columns moves into ``rho_j``.
+        Used by model-structure searches (paper 000 §6.2). The standard map is dropped
+        (a subset of base parameters no longer maps to all standard parameters).
+        """
+        index = {n: i for i, n in enumerate(self.names)}
+        missing = [n for n in names if n not in index]
+        if missing:
+            raise InputError(f"unknown parameters {missing}")
+        if len(set(names)) != len(names) or not names:
+            raise InputError("select needs distinct parameter names, at least one")
+        p = self.n_params
+        cols = [index[n] for n in names] + [p]
+        q = len(names)
+        f = np.array([_qr_r(self.factors[j][:, cols], q + 1)[: q + 1] for j in range(self.n_channels)])
+        cross = None
+        if self.cross is not None:
+            wide = [j * (p + 1) + c for j in range(self.n_channels) for c in cols]
+            cross = _qr_r(self.cross[:, wide], len(wide))[: len(wide)]
+        exprs = None if self.expressions is None else tuple(self.expressions[index[n]] for n in names)
+        return RegressionProblem(names=tuple(names), channel_names=self.channel_names, factors=f, n_obs=self.n_obs,
+                                 expressions=exprs, standard=None, meta=self.meta, cross=cross)
+
     @classmethod
     def from_arrays(
         cls,
@@ -140,13 +180,15 @@ class RegressionProblem:
         names: Sequence[str],
         channel_names: Sequence[str] | None = None,
         mask: BoolArray | None = None,
+        *,
+        cross: bool = False,
         **kwargs: Any,
     ) -> RegressionProblem:
         """Compress a regressor ``W`` (n, n_ch, p) and outputs ``y`` (n, n_ch) in one go."""
         W = np.asarray(W, dtype=float)
         if channel_names is None:
             channel_names = tuple(f"ch{j + 1}" for j in range(W.shape[1]))
-        b = ProblemBuilder(names, channel_names)
+        b = ProblemBuilder(names, channel_names, cross=cross)
         b.add(W, y, mask)
         return b.build(**kwargs)
 
@@ -161,12 +203,14 @@ class ProblemBuilder:
     >>> problem = b.build()                              # doctest: +SKIP
     """
 
-    def __init__(self, names: Sequence[str], channel_names: Sequence[str]) -> None:
+    def __init__(self, names: Sequence[str], channel_names: Sequence[str], *, cross: bool = False) -> None:
         self.names = tuple(names)
         self.channel_names = tuple(channel_names)
         p = len(self.names)
         self._factors = np.zeros((len(self.channel_names), p + 1, p + 1))
         self._n_obs = np.zeros(len(self.channel_names), dtype=np.int64)
+        m = len(self.channel_names) * (p + 1)
+        self._cross = np.zeros((m, m)) if cross else None
 
     def add(self, W: FloatArray, y: FloatArray, mask: BoolArray | None = None) -> None:
         """Accumulate rows.
@@ -179,6 +223,8 @@ class ProblemBuilder:
             Measured outputs.
         mask : bool array, shape (n, n_ch), optional
             Rows to use per channel (e.g. to drop near-zero-velocity samples of one joint).
+            Not with ``cross=True``: a full noise covariance across channels needs every
+            channel of every sample.
         """
         W = np.asarray(W, dtype=float)
         y = np.asarray(y, dtype=float)
@@ -191,6 +237,9 @@ class ProblemBuilder:
             mask = np.asarray(mask, dtype=bool)
             if mask.shape != y.shape:
                 raise InputError(f"row mask has shape {mask.shape}, expected {y.shape}")
+            if self._cross is not None and not mask.all():
+                raise InputError("per-channel row masks cannot be combined with cross-channel factors "
+                                 "(a full noise covariance needs every channel of every sample)")
         if not (np.all(np.isfinite(W)) and np.all(np.isfinite(y))):
             raise InputError("regressor or outputs contain NaN/inf")
         # one BLAS thread: the QR of a tall, narrow block gains nothing from threads and
@@ -212,6 +261,9 @@ class ProblemBuilder:
             a[p + 1 :, p] = yj
             self._factors[j] = _qr_r(a, p + 1)[: p + 1]
             self._n_obs[j] += m
+        if self._cross is not None:
+            wide = np.concatenate([W, y[:, :, None]], axis=2).reshape(W.shape[0], -1)
+            self._cross = _qr_r(np.vstack([self._cross, wide]), self._cross.shape[0])[: self._cross.shape[0]]
 
     def build(self, **kwargs: Any) -> RegressionProblem:
         return RegressionProblem(
@@ -219,5 +271,6 @@ class ProblemBuilder:
             channel_names=self.channel_names,
             factors=self._factors.copy(),
             n_obs=self._n_obs.copy(),
+            cross=None if self._cross is None else self._cross.copy(),
             **kwargs,
         )

@@ -10,7 +10,11 @@ Statistics (paper 002 Eqs. 29–30; paper 001 Eq. 20):
 - relative standard deviation :math:`100\\,\\sigma_{\\hat\\beta_i}/|\\hat\\beta_i|` [%];
 - two-sided :math:`100(1-\\alpha)` % intervals
   :math:`\\hat\\beta_i \\pm t_{1-\\alpha/2}(\\nu)\\,\\sigma_{\\hat\\beta_i}` with
-  :math:`\\nu = N - p` degrees of freedom.
+  :math:`\\nu = N - p` degrees of freedom;
+- the confidence ellipsoid of the whole parameter set (paper 002, Eq. 29): a point
+  :math:`\\theta` lies in the :math:`100(1-\\alpha)` % ellipsoid iff
+  :math:`(\\hat\\beta-\\theta)^T\\Sigma^{-1}(\\hat\\beta-\\theta) \\le \\chi^2_{p,1-\\alpha}`;
+- the condition number of the correlation matrix of the estimates (paper 004, Eq. 11).
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import numpy as np
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError
-from dynid.stats import relative_std, t_quantile
+from dynid.stats import chi2_radius, correlation_condition_number, ellipsoid_statistic, relative_std, t_quantile
 
 __all__ = ["IdentificationResult", "Summary"]
 
@@ -201,6 +205,51 @@ class IdentificationResult:
         s = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
         return cov / np.outer(s, s)
 
+    @property
+    def correlation_condition_number(self) -> float:
+        """Condition number of the correlation matrix of the estimates (paper 004, Eq. 11).
+
+        Independent of the parameters' units; the criterion of paper 004 for choosing a
+        friction structure (lower is better; see
+        :func:`dynid.estimation.identifiability.select_friction_structure`).
+        """
+        return correlation_condition_number(self._need_cov())
+
+    def _reference_vector(self, reference: FloatArray | Mapping[str, float]) -> FloatArray:
+        if isinstance(reference, Mapping):
+            missing = [n for n in self.names if n not in reference]
+            if missing:
+                raise InputError(f"reference lacks parameters {missing}")
+            return np.array([float(reference[n]) for n in self.names])
+        ref = np.asarray(reference, dtype=float)
+        if ref.shape != self.params.shape:
+            raise InputError(f"reference has shape {ref.shape}, the estimate {self.params.shape}")
+        return ref
+
+    def chi2_statistic(self, reference: FloatArray | Mapping[str, float]) -> float:
+        """:math:`(\\hat\\beta - \\theta)^T \\Sigma^{-1} (\\hat\\beta - \\theta)` of a reference point.
+
+        Parameters
+        ----------
+        reference : array of shape (p,), or mapping name -> value
+            The point :math:`\\theta` (true, nominal or another run's parameters).
+
+        Returns
+        -------
+        float
+            :math:`\\chi^2(p)`-distributed when the estimate is unbiased with the
+            reported covariance (paper 002, Eq. 29 and Fig. 9).
+        """
+        return ellipsoid_statistic(self.params, self._reference_vector(reference), self._need_cov())
+
+    def in_confidence_ellipsoid(self, reference: FloatArray | Mapping[str, float], alpha: float = 0.05) -> bool:
+        """Whether ``reference`` lies in the ``100(1-alpha)`` % confidence ellipsoid (paper 002, Eq. 29).
+
+        True iff :meth:`chi2_statistic` is at most :func:`dynid.stats.chi2_radius`
+        ``(p, alpha)`` (36.42 for 24 parameters at 95 %).
+        """
+        return bool(self.chi2_statistic(reference) <= chi2_radius(len(self.names), alpha))
+
     def predict(self, W: FloatArray) -> FloatArray:
         """Outputs ``W @ params`` for a regressor of shape (..., p)."""
         return np.asarray(W) @ self.params
@@ -222,6 +271,8 @@ class IdentificationResult:
             ("condition number", f"{self.condition_number:.4g}"),
             ("residual scale", f"{self.scale:.4g}"),
         )
+        if self.cov_params is not None:
+            info += (("correlation cond. number", f"{self._corr_cond_text()}"),)
         ch_rows = [("channel", "samples", "train RMSE", "noise std")]
         for c, n, r, s in zip(self.channel_names, self.n_obs, self.rmse_per_channel, self.noise_std):
             ch_rows.append((c, str(int(n)), f"{r:.4g}", f"{s:.4g}"))
@@ -247,6 +298,12 @@ class IdentificationResult:
             param_table=tuple(rows),
             notes=tuple(notes),
         )
+
+    def _corr_cond_text(self) -> str:
+        try:
+            return f"{self.correlation_condition_number:.4g}"
+        except InputError as exc:  # e.g. a zero variance: say why instead of failing the summary
+            return f"undefined ({exc})"
 
     def _repr_html_(self) -> str:
         return self.summary().as_html()

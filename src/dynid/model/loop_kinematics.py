@@ -28,7 +28,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.mechanism import JointCoordinates, KinematicState, Mechanism
 
-__all__ = ["actuator_states", "kinematic_state", "pose_states", "states"]
+__all__ = ["actuator_states", "kinematic_state", "platform_pose", "pose_states", "states"]
 
 
 class _Sides:
@@ -452,7 +452,17 @@ def actuator_states(
     return state, resid
 
 
-def pose_states(mech: Mechanism, qa: FloatArray, fs: float, cutoff_hz: float, *, q0: FloatArray | None = None):
+def platform_pose(mech: Mechanism, qa: FloatArray, *, q0: FloatArray | None = None) -> FloatArray:
+    """The platform pose (task coordinates of ``mech``) of measured actuator positions ``qa``
+    (n, n_a) by forward kinematics of every sample (step 1 of :func:`pose_states`), (n, n_task)."""
+    task = mech.in_task_space()
+    zeros = np.zeros_like(np.atleast_2d(np.asarray(qa, dtype=float)))
+    raw, _ = actuator_states(mech, qa, zeros, zeros, q0=q0)
+    return task.coordinates(raw.q)
+
+
+def pose_states(mech: Mechanism, qa: FloatArray, fs: float, cutoff_hz: float, *, q0: FloatArray | None = None,
+                pose: FloatArray | None = None):
     """Platform pose reconstruction from measured actuator positions (paper 004 §3.3).
 
     1. forward kinematics of every sample (Gauss–Newton from the actuator positions,
@@ -462,6 +472,9 @@ def pose_states(mech: Mechanism, qa: FloatArray, fs: float, cutoff_hz: float, *,
        record must span whole periods of the motion);
     3. all joints from the filtered pose (closed-form inverse kinematics when the mechanism
        has one, then Newton) and the velocity map of the task coordinates.
+
+    ``pose`` (n, n_task), the result of :func:`platform_pose` for ``qa``, skips step 1 (to
+    filter the same record at several cut-offs).
 
     Returns
     -------
@@ -474,9 +487,8 @@ def pose_states(mech: Mechanism, qa: FloatArray, fs: float, cutoff_hz: float, *,
     from dynid.signals.periodic import fourier_filter
 
     task = mech.in_task_space()
-    zeros = np.zeros_like(np.atleast_2d(np.asarray(qa, dtype=float)))
-    raw, _ = actuator_states(mech, qa, zeros, zeros, q0=q0)
-    pose = task.coordinates(raw.q)
+    if pose is None:
+        pose = platform_pose(mech, qa, q0=q0)
     pose_f, dpose, ddpose = fourier_filter(pose, fs, cutoff_hz)
     state = task.states(task.solve_positions(pose_f), dpose, ddpose)
     return state, pose_f, dpose, ddpose

@@ -158,8 +158,13 @@ def to_joint_space(ds: Dataset, robot: RobotModel, label: str) -> tuple[Dataset,
     return out, notes
 
 
-def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str) -> tuple[Dataset, list[dict[str, Any]]]:
-    """Resample, filter, differentiate, trim and decimate (see module docstring)."""
+def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str, *,
+               filter_positions: bool = True) -> tuple[Dataset, list[dict[str, Any]]]:
+    """Resample, filter, differentiate, trim and decimate (see module docstring).
+
+    ``filter_positions = False`` (``[processing.periodic]`` only): the positions are averaged
+    over the periods but not filtered (velocities and accelerations zero), for a caller that
+    filters them itself at several cut-offs (maximum likelihood, paper 004 Eq. 24)."""
     steps: list[dict[str, Any]] = []
     t, q, tau, dq_m, ddq_m = ds.t, ds.q, ds.tau, ds.dq, ds.ddq
     uniform = ds.is_uniform()
@@ -179,7 +184,9 @@ def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str) -> tuple[Dataset,
         t = t_new
     fs = 1.0 / float(np.median(np.diff(t)))
     if cfg.periodic is not None:
-        return _preprocess_periodic(ds, t, q, tau, fs, cfg.periodic, steps, label)
+        return _preprocess_periodic(ds, t, q, tau, fs, cfg.periodic, steps, label, filter_positions)
+    if not filter_positions:
+        raise ConfigError("positions left unfiltered for a cut-off search need [processing.periodic]")
     lp = cfg.lowpass
     if lp is not None:
         if not lp.cutoff_hz < fs / 2:
@@ -234,7 +241,7 @@ def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str) -> tuple[Dataset,
     return out, steps
 
 
-def _preprocess_periodic(ds: Dataset, t, q, tau, fs: float, pc, steps: list, label: str):
+def _preprocess_periodic(ds: Dataset, t, q, tau, fs: float, pc, steps: list, label: str, filter_positions: bool = True):
     """Whole periods -> period average (with the noise covariances) -> exact DFT filtering and
     differentiation (paper 004 §3.2-3.3; :mod:`dynid.signals.periodic`)."""
     from dynid.signals.periodic import fourier_filter, period_average
@@ -257,7 +264,10 @@ def _preprocess_periodic(ds: Dataset, t, q, tau, fs: float, pc, steps: list, lab
                       note="covariances of one sample's noise; the averaged period carries them divided by the number of periods")
     else:
         record.update(averaged=False)
-    if pc.domain == "pose":  # positions stay as averaged: the pose is filtered after forward kinematics
+    if not filter_positions:
+        dq = ddq = np.zeros_like(q)
+        record["positions"] = "averaged only; filtered at each candidate cut-off of the maximum-likelihood search"
+    elif pc.domain == "pose":  # positions stay as averaged: the pose is filtered after forward kinematics
         dq = ddq = np.zeros_like(q)
         record["positions"] = "averaged only; the platform pose is filtered after forward kinematics (paper 004 §3.3)"
     else:
@@ -297,3 +307,78 @@ def velocity_mask(dq: np.ndarray, min_velocity: tuple[float, ...] | None) -> np.
         raise ConfigError(f"processing.min_velocity: {len(min_velocity)} entries for {n} joints")
     thr = np.broadcast_to(np.asarray(min_velocity, float), (n,))
     return np.abs(dq) >= thr
+
+
+def _periodic_covariance(steps: list, kind: str, key: str) -> np.ndarray:
+    """Noise covariance of the averaged period: one sample's (``noise_covariance_<kind>``)
+    over the number of averaged periods (paper 004 §3.2)."""
+    rec = next((s for s in steps if s.get("step") == "periodic"), None)
+    if rec is None or not rec.get("averaged"):
+        raise ConfigError(f"identification.{key} = 'periodic' needs [processing.periodic] averaging over at least two periods")
+    return np.asarray(rec[f"noise_covariance_{kind}"], dtype=float) / rec["periods"]
+
+
+def _channels_are_efforts(channel_names, effort_names, key: str) -> None:
+    if tuple(channel_names) != tuple(effort_names):
+        raise ConfigError(f"identification.{key} = 'periodic' needs equations that are the measured "
+                          f"efforts; these are {list(channel_names)}")
+
+
+def _given_covariance(value, n: int, names, key: str) -> np.ndarray:
+    cov = np.asarray(value, dtype=float)
+    if cov.shape != (n, n):
+        raise ConfigError(f"identification.{key} is {cov.shape[0]} x {cov.shape[1]}; "
+                          f"there are {n} channels ({', '.join(names)})")
+    return cov
+
+
+def ml_covariances(icfg, steps: list, channel_names: tuple[str, ...], effort_names: tuple[str, ...]):
+    """:math:`\\Sigma_{\\eta\\eta}` and :math:`\\Sigma_{\\delta\\delta}` of the averaged period for
+    ``method = "ml"`` (paper 004 Eq. 24): from the period averaging (default) or given. A
+    singular position covariance (positions that repeat exactly from period to period, e.g.
+    noise-free or coarsely quantized) is an error: the likelihood would not be defined."""
+    from dynid.errors import InputError
+
+    if icfg.noise_covariance == "periodic":
+        _channels_are_efforts(channel_names, effort_names, "noise_covariance")
+        cov_e = _periodic_covariance(steps, "effort", "noise_covariance")
+    else:
+        cov_e = _given_covariance(icfg.noise_covariance, len(channel_names), channel_names, "noise_covariance")
+    if icfg.position_covariance == "periodic":
+        cov_d = _periodic_covariance(steps, "position", "position_covariance")
+    else:
+        cov_d = _given_covariance(icfg.position_covariance, len(effort_names), effort_names, "position_covariance")
+    for cov, what in ((cov_e, "force covariance Sigma_eta"), (cov_d, "position covariance Sigma_dd")):
+        w = np.linalg.eigvalsh(0.5 * (cov + cov.T))
+        if not w.min() > 1e-12 * max(w.max(), 1e-300):
+            raise InputError(f"identification (ml): the {what} is singular (eigenvalues {w.min():.3g}..{w.max():.3g}); "
+                             "the positions or forces repeat exactly from period to period: give it as a matrix")
+    return cov_e, cov_d
+
+
+def configured_estimator(icfg, steps: list, channel_names: tuple[str, ...], effort_names: tuple[str, ...],
+                         nominal_base: FloatArray | None):
+    """The estimator of ``[identification]`` with its data-dependent options.
+
+    ``noise_covariance = "periodic"`` (method ``"gm"``) takes the effort noise covariance of one
+    sample from the period averaging (paper 004 §3.2) divided by the number of averaged periods:
+    the covariance of the averaged period the estimator sees. It needs channels that are the
+    efforts themselves (not, e.g., the projected equations of a redundant mechanism).
+    Method ``"ml"`` is not a single-problem estimator (see :func:`ml_covariances`).
+    """
+    from dynid.estimation import make_estimator
+
+    cov = None
+    if icfg.method == "gm":
+        if icfg.noise_covariance == "periodic":
+            _channels_are_efforts(channel_names, effort_names, "noise_covariance")
+            cov = _periodic_covariance(steps, "effort", "noise_covariance")
+        elif icfg.noise_covariance != "residuals":
+            cov = _given_covariance(icfg.noise_covariance, len(channel_names), channel_names, "noise_covariance")
+    nominal = None
+    if icfg.nominal_weighting:
+        if nominal_base is None:
+            raise ConfigError("identification.nominal_weighting needs a model with nominal parameter values")
+        nominal = nominal_base
+    return make_estimator(icfg.method, icfg.physical_consistency, noise_covariance=cov, nominal=nominal,
+                          iterations=icfg.iterations)

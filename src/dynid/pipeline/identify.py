@@ -15,14 +15,22 @@ from dynid import __version__
 from dynid._typing import FloatArray
 from dynid.config import Config
 from dynid.dataset import Dataset
-from dynid.errors import InputError
-from dynid.estimation import ESTIMATORS, IdentificationResult, ProblemBuilder, RegressionProblem
+from dynid.errors import ConfigError, InputError
+from dynid.estimation import IdentificationResult, ProblemBuilder, RegressionProblem
 from dynid.io.output import staged_output
 from dynid.model.base_parameters import BaseParameters, StandardMap, robot_base_parameters
 from dynid.model.regressor import regressor
 from dynid.model.mechanism import Mechanism
 from dynid.model.robot import RobotModel
-from dynid.pipeline.data import build_robot, check_joint_motion, preprocess, read_log, to_joint_space, velocity_mask
+from dynid.pipeline.data import (
+    build_robot,
+    check_joint_motion,
+    configured_estimator,
+    preprocess,
+    read_log,
+    to_joint_space,
+    velocity_mask,
+)
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos
 
 __all__ = ["Progress", "ValidationMetrics", "IdentifyOutcome", "build_problem", "validate", "identify", "write_outputs", "write_files", "OUTPUT_FILES"]
@@ -87,15 +95,22 @@ def build_problem(
     chunk_size: int = 20000,
     progress: Progress = _no_progress,
     meta: dict[str, Any] | None = None,
+    cross: bool = False,
 ) -> RegressionProblem:
     """Compress a processed joint-space dataset chunk by chunk (never the full regressor).
 
     ``min_velocity`` drops, per joint equation, the rows where that joint's (filtered)
-    velocity is below the threshold [rad/s] (Coulomb friction is ill-defined there).
+    velocity is below the threshold [rad/s] (Coulomb friction is ill-defined there). With
+    ``cross`` (a full noise covariance across joints needs every joint of every sample) it
+    drops the whole samples in which any joint is that slow.
     """
-    builder = ProblemBuilder(base.names, robot.joint_names)
+    builder = ProblemBuilder(base.names, robot.joint_names, cross=cross)
     for W, tau, dq in _chunks(robot, base, ds, parallel_decimate, max(1, int(chunk_size)), progress, "compress"):
-        builder.add(W, tau, velocity_mask(dq, min_velocity))
+        mask = velocity_mask(dq, min_velocity)
+        if cross and mask is not None:
+            keep = mask.all(axis=1)
+            W, tau, mask = W[keep], tau[keep], None
+        builder.add(W, tau, mask)
     return builder.build(expressions=base.expressions(), standard=StandardMap.of(robot, base), meta=meta or {})
 
 
@@ -231,9 +246,10 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     Closed-loop mechanisms go through :func:`dynid.pipeline.identify_mechanism.identify_mechanism`."""
     robot = build_robot(cfg.robot)
     if cfg.processing.periodic is not None and cfg.processing.periodic.domain == "pose" and not isinstance(robot, Mechanism):
-        from dynid.errors import ConfigError
-
         raise ConfigError("processing.periodic.domain = 'pose' is for parallel robots (serial robots have no platform pose)")
+    if cfg.identification.method == "ml" and not isinstance(robot, Mechanism):
+        raise ConfigError("identification.method = 'ml' (cut-off estimated with the parameters, paper 004 Eq. 24) is "
+                          "for parallel robots; serial robots are not supported yet")
     if isinstance(robot, Mechanism):
         from dynid.pipeline.identify_mechanism import identify_mechanism
 
@@ -269,13 +285,17 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
         "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
     }
     problem = build_problem(robot, base, train, min_velocity=pcfg.min_velocity, parallel_decimate=parallel,
-                            chunk_size=cfg.identification.chunk_size, progress=progress, meta=meta)
+                            chunk_size=cfg.identification.chunk_size, progress=progress, meta=meta,
+                            cross=cfg.identification.method == "gm")
     icfg = cfg.identification
-    estimator = ESTIMATORS[(icfg.method, icfg.physical_consistency)]()
+    nominal = base.from_standard(robot.nominal_parameters()) if icfg.nominal_weighting else None
+    estimator = configured_estimator(icfg, steps, robot.joint_names, robot.joint_names, nominal)
     result = estimator.fit(problem)
     if pcfg.min_velocity is not None:
         result = result.with_provenance(
-            row_selection={"min_velocity_rad_s": list(pcfg.min_velocity), "rows_kept_per_joint": problem.n_obs.tolist()}
+            row_selection={"min_velocity_rad_s": list(pcfg.min_velocity), "rows_kept_per_joint": problem.n_obs.tolist(),
+                           "rule": ("whole samples with every joint at least that fast (full noise covariance)"
+                                    if problem.cross is not None else "per joint equation")}
         )
     if notes:
         result = result.with_notes(*notes)

@@ -23,6 +23,7 @@ something else): motor-side positions through a transmission, parallel decimatio
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from typing import Any
 
@@ -32,13 +33,13 @@ from dynid._typing import FloatArray
 from dynid.config import Config
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, IdentifiabilityError, InputError
-from dynid.estimation import ESTIMATORS, ProblemBuilder
+from dynid.estimation import ProblemBuilder
 from dynid.model.base_parameters import BaseParameters, StandardMap
 from dynid.model.closed_loop import actuator_regressor, mechanism_base_parameters
 from dynid.model.loop_kinematics import actuator_states
 from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.transmission import Transmission
-from dynid.pipeline.data import preprocess, read_log
+from dynid.pipeline.data import configured_estimator, ml_covariances, preprocess, read_log
 
 __all__ = ["identify_mechanism", "mechanism_channels"]
 
@@ -133,20 +134,80 @@ def _chunks(mech: Mechanism, base: BaseParameters, ds: Dataset, force_model: str
         progress(task, b, n)
 
 
-def _problem(mech, base, ds, force_model, chunk, progress, meta, periodic=None):
-    builder = ProblemBuilder(base.names, mechanism_channels(mech, force_model))
+def _problem(mech, base, ds, force_model, chunk, progress, meta, periodic=None, cross=False):
+    builder = ProblemBuilder(base.names, mechanism_channels(mech, force_model), cross=cross)
     worst = 0.0
     for W, y, resid in _chunks(mech, base, ds, force_model, chunk, progress, "compress", periodic):
         builder.add(W, y)
         worst = max(worst, float(resid.max()))
-    standard = StandardMap(
+    return builder.build(expressions=base.expressions(), standard=_standard_map(mech, base), meta=meta), worst
+
+
+def _standard_map(mech: Mechanism, base: BaseParameters) -> StandardMap:
+    return StandardMap(
         standard_names=mech.parameter_names,
         B=base.B,
         body_blocks=mech.body_blocks(),
         nonnegative=mech.nonnegative_parameters(),
         reference=mech.nominal_parameters(),
     )
-    return builder.build(expressions=base.expressions(), standard=standard, meta=meta), worst
+
+
+def _maximum_likelihood(cfg: Config, mech: Mechanism, base: BaseParameters, train_a: Dataset, channels, chunk: int,
+                        progress, meta: dict):
+    """Maximum likelihood with the filter cut-off (paper 004 Eq. 24): the averaged period is
+    filtered at every candidate cut-off (actuator positions, or the platform pose after one
+    forward kinematics), each gives a Gauss–Markov problem and the residual of the actuator
+    positions. Returns the result, the periodic processing at the chosen cut-off and the
+    largest inconsistency."""
+    from dynid.estimation.likelihood import CutoffFamily, MaximumLikelihood, cutoff_candidates
+    from dynid.model.loop_kinematics import platform_pose, pose_states
+    from dynid.signals.periodic import fourier_filter
+
+    pc, icfg = cfg.processing.periodic, cfg.identification
+    if pc is None:
+        raise ConfigError("identification.method = 'ml' estimates the cut-off of the frequency-domain filter: "
+                          "it needs [processing.periodic] (period averaging, paper 004 §3)")
+    if pc.filter_effort:
+        raise ConfigError("identification.method = 'ml' models the efforts as measured: set "
+                          "processing.periodic.filter_effort = false (paper 004 §3.3)")
+    if mech.redundant:
+        raise ConfigError("identification.method = 'ml' is not available for redundantly actuated mechanisms yet")
+    avg, steps = preprocess(train_a, cfg.processing, "data", filter_positions=False)
+    meta["processing"] = steps
+    cov_e, cov_d = ml_covariances(icfg, steps, tuple(channels), tuple(mech.actuated_names))
+    fs = 1.0 / float(np.median(np.diff(avg.t)))
+    low, high = icfg.cutoff_range_hz or (0.5 * pc.cutoff_hz, 2.0 * pc.cutoff_hz)
+    cutoffs = cutoff_candidates(pc.period_s, fs, low, min(high, 0.5 * fs * (1 - 1e-9)))
+    pose = platform_pose(mech, avg.q) if pc.domain == "pose" else None
+    worst = [0.0]
+    act = list(mech.actuated)
+
+    def build(fc: float):
+        progress("cut-off search", cutoffs.index(fc), len(cutoffs))
+        if pose is not None:
+            state, *_ = pose_states(mech, avg.q, fs, fc, pose=pose)
+            reg = actuator_regressor(mech.in_task_space(), state)
+            builder = ProblemBuilder(base.names, tuple(channels), cross=True)
+            builder.add(base.regressor(reg.W), reg.outputs(avg.tau))
+            q_f = state.q[:, act]
+        else:
+            q_f, dq, ddq = fourier_filter(avg.q, fs, fc)
+            builder = ProblemBuilder(base.names, tuple(channels), cross=True)
+            for W, y, resid in _chunks(mech, base, avg.replace(q=q_f, dq=dq, ddq=ddq), None, chunk, _quiet, "ml"):
+                builder.add(W, y)
+                worst[0] = max(worst[0], float(resid.max()))
+        problem = builder.build(expressions=base.expressions(), standard=_standard_map(mech, base), meta=meta)
+        return problem, avg.q - q_f
+
+    result = MaximumLikelihood(noise_covariance=cov_e, position_covariance=cov_d).fit(
+        CutoffFamily(cutoffs, build, 1.0 / pc.period_s))
+    progress("cut-off search", len(cutoffs), len(cutoffs))
+    return result, dataclasses.replace(pc, cutoff_hz=result.solver["cutoff_hz"]), worst[0]
+
+
+def _quiet(task: str, done: int, total: int) -> None:
+    return None
 
 
 def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[str, str]):
@@ -188,9 +249,16 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
         "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
     }
     chunk = max(1, min(int(cfg.identification.chunk_size), 2000))
-    problem, worst = _problem(mech, base, train, force_model, chunk, progress, meta, cfg.processing.periodic)
     icfg = cfg.identification
-    result = ESTIMATORS[(icfg.method, icfg.physical_consistency)]().fit(problem)
+    periodic = cfg.processing.periodic
+    if icfg.method == "ml":
+        result, periodic, worst = _maximum_likelihood(cfg, mech, base, train_a, channels, chunk, progress, meta)
+        held_out, _ = preprocess(valid_a, dataclasses.replace(cfg.processing, periodic=periodic), "validation")
+    else:
+        problem, worst = _problem(mech, base, train, force_model, chunk, progress, meta, periodic,
+                                  cross=icfg.method == "gm")
+        nominal = base.from_standard(mech.nominal_parameters()) if icfg.nominal_weighting else None
+        result = configured_estimator(icfg, steps, tuple(channels), names, nominal).fit(problem)
     notes = list(notes)
     if force_model == "projected":
         notes.append("redundant actuation: projected equations G_a^T tau_a (no assumption about the force distribution)")
@@ -200,7 +268,7 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
         notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
     result = result.with_notes(*notes) if notes else result
     meas, pred = [], []
-    for W, y, _ in _chunks(mech, base, held_out, force_model, chunk, progress, "validate", cfg.processing.periodic):
+    for W, y, _ in _chunks(mech, base, held_out, force_model, chunk, progress, "validate", periodic):
         meas.append(y)
         pred.append(W @ result.params)
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
