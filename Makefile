@@ -11,7 +11,7 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,plot,sdp]'
+	$(BIN)/python -m pip install --quiet -e '.[test,plot,sdp,montecarlo]'
 	touch $(STAMP)
 
 demo: setup
@@ -26,6 +26,7 @@ bench: setup
 	$(BIN)/python bench/closed_loop_throughput.py
 	$(BIN)/python bench/simulate_hexapod.py
 	$(BIN)/python bench/design_time.py
+	$(BIN)/python bench/montecarlo_scaling.py
 
 clean:
 	rm -rf $(VENV) out build src/*.egg-info .pytest_cache

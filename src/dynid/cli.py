@@ -188,6 +188,44 @@ def _cmd_design(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _workers(value: str) -> int | str:
+    if value == "auto":
+        return value
+    try:
+        n = int(value)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0 or 'auto', got {value!r}")
+    return n
+
+
+def _cmd_montecarlo(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from dynid.config.montecarlo import load_montecarlo_config, parse_workers
+
+    _check_out(args.out)
+    cfg = load_montecarlo_config(args.config)  # config errors come before the heavy imports below
+    if args.trials is not None:
+        if args.trials < 1:
+            raise InputError(f"--trials must be >= 1, got {args.trials}")
+        cfg = dataclasses.replace(cfg, trials=args.trials)
+    if args.workers is not None:
+        cfg = dataclasses.replace(cfg, workers=parse_workers(args.workers, "--workers"))
+    if args.scheduler is not None:
+        cfg = dataclasses.replace(cfg, scheduler=args.scheduler)
+    from dynid.pipeline.montecarlo import run_montecarlo, write_montecarlo
+
+    with _progress_bar(not args.no_progress) as progress:
+        result = run_montecarlo(cfg, progress)
+    written = write_montecarlo(result, args.out, source=cfg.source)
+    print(result.summary_text())
+    print()
+    print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from dynid.pipeline.demo import run_demo
 
@@ -248,6 +286,18 @@ def build_parser() -> argparse.ArgumentParser:
     pg.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pg.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
     pg.set_defaults(func=_cmd_design)
+
+    pm = sub.add_parser("montecarlo", help="repeat a virtual experiment and its identification: coverage of the "
+                                           "intervals, chi2 against the confidence ellipsoid")
+    pm.add_argument("config", help="TOML configuration (schema in the README, 'Monte Carlo robustness')")
+    pm.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    pm.add_argument("--trials", type=int, default=None, metavar="N", help="number of trials (default: the config's, 100)")
+    pm.add_argument("--workers", type=_workers, default=None, metavar="K",
+                    help="local worker processes; 0 or 'auto': all cores (default: the config's, 1)")
+    pm.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run the trials on a Dask cluster, e.g. tcp://host:8786 (default: local processes)")
+    pm.add_argument("--no-progress", action="store_true", help="no progress bar")
+    pm.set_defaults(func=_cmd_montecarlo)
 
     pd = sub.add_parser("demo", help="simulate builtin:shang2dof under control, identify it, validate, track again (needs nothing else)")
     pd.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

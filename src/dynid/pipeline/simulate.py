@@ -40,11 +40,11 @@ from dynid.model.base_parameters import robot_base_parameters
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
 from dynid.simulation.control import ComputedTorque, FeedforwardPID, JointPID, SerialPlant, model_inverse, simulate_control
 from dynid.trajectories import CirclePath, Embedded, FourierQuintic, PolylinePath, Repeated, zyx_angular_velocity
-from dynid.simulation.sensors import Sensors
+from dynid.simulation.sensors import Measurements, Sensors
 from dynid.trajectories import FourierTrajectory
 from dynid.stats import tracking_errors
 
-__all__ = ["SimulationOutcome", "run_simulation", "write_simulation", "SIMULATION_FILES"]
+__all__ = ["SimulationOutcome", "TrueSignals", "measure_signals", "run_simulation", "write_simulation", "SIMULATION_FILES"]
 
 SIMULATION_FILES = ("log.csv", "log.npz", "truth.json", "metadata.json", "config.toml")
 Progress = Callable[[str, int, int], None]
@@ -61,6 +61,7 @@ class SimulationOutcome:
     metadata: dict
     config: SimulateConfig
     motion: object = None  # the true motion at the control instants (q, dq, ddq of all joints)
+    signals: TrueSignals | None = None  # what the sensors saw (measure again with another seed)
 
     def summary_text(self) -> str:
         m = self.metadata
@@ -74,6 +75,39 @@ class SimulationOutcome:
         if m.get("constraint_error_max") is not None:
             lines.append(f"loop closures    : largest constraint error {m['constraint_error_max']:.1e}")
         return "\n".join(lines)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TrueSignals:
+    """The true signals the sensors turn into the log: actuator positions ``q`` and efforts
+    ``effort`` (n, n_a) at the control instants ``t`` (n,), the commanded coordinates as
+    ``ref_*`` columns (n,) at the same instants, and the sensors of the configuration.
+
+    The controller never sees the sensors, so the same motion measured with another seed is
+    another run of the same experiment (what ``dynid montecarlo`` repeats)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    effort: np.ndarray
+    actuators: tuple[str, ...]
+    references: dict[str, np.ndarray]
+    sensors: Sensors
+
+
+def measure_signals(signals: TrueSignals, seed: int | None = None) -> tuple[Measurements, dict[str, np.ndarray]]:
+    """One draw of the sensors: the measurements and the log's columns (``t``, ``q_<actuator>``,
+    ``tau_<actuator>`` or ``i_<actuator>``, ``ref_*``). ``seed`` replaces the sensors' seed."""
+    sensors = signals.sensors if seed is None else dataclasses.replace(signals.sensors, seed=int(seed))
+    meas = sensors.measure(signals.t, signals.q, signals.effort)
+    effort_prefix = "i" if meas.effort_kind == "current" else "tau"
+    columns: dict[str, np.ndarray] = {"t": meas.t}
+    for k, name in enumerate(signals.actuators):
+        columns[f"q_{name}"] = meas.q[:, k]
+    for k, name in enumerate(signals.actuators):
+        columns[f"{effort_prefix}_{name}"] = meas.effort[:, k]
+    for name, values in signals.references.items():
+        columns[name] = values[meas.index]
+    return meas, columns
 
 
 def _true_parameters(nominal: np.ndarray, cfg: SimulateConfig) -> np.ndarray:
@@ -283,21 +317,17 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
         act_names = list(robot.joint_names)
         constraint = None
     u_ref = traj.sample(motion.t)[0]
-    meas = sensors.measure(motion.t, q_act, tau)
-    effort_prefix = "i" if meas.effort_kind == "current" else "tau"
-    columns: dict[str, np.ndarray] = {"t": meas.t}
-    for k, name in enumerate(act_names):
-        columns[f"q_{name}"] = meas.q[:, k]
-    for k, name in enumerate(act_names):
-        columns[f"{effort_prefix}_{name}"] = meas.effort[:, k]
-    for k, name in enumerate(coord_names):
-        columns[f"ref_{name}"] = u_ref[meas.index, k]
+    references = {f"ref_{name}": u_ref[:, k] for k, name in enumerate(coord_names)}
     if {"RZ", "RY", "RX"} <= set(coord_names):  # commanded angular velocity, paper 004 Eq. 16
         sel = [coord_names.index(n) for n in ("RZ", "RY", "RX")]
         _, du_ref, ddu_ref = traj.sample(motion.t)
         omega, _ = zyx_angular_velocity(u_ref[:, sel], du_ref[:, sel], ddu_ref[:, sel])
         for k, axis in enumerate("xyz"):
-            columns[f"ref_w{axis}"] = omega[meas.index, k]
+            references[f"ref_w{axis}"] = omega[:, k]
+    signals = TrueSignals(t=motion.t, q=q_act, effort=tau, actuators=tuple(act_names), references=references,
+                          sensors=sensors)
+    meas, columns = measure_signals(signals)
+    effort_prefix = "i" if meas.effort_kind == "current" else "tau"
     base = mechanism_base_parameters(robot) if mech else robot_base_parameters(robot)
     truth = {
         "model": cfg.robot.model,
@@ -346,7 +376,8 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
         meta={"position_side": "joint", "effort_kind": meas.effort_kind, "effort_side": "joint",
               "source": "simulation", "truth": truth, "simulation": metadata},
     )
-    return SimulationOutcome(dataset=dataset, columns=columns, truth=truth, metadata=metadata, config=cfg, motion=motion)
+    return SimulationOutcome(dataset=dataset, columns=columns, truth=truth, metadata=metadata, config=cfg, motion=motion,
+                             signals=signals)
 
 
 def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:

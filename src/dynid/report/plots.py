@@ -7,7 +7,7 @@ from typing import Any
 
 from dynid.errors import require
 
-__all__ = ["plot_design", "plot_processing", "plot_tracking", "plot_validation"]
+__all__ = ["plot_design", "plot_montecarlo_chi2", "plot_montecarlo_history", "plot_processing", "plot_tracking", "plot_validation"]
 
 _MAX_POINTS = 4000
 
@@ -158,6 +158,106 @@ def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: in
     axes[-1, 0].set_xlabel("t [s]")
     axes[-1, 1].set_xlabel("frequency [Hz]")
     fig.suptitle("positions before and after processing, and their amplitude spectra", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _montecarlo_selection(n_params: int, max_params: int) -> list[int]:
+    """Up to ``max_params`` parameter indices spread evenly over the list (first and last kept)."""
+    import numpy as np
+
+    return sorted({int(round(x)) for x in np.linspace(0, n_params - 1, min(n_params, max_params))})
+
+
+def plot_montecarlo_history(result: Any, path: str | Path, *, select: Any = None, max_params: int = 12) -> Path:
+    """Each selected base parameter's estimate per trial with its interval and the truth
+    (paper 002 Fig. 8), one panel per parameter.
+
+    ``result`` is a :class:`dynid.pipeline.montecarlo.MonteCarloResult` (``names``, ``trial``,
+    ``ok``, ``estimates``, ``ci``, ``truth``, ``coverage``, ``alpha``). ``select``: parameter
+    names; default: up to ``max_params`` spread evenly over the base parameters. Intervals that
+    miss the truth are drawn in red.
+    """
+    import numpy as np
+
+    plt = _pyplot()
+    if select is None:
+        idx = _montecarlo_selection(len(result.names), max_params)
+    else:
+        idx = [list(result.names).index(n) for n in select]
+    ncols = 3 if len(idx) > 4 else min(2, len(idx))
+    nrows = -(-len(idx) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 2.4 * nrows + 0.8), squeeze=False, sharex=True)
+    ok = np.asarray(result.ok)
+    trial = np.asarray(result.trial)[ok]
+    coverage = result.coverage
+    level = 100 * (1 - result.alpha)
+    for ax, i in zip(axes.ravel(), idx):
+        est = result.estimates[ok, i]
+        lo, hi = result.ci[ok, i, 0], result.ci[ok, i, 1]
+        tru = result.truth[ok, i]
+        has = np.isfinite(lo) & np.isfinite(hi)
+        miss = has & ((tru < lo) | (tru > hi))
+        good = has & ~miss
+        ax.vlines(trial[good], lo[good], hi[good], color="tab:blue", alpha=0.45, lw=1.0)
+        ax.vlines(trial[miss], lo[miss], hi[miss], color="tab:red", alpha=0.9, lw=1.2)
+        ax.plot(trial, est, "o", ms=2.5, color="tab:blue")
+        ax.plot(trial[miss], est[miss], "o", ms=3, color="tab:red")
+        ax.step(trial, tru, where="mid", color="0.15", lw=1.1)
+        ax.set_title(f"{result.names[i]}   coverage {coverage[i]:.0f} %", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+        ax.ticklabel_format(axis="y", style="sci", scilimits=(-3, 4))
+        ax.yaxis.get_offset_text().set_fontsize(7)
+    for ax in axes.ravel()[len(idx):]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel("trial", fontsize=8)
+    fig.suptitle(f"Estimates over {trial.size} trials with their {level:g} % intervals (red: the interval misses the "
+                 f"truth; black: truth), {len(idx)} of {len(result.names)} base parameters", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_montecarlo_chi2(result: Any, path: str | Path) -> Path:
+    """Per trial, the statistic (est - truth)^T Sigma^-1 (est - truth) against the radius of the
+    confidence ellipsoid chi2(p, 1 - alpha) (paper 002 Fig. 9).
+
+    ``result`` is a :class:`dynid.pipeline.montecarlo.MonteCarloResult` (``trial``, ``chi2``,
+    ``radius``, ``alpha``, ``names``, ``ellipsoid_share``, ``mean_chi2``).
+    """
+    import numpy as np
+
+    plt = _pyplot()
+    c = np.asarray(result.chi2, dtype=float)
+    t = np.asarray(result.trial)
+    m = np.isfinite(c)
+    t, c = t[m], c[m]
+    r, p = result.radius, len(result.names)
+    out = c > r
+    fig, ax = plt.subplots(figsize=(9, 4.2))
+    ax.vlines(t, 0, c, color="tab:blue", alpha=0.35, lw=1.0)
+    ax.plot(t[~out], c[~out], "o", ms=3.5, color="tab:blue", label="trials")
+    ax.plot(t[out], c[out], "o", ms=4, color="tab:red", label="outside the ellipsoid")
+    level = 100 * (1 - result.alpha)
+    ax.axhline(r, color="tab:red", ls="--", lw=1.2, label=f"radius chi2({p}, {level:g} %) = {r:.2f}")
+    ax.axhline(p, color="0.3", ls=":", lw=1.0, label=f"expected mean p = {p}")
+    if c.size and c.max() > 20 * max(r, 1e-300):
+        ax.set_yscale("log")
+    else:
+        ax.set_ylim(0, max(r, float(c.max()) if c.size else r) * 1.1)
+    ax.set_xlabel("trial")
+    ax.set_ylabel("chi2 of the estimate")
+    ax.set_title(f"{result.ellipsoid_share:.0f} % of {c.size} trials inside the {level:g} % confidence ellipsoid; "
+                 f"mean chi2 {result.mean_chi2:.1f}", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)
