@@ -337,8 +337,6 @@ def ml_covariances(icfg, steps: list, channel_names: tuple[str, ...], effort_nam
     ``method = "ml"`` (paper 004 Eq. 24): from the period averaging (default) or given. A
     singular position covariance (positions that repeat exactly from period to period, e.g.
     noise-free or coarsely quantized) is an error: the likelihood would not be defined."""
-    from dynid.errors import InputError
-
     if icfg.noise_covariance == "periodic":
         _channels_are_efforts(channel_names, effort_names, "noise_covariance")
         cov_e = _periodic_covariance(steps, "effort", "noise_covariance")

@@ -253,7 +253,9 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
     periodic = cfg.processing.periodic
     if icfg.method == "ml":
         result, periodic, worst = _maximum_likelihood(cfg, mech, base, train_a, channels, chunk, progress, meta)
-        held_out, _ = preprocess(valid_a, dataclasses.replace(cfg.processing, periodic=periodic), "validation")
+        at_fc = dataclasses.replace(cfg.processing, periodic=periodic)  # both logs as processed at the estimated f_c
+        train, _ = preprocess(train_a, at_fc, "data")
+        held_out, _ = preprocess(valid_a, at_fc, "validation")
     else:
         problem, worst = _problem(mech, base, train, force_model, chunk, progress, meta, periodic,
                                   cross=icfg.method == "gm")
