@@ -217,7 +217,7 @@ def test_errors_name_the_problem(noisy):
     with pytest.raises(ConfigError, match="is for method 'gm'"):
         make_estimator("wls", noise_covariance=np.eye(6))
     with pytest.raises(ConfigError, match="physical_consistency"):
-        make_estimator("gm", True)
+        make_estimator("tls", True)
     b = ProblemBuilder(BASE.names, ROBOT.joint_names, cross=True)
     with pytest.raises(InputError, match="row masks cannot be combined"):
         b.add(W[:10], TAU[:10], np.zeros((10, 6), bool))

@@ -41,3 +41,55 @@ def test_kuka_run3_better_than_flobaroid_on_every_joint(capsys):
     show(capsys, table("KUKA LWR4+ run 3 torque RMSE [N*m] (identified on run 1)",
                        ["joint", "CAD URDF", "FloBaRoID URDF", "dynid WLS", "dynid WLS+LMI"], rows))
     assert np.all(ours < theirs), f"dynid {np.round(ours, 3)} vs FloBaRoID {np.round(theirs, 3)}"
+
+
+def _pd_share(outcome, n=1000, seed=0):
+    """Share of random configurations (uniform within the joint limits) at which the mass matrix of
+    the identified base parameters is positive definite. M(q) e_i = W_b(q, 0, e_i) beta - W_b(q, 0, 0) beta."""
+    from dynid.model.regressor import regressor
+
+    robot, base, beta = outcome.robot, outcome.base, outcome.result.params
+    lo, hi = robot.position_limits()
+    rng = np.random.default_rng(seed)
+    nv = robot.dof
+    eye, z = np.eye(nv), np.zeros((nv, nv))
+    ok = 0
+    for q in lo + (hi - lo) * rng.random((n, nv)):
+        Wq = base.regressor(regressor(robot, np.tile(q, (nv, 1)), z, eye))
+        W0 = base.regressor(regressor(robot, q[None], z[:1], z[:1]))
+        M = (Wq @ beta - W0 @ beta).T
+        ok += np.linalg.eigvalsh(0.5 * (M + M.T))[0] > 0
+    return ok / n
+
+
+def test_kuka_constrained_validates_and_has_positive_definite_mass_matrices(capsys):
+    """Issue 8 acceptance: on run 3, the constrained model is within 5 % of the unconstrained RMSE,
+    and its mass matrix is positive definite at 1000 random configurations (OLS's share reported)."""
+    for f in ("measurements_1.npz", "measurements_3.npz", "kuka_lwr4.urdf"):
+        shared_file("kuka_lwr4", f)
+    rows = []
+    for method in ("ols", "wls"):
+        plain = identify(example_config("kuka_lwr4", output={"plots": False},
+                                        identification={"method": method, "physical_consistency": False}))
+        cons = identify(example_config("kuka_lwr4", output={"plots": False},
+                                       identification={"method": method, "physical_consistency": True, "margin": 1e-6}))
+        assert min(cons.result.solver["min_pseudo_inertia_eigenvalue"]) >= 1e-6
+        r_plain, r_cons = plain.validation.rmse, cons.validation.rmse
+        total_plain, total_cons = float(np.sqrt(np.mean(r_plain**2))), float(np.sqrt(np.mean(r_cons**2)))
+        share_plain, share_cons = _pd_share(plain), _pd_share(cons)
+        rows.append([method.upper(), f"{total_plain:.3f}", f"{total_cons:.3f}", f"{100 * share_plain:.1f} %",
+                     f"{100 * share_cons:.1f} %", str(len(cons.result.solver["active_constraints"]))])
+        assert total_cons <= 1.05 * total_plain, (method, total_cons, total_plain)
+        assert np.all(r_cons <= 1.05 * r_plain), (method, r_cons, r_plain)
+        assert share_cons == 1.0
+        # independent route: pinocchio's CRBA on the exported standard parameters is positive definite
+        std = cons.result.solver["standard_params"]
+        model = cons.robot.with_parameters(np.array([std[n] for n in cons.robot.parameter_names]))
+        data = model.createData()
+        lo, hi = cons.robot.position_limits()
+        for q in lo + (hi - lo) * np.random.default_rng(1).random((200, 7)):
+            M = pin.crba(model, data, q)
+            assert np.linalg.eigvalsh(np.triu(M) + np.triu(M, 1).T)[0] > 0
+    show(capsys, table("KUKA LWR4+ run 3 (identified on run 1): RMS of the joint torque RMSEs [N*m] and positive "
+                       "definite mass matrices at 1000 random configurations",
+                       ["method", "RMSE plain", "RMSE +LMI", "M(q) > 0 plain", "M(q) > 0 +LMI", "active"], rows))

@@ -235,6 +235,49 @@ class IdentificationConfig:
     nominal_weighting: bool = False
     position_covariance: str | tuple[tuple[float, ...], ...] = "periodic"  # ml only
     cutoff_range_hz: tuple[float, float] | None = None  # ml only; None: 0.5-2 x processing.periodic.cutoff_hz
+    # physically consistent identification (physical_consistency = true; issue 8)
+    margin: float = 0.0
+    regularization: str = "none"
+    regularization_weight: float = 0.0
+    solver: str = "CLARABEL"
+    bodies: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
+    friction_model: str = "linear"  # "stribeck": nonlinear friction (paper 000 Eq. 32)
+    max_samples: int = 4000  # friction_model = "stribeck": samples used by the nonlinear fit
+
+
+_PHYSICAL_KEYS = ("margin", "regularization", "regularization_weight", "solver", "bodies", "friction_model", "max_samples")
+_BODY_KEYS = {"mass", "com_box", "com_ellipsoid"}
+
+
+def _parse_bodies(t: Any, where: str) -> dict[str, dict[str, Any]]:
+    """``[identification.bodies.<name>]``: mass = [lo, hi], com_box = [[x,y,z], [x,y,z]],
+    com_ellipsoid = {center = [x,y,z], semi_axes = [a,b,c]}."""
+    if not isinstance(t, dict):
+        raise ConfigError(f"{where}: expected a table of bodies")
+
+    def vec(v, w, n):
+        if not (isinstance(v, list) and len(v) == n):
+            raise ConfigError(f"{w} must be a list of {n} numbers")
+        return tuple(_num(x, w) for x in v)
+
+    out: dict[str, dict[str, Any]] = {}
+    for name, b in t.items():
+        w = f"{where}.{name}"
+        b = _table(b, w, _BODY_KEYS)
+        entry: dict[str, Any] = {}
+        if "mass" in b:
+            entry["mass"] = vec(b["mass"], f"{w}.mass", 2)
+        if "com_box" in b:
+            v = b["com_box"]
+            if not (isinstance(v, list) and len(v) == 2):
+                raise ConfigError(f"{w}.com_box must be [[x, y, z] low, [x, y, z] high] in m")
+            entry["com_box"] = (vec(v[0], f"{w}.com_box", 3), vec(v[1], f"{w}.com_box", 3))
+        if "com_ellipsoid" in b:
+            e = _table(b["com_ellipsoid"], f"{w}.com_ellipsoid", {"center", "semi_axes"}, {"center", "semi_axes"})
+            entry["com_ellipsoid"] = (vec(e["center"], f"{w}.com_ellipsoid.center", 3),
+                                      vec(e["semi_axes"], f"{w}.com_ellipsoid.semi_axes", 3))
+        out[str(name)] = entry
+    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -402,8 +445,25 @@ def _parse_identification(t: Any) -> IdentificationConfig:
     where = "identification"
     t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
                           "force_model", "noise_covariance", "iterations", "nominal_weighting",
-                          "position_covariance", "cutoff_range_hz"})
+                          "position_covariance", "cutoff_range_hz", *_PHYSICAL_KEYS})
     method = _str(t.get("method", "wls"), f"{where}.method", _METHODS)
+    physical = _bool(t.get("physical_consistency", False), f"{where}.physical_consistency")
+    given = [k for k in _PHYSICAL_KEYS if k in t]
+    if given and not physical:
+        raise ConfigError(f"{where}.{given[0]} is for physically consistent identification: set "
+                          f"{where}.physical_consistency = true")
+    if physical and method not in ("ols", "wls", "gm"):
+        raise ConfigError(f"{where}.physical_consistency = true is available with methods 'ols', 'wls' and 'gm', "
+                          f"not {method!r}")
+    reg = _str(t.get("regularization", "none"), f"{where}.regularization", ("none", "euclidean", "logdet"))
+    reg_w = _num(t.get("regularization_weight", 0.0), f"{where}.regularization_weight")
+    if (reg == "none") != (reg_w == 0.0) or reg_w < 0:
+        raise ConfigError(f"{where}.regularization = 'euclidean' or 'logdet' needs regularization_weight > 0 "
+                          "(and a weight needs a regularization)")
+    margin = _num(t.get("margin", 0.0), f"{where}.margin")
+    if margin < 0:
+        raise ConfigError(f"{where}.margin must be >= 0, got {margin}")
+    friction_model = _str(t.get("friction_model", "linear"), f"{where}.friction_model", ("linear", "stribeck"))
     for key, need in (("noise_covariance", ("gm", "ml")), ("iterations", ("gm",)), ("nominal_weighting", ("wls",)),
                       ("position_covariance", ("ml",)), ("cutoff_range_hz", ("ml",))):
         if key in t and method not in need:
@@ -436,7 +496,14 @@ def _parse_identification(t: Any) -> IdentificationConfig:
         iterations=_int(t.get("iterations", 1), f"{where}.iterations", 1),
         nominal_weighting=_bool(t.get("nominal_weighting", False), f"{where}.nominal_weighting"),
         method=method,
-        physical_consistency=_bool(t.get("physical_consistency", False), f"{where}.physical_consistency"),
+        physical_consistency=physical,
+        margin=margin,
+        regularization=reg,
+        regularization_weight=reg_w,
+        solver=_str(t.get("solver", "CLARABEL"), f"{where}.solver"),
+        bodies=_parse_bodies(t["bodies"], f"{where}.bodies") if "bodies" in t else {},
+        friction_model=friction_model,
+        max_samples=_int(t.get("max_samples", 4000), f"{where}.max_samples", 100),
         chunk_size=_int(t.get("chunk_size", 20000), f"{where}.chunk_size", 1),
         base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),
         base_samples=_int(t["base_samples"], f"{where}.base_samples", 1) if "base_samples" in t else None,

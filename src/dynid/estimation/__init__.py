@@ -20,7 +20,7 @@ from dynid.estimation.identifiability import (
     structure_search,
 )
 from dynid.estimation.linear import OLS, WLS, check_identifiable, whitened_solve
-from dynid.estimation.physical import PhysicalLS
+from dynid.estimation.physical import BodyBounds, PhysicalConstraints, PhysicalLS, logdet_divergence
 from dynid.estimation.problem import ProblemBuilder, RegressionProblem
 from dynid.estimation.results import IdentificationResult, Summary
 
@@ -29,14 +29,18 @@ METHODS = ("ols", "wls", "gm", "irls", "tls")
 
 
 def make_estimator(method: str, physical_consistency: bool = False, *, noise_covariance: Any = None,
-                   nominal: Any = None, iterations: int = 1) -> Any:
+                   nominal: Any = None, iterations: int = 1, physical: dict | None = None) -> Any:
     """The estimator named ``method`` with its options (the configuration's choices).
 
     ``noise_covariance`` (n_ch x n_ch) is for ``"gm"`` (None: estimated from residuals);
     ``nominal`` (p,) weights the observation matrix for ``"wls"`` (paper 001 Eq. 17);
-    ``iterations`` are GM's residual-covariance rounds. Options that do not apply to the
-    method raise instead of being ignored.
+    ``iterations`` are GM's residual-covariance rounds; ``physical`` holds the options of
+    :class:`PhysicalLS` (constraints, regularization, reference, solver) with
+    ``physical_consistency``. Options that do not apply to the method raise instead of being
+    ignored.
     """
+    if physical and not physical_consistency:
+        raise ConfigError("constraints and regularization need physical_consistency = true")
     if method not in METHODS:
         raise ConfigError(f"unknown identification method {method!r} (expected one of {', '.join(METHODS)})")
     if noise_covariance is not None and method != "gm":
@@ -44,10 +48,11 @@ def make_estimator(method: str, physical_consistency: bool = False, *, noise_cov
     if nominal is not None and method != "wls":
         raise ConfigError(f"weighting by nominal values is for method 'wls', not {method!r}")
     if physical_consistency:
-        if method not in ("ols", "wls") or nominal is not None:
-            raise ConfigError(f"physical_consistency = true is available with methods 'ols' and 'wls', not {method!r}"
+        if method not in ("ols", "wls", "gm") or nominal is not None:
+            raise ConfigError(f"physical_consistency = true is available with methods 'ols', 'wls' and 'gm', not {method!r}"
                               + (" with nominal weighting" if nominal is not None else ""))
-        return PhysicalLS(weighting=method)
+        cov = None if noise_covariance is None else tuple(tuple(float(v) for v in row) for row in noise_covariance)
+        return PhysicalLS(weighting=method, noise_covariance=cov, **(physical or {}))
     if method == "ols":
         return OLS()
     if method == "wls":
@@ -79,7 +84,10 @@ __all__ = [
     "WLS",
     "GaussMarkov",
     "IdentificationResult",
+    "BodyBounds",
+    "PhysicalConstraints",
     "PhysicalLS",
+    "logdet_divergence",
     "ProblemBuilder",
     "RegressionProblem",
     "Summary",

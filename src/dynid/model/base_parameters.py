@@ -285,6 +285,10 @@ class StandardMap:
         viscous and Coulomb friction coefficients, motor-side terms).
     reference : array, shape (p,), optional
         Nominal (CAD) standard parameters.
+    nonpositive : int array
+        Indices of parameters that are non-positive physically: the Coulomb coefficient of
+        the negative direction of an asymmetric friction model (Shang 2009, Eq. 2, where
+        the force for :math:`\\dot q < 0` is :math:`f_c^- + f_v^-\\dot q` with :math:`f_c^- \\le 0`).
     """
 
     standard_names: tuple[str, ...]
@@ -292,6 +296,12 @@ class StandardMap:
     body_blocks: tuple[IntArray, ...]
     nonnegative: IntArray
     reference: FloatArray | None = None
+    nonpositive: IntArray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=int))
+
+    @property
+    def body_names(self) -> tuple[str, ...]:
+        """Name of each body: the suffix of its mass parameter (``m3`` -> ``"3"``, ``m_qa1`` -> ``"qa1"``)."""
+        return tuple(self.standard_names[blk[0]][1:].lstrip("_") for blk in self.body_blocks)
 
     @classmethod
     def of(cls, robot, base: BaseParameters) -> StandardMap:

@@ -353,6 +353,11 @@ class Mechanism:
         nb = self.n_body_params
         return np.array([nb + k for k, t in enumerate(self.terms) if t.kind in _NONNEG_KINDS], dtype=int)
 
+    def nonpositive_parameters(self) -> np.ndarray:
+        """Indices of joint terms that are non-positive physically (``coulomb-``, Shang 2009 Eq. 2)."""
+        nb = self.n_body_params
+        return np.array([nb + k for k, t in enumerate(self.terms) if t.kind == "coulomb-"], dtype=int)
+
     def with_parameters(self, params: FloatArray) -> pin.Model:
         """A pinocchio tree whose body inertias come from ``params`` (joint terms are not in it)."""
         params = np.asarray(params, dtype=float)

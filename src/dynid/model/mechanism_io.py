@@ -508,7 +508,10 @@ def _default_terms(model: pin.Model, actuated: list[int], values: tuple[dict, di
 
 def _build(model, closures, actuated, independent, terms, values, *, name, source, notes, origin) -> Mechanism:
     act = _velocity_indices(model, actuated, "actuated joints", origin)
-    q = _assemble(model, closures, pin.neutral(model), name)
+    # an MJCF file written at an assembled configuration (``ref`` on each joint, as dynid's
+    # export does) says so in its qpos0; start the assembly there
+    start = model.referenceConfigurations["qpos0"] if "qpos0" in model.referenceConfigurations else pin.neutral(model)
+    q = _assemble(model, closures, start, name)
     locked = _idle_joints(model, closures, act, q)
     if locked:
         act_names = [model.names[v + 1] for v in act]  # 1-DOF joints: joint index = velocity index + 1

@@ -379,4 +379,17 @@ def configured_estimator(icfg, steps: list, channel_names: tuple[str, ...], effo
             raise ConfigError("identification.nominal_weighting needs a model with nominal parameter values")
         nominal = nominal_base
     return make_estimator(icfg.method, icfg.physical_consistency, noise_covariance=cov, nominal=nominal,
-                          iterations=icfg.iterations)
+                          iterations=icfg.iterations, physical=physical_options(icfg) if icfg.physical_consistency else None)
+
+
+def physical_options(icfg) -> dict:
+    """Options of :class:`dynid.estimation.PhysicalLS` from ``[identification]`` (issue 8)."""
+    from dynid.estimation import BodyBounds, PhysicalConstraints
+
+    try:
+        bodies = {name: BodyBounds(**b) for name, b in icfg.bodies.items()}
+        constraints = PhysicalConstraints(margin=icfg.margin, bodies=bodies)
+    except InputError as exc:
+        raise ConfigError(f"identification: {exc}") from None
+    return {"constraints": constraints, "regularization": icfg.regularization,
+            "regularization_weight": icfg.regularization_weight, "solver": icfg.solver}

@@ -304,7 +304,8 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     return IdentifyOutcome(cfg, robot, base, result, metrics, train, held_out, tuple(notes), train_j)
 
 
-OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html")
+OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
+                "model.urdf", "model.mjcf")
 
 
 def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Path]:
@@ -324,6 +325,26 @@ def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Pa
         if name not in produced and (out / name).is_file():
             (out / name).unlink()
     return {name: out / name for name in produced}
+
+
+def export_model(outcome: IdentifyOutcome, folder: Path) -> Path | None:
+    """The recovered standard parameters of a physically consistent fit as a robot description:
+    ``model.urdf`` for a serial robot, ``model.mjcf`` for a closed-loop mechanism (None when the
+    method recovers no standard parameters)."""
+    std = outcome.result.solver.get("standard_params")
+    if not std:
+        return None
+    from dynid.io.export import write_mjcf, write_urdf
+
+    robot = outcome.robot
+    names = robot.parameter_names
+    missing = [n for n in names if n not in std]
+    if missing:
+        raise InputError(f"the result's standard parameters do not match the robot (missing {missing[:3]})")
+    params = np.array([std[n] for n in names], dtype=float)
+    if isinstance(robot, Mechanism):
+        return write_mjcf(robot, params, folder / "model.mjcf", name=f"{robot.name}_identified")
+    return write_urdf(robot, params, folder / "model.urdf", name=f"{robot.name}_identified")
 
 
 def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
@@ -353,6 +374,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
         for i, n in enumerate(res.names):
             w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i]])
     (stage / "summary.txt").write_text(outcome.summary_text() + "\n")
+    export_model(outcome, stage)
     if outcome.config.output.plots:
         from dynid.report import plot_validation, write_html_report
 

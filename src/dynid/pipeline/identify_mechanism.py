@@ -150,6 +150,7 @@ def _standard_map(mech: Mechanism, base: BaseParameters) -> StandardMap:
         body_blocks=mech.body_blocks(),
         nonnegative=mech.nonnegative_parameters(),
         reference=mech.nominal_parameters(),
+        nonpositive=mech.nonpositive_parameters(),
     )
 
 
