@@ -133,7 +133,9 @@ def test_physical_ls_makes_an_infeasible_estimate_feasible():
     phys = PhysicalLS().fit(prob)
     assert phys.solver["status"] == "optimal"
     pi = np.array(list(phys.solver["standard_params"].values()))
-    np.testing.assert_allclose(BASE.from_standard(pi), phys.params, atol=1e-9)
+    # the standard vector (tie-break towards the reference) gives the estimate up to its reported cost
+    extra = phys.solver["stages"]["standard"]["residual_increase_chi2"]
+    assert -1e-6 <= extra <= 0.05 * max(phys.solver["residual_increase_chi2"], 1.0)
     assert min(phys.solver["min_pseudo_inertia_eigenvalue"]) > -1e-7
     assert np.all(pi[smap.nonnegative] > -1e-7)
     assert phys.cov_params is None and any("no covariance" in n for n in phys.notes)
