@@ -309,3 +309,10 @@ def test_config_builds_the_estimator():
     assert est.constraints.bodies["3"].mass == (0.1, 9.0)
     with pytest.raises(ConfigError, match="mass bounds"):
         physical_options(_parse_identification({"physical_consistency": True, "bodies": {"3": {"mass": [5.0, 1.0]}}}))
+
+
+def test_stribeck_friction_model_is_refused_not_ignored():
+    from dynid.config import _parse_identification
+
+    with pytest.raises(ConfigError, match="not wired into dynid identify yet"):
+        _parse_identification({"physical_consistency": True, "friction_model": "stribeck"})

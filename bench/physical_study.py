@@ -1,0 +1,584 @@
+"""Study (issue 8, item 6): physically consistent identification against plain least squares.
+
+Every identification goes through the product: ``dynid simulate`` (``run_simulation`` /
+``write_simulation``) writes the twins' logs, ``dynid identify`` (``parse_config`` +
+``identify``) fits them and predicts a held-out log, ``dynid.estimation.is_feasible`` judges
+each estimate. Six rows, the methods of paper 003's Tables 6 and 8 (without its proposed
+hierarchical method):
+
+* ``LS`` and ``WLS`` (``method = "ols" | "wls"``), unconstrained;
+* ``LS+LMI`` and ``WLS+LMI`` (``physical_consistency = true``: OLS-FBPE / WLS-FBPE);
+* ``WLS+LMI+Euclidean`` and ``WLS+LMI+log-det``: regularized towards the model's nominal
+  (CAD) standard parameters (paper 003 Eqs. 22-23).
+
+The regularization weight lambda (``regularization_weight``, in units of the residual chi^2) is
+chosen from the training log alone: the largest power of 10 whose residual increase over the
+unregularized ``WLS+LMI`` fit stays below chi^2_{p, 0.95} (p base parameters), i.e. the
+regularized estimate is not rejected by the training data against the constrained one at
+95 % (searched from 1 by decades; by two decades with ``--quick``). The full run also fits two
+decades above the choice; the held-out errors of every weight tried are printed as a
+diagnostic, never used for the choice.
+
+A. 6R serial twin (``builtin:cobot6r``, paper 003's JAKA cobot): truth 15 % away from the
+   nominal model (``perturbation_seed = 2797``: one of the few seeds whose perturbed truth is
+   physically consistent, see bench/README.md section 10), Stribeck friction (paper 000 Eq. 32)
+   on every joint, 0.3 N*m of torque noise, 17-bit encoders, computed torque with the nominal
+   model at 500 Hz. Training: a weak excitation (2 harmonics of 0.2 Hz, 30 % of the joint
+   ranges); held out: another trajectory (5 harmonics of 0.1 Hz, 60 % of the ranges). Tables:
+   (1) per-joint and total held-out torque RMSE (paper 003 Tables 6/8); (2) parameter errors
+   against the truth; (3) feasibility; (4) paper 000 Table 3: eps_RA (Eq. 33) against the noisy
+   ("perturbed") and the noise-free ("original") held-out torques, with the row "Nonlinear
+   (Opt.)" computed only when ``dynid.estimation.nonlinear`` exists; (5) the weights tried. The
+   full run repeats A with 4 training logs (other trajectory and noise seeds) and summarises
+   them (6), and contrasts a rich training log (7: 5 harmonics of 0.2 Hz, 60 % of the ranges).
+B. 3-RPS parallel twin (``builtin:rps3``, paper 000's robot; as examples/twins/rps3_fourier.toml,
+   truth 10 % away), Stribeck friction on the three actuated legs, 5 N of force noise, 1 um
+   encoders; training on the twin's own excitation (5 harmonics of 0.2 Hz, 40 % of the strokes),
+   held out another one (5 harmonics of 0.1 Hz): the same rows and tables.
+
+Run: ``.venv/bin/python bench/physical_study.py`` (2 to 4 minutes on 2 cores; ``--quick``: a
+small version, used by the tests). The figures of the last full run are in bench/README.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib.util
+import re
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from dynid.config import parse_config
+from dynid.config.simulate import parse_simulate_config
+from dynid.errors import DynidError
+from dynid.estimation import is_feasible
+from dynid.model.base_parameters import StandardMap, pseudo_inertia
+from dynid.model.mechanism import Mechanism
+from dynid.pipeline import identify
+from dynid.pipeline.identify import validate
+from dynid.pipeline.simulate import run_simulation, write_simulation
+from dynid.stats import average_error, chi2_radius, relative_absolute_error
+
+# ---------------------------------------------------------------------- set-ups
+COBOT_FC = [6.321, 4.831, 7.781, 1.033, 1.601, 1.109]  # nominal Coulomb (paper 003 Table 3)
+COBOT_FV = [7.167, 8.341, 8.516, 2.536, 3.175, 2.327]  # nominal viscous
+COBOT = {
+    "model": "builtin:cobot6r",
+    "robot": {"model": "builtin:cobot6r", "perturbation": 0.15, "perturbation_seed": 2797,
+              "friction": {"model": "stribeck", "fc": COBOT_FC, "fs": [1.5 * f for f in COBOT_FC], "fv": COBOT_FV,
+                           "vs": 0.08, "delta": 2.0}},
+    "control": {"rate_hz": 500, "kp": 400, "kd": 40, "substeps": 2},
+    "sensors": {"encoder_resolution": 4.794e-5, "force_noise_std": 0.3},
+    "train": {"kind": "fourier", "base_frequency_hz": 0.2, "harmonics": 2, "fill": 0.3, "max_velocity": 0.8,
+              "max_acceleration": 3.0, "periods": 3},
+    # the full run's contrast: a rich training log (as the held-out one, another seed)
+    "rich_train": {"kind": "fourier", "base_frequency_hz": 0.2, "harmonics": 5, "fill": 0.6, "max_velocity": 1.0,
+                   "max_acceleration": 3.0, "periods": 3},
+    "valid": {"kind": "fourier", "harmonics": 5, "fill": 0.6, "max_velocity": 1.0, "max_acceleration": 3.0,
+              "periods": 1, "seed": 12},
+    "unit": "rad", "effort_unit": "N*m",
+}
+RPS3 = {
+    "model": "builtin:rps3",
+    "robot": {"model": "builtin:rps3", "perturbation": 0.1, "perturbation_seed": 3,
+              "friction": {"model": "stribeck", "fc": 228.0, "fs": 300.0, "fv": 3272.0, "vs": 0.005, "delta": 2.0}},
+    "control": {"rate_hz": 500, "kp": 400, "kd": 40, "substeps": 2},
+    "sensors": {"encoder_resolution": 1e-6, "force_noise_std": 5.0},
+    "train": {"kind": "fourier", "base_frequency_hz": 0.2, "harmonics": 5, "fill": 0.4, "max_velocity": 0.05,
+              "max_acceleration": 0.5, "periods": 2},
+    "valid": {"kind": "fourier", "harmonics": 5, "fill": 0.4, "max_velocity": 0.05, "max_acceleration": 0.5,
+              "periods": 1, "seed": 32},
+    "unit": "m", "effort_unit": "N",
+}
+
+ROWS = (
+    ("LS", {"method": "ols"}),
+    ("WLS", {"method": "wls"}),
+    ("LS+LMI", {"method": "ols", "physical_consistency": True}),
+    ("WLS+LMI", {"method": "wls", "physical_consistency": True}),
+    ("WLS+LMI+Euclidean", {"method": "wls", "physical_consistency": True, "regularization": "euclidean"}),
+    ("WLS+LMI+log-det", {"method": "wls", "physical_consistency": True, "regularization": "logdet"}),
+)
+LMI_ROWS = tuple(label for label, ident in ROWS if ident.get("physical_consistency"))
+_FRICTION_NAME = re.compile(r"^(fv|fc|off)")  # display names of the joint friction / offset terms
+
+
+def nonlinear_available() -> bool:
+    """Whether ``dynid.estimation.nonlinear`` (the Stribeck estimator of issue 8) exists."""
+    return importlib.util.find_spec("dynid.estimation.nonlinear") is not None
+
+
+# ---------------------------------------------------------------------- plumbing
+def _simulate(setup: dict, traj: dict, seed: int, folder: Path):
+    doc = {"robot": setup["robot"], "trajectory": traj, "control": setup["control"],
+           "sensors": {**setup["sensors"], "seed": seed}, "output": {"format": "npz"}}
+    sim = run_simulation(parse_simulate_config(doc, folder))
+    write_simulation(sim, folder)
+    return sim
+
+
+def _config(setup: dict, actuators, train: Path, valid: Path, ident: dict):
+    doc = {
+        "robot": {"model": setup["model"]},
+        "data": {"file": str(train / "log.npz"), "time": {"column": "t", "unit": "s"},
+                 "position": {"columns": [f"q_{a}" for a in actuators], "unit": setup["unit"]},
+                 "effort": {"columns": [f"tau_{a}" for a in actuators], "kind": "torque", "unit": setup["effort_unit"]}},
+        "validation": {"file": str(valid / "log.npz")},
+        "processing": {"lowpass": {"cutoff_hz": 10.0, "order": 4, "filter_effort": False}},
+        "identification": ident,
+        "output": {"plots": False},
+    }
+    return parse_config(doc, train)
+
+
+def _standard_map(outcome) -> StandardMap:
+    """The map the estimator used (the mechanism's is built in the pipeline)."""
+    if isinstance(outcome.robot, Mechanism):
+        from dynid.pipeline.identify_mechanism import _standard_map as mechanism_map
+
+        return mechanism_map(outcome.robot, outcome.base)
+    return StandardMap.of(outcome.robot, outcome.base)
+
+
+@dataclasses.dataclass
+class _Case:
+    """One training log, the held-out log and what every row is compared with."""
+
+    setup: dict
+    actuators: tuple[str, ...]
+    train: Path
+    valid: Path
+    true_std: np.ndarray
+    nominal_std: np.ndarray
+    clean_t: np.ndarray  # noise-free held-out efforts at the control instants
+    clean: np.ndarray
+
+    def identify(self, ident: dict):
+        return identify(_config(self.setup, self.actuators, self.train, self.valid, ident))
+
+    def original(self, t: np.ndarray) -> np.ndarray:
+        """The noise-free ("original", paper 000) efforts at the held-out samples ``t``."""
+        i = np.clip(np.searchsorted(self.clean_t, t), 1, self.clean_t.size - 1)
+        i = np.where(np.abs(self.clean_t[i - 1] - t) < np.abs(self.clean_t[i] - t), i - 1, i)
+        if np.max(np.abs(self.clean_t[i] - t)) > 1e-9:
+            raise RuntimeError("held-out samples do not fall on the simulation's control instants")
+        return self.clean[i]
+
+
+def _case(setup: dict, folder: Path, quick: bool, rep: int, valid_folder: Path | None = None, valid_sim=None,
+          train_key: str = "train"):
+    train = folder / f"{train_key}{rep}"
+    traj = {**setup[train_key], "seed": 11 + 10 * rep}
+    if quick:
+        traj["periods"] = 1
+    sim = _simulate(setup, traj, 1 + rep, train)
+    if valid_folder is None:
+        valid_folder = folder / "valid"
+        vt = {**setup["valid"], "base_frequency_hz": 0.2 if quick else 0.1}
+        valid_sim = _simulate(setup, vt, 1000, valid_folder)
+    assert valid_sim is not None and valid_sim.signals is not None
+    return _Case(setup, tuple(sim.dataset.names), train, valid_folder, np.asarray(sim.truth["true_parameters"]),
+                 np.asarray(sim.truth["nominal_parameters"]), np.asarray(valid_sim.signals.t),
+                 np.asarray(valid_sim.signals.effort)), valid_sim
+
+
+def _feasible(beta, smap):
+    """``is_feasible`` without cvxpy's "may be inaccurate" warning (the status is reported)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return is_feasible(beta, smap)
+
+
+def _row(label: str, outcome, case: _Case, seconds: float) -> dict:
+    r, v = outcome.result, outcome.validation
+    smap = _standard_map(outcome)
+    feas = _feasible(r.params, smap)
+    s = r.solver
+    std = s.get("standard_params")
+    return {
+        "label": label, "method": r.method, "seconds": seconds,
+        "rmse": v.rmse.tolist(), "total": float(v.rmse.sum()),
+        "params": r.params.tolist(), "bse": None if r.cov_params is None else r.bse.tolist(),
+        "feasible": bool(feas.feasible), "violated": list(feas.violated), "feasibility_status": feas.status,
+        "min_eig_feasibility": float(min(feas.min_eigenvalues)),
+        "min_eig_estimate": float(min(s["min_pseudo_inertia_eigenvalue"])) if "min_pseudo_inertia_eigenvalue" in s else None,
+        "active": None if "active_constraints" not in s else len(s["active_constraints"]),
+        "chi2_increase": s.get("residual_increase_chi2"),
+        "standard": None if not std else [float(std[n]) for n in smap.standard_names],
+        "eps_ra_perturbed": relative_absolute_error(v.measured, v.predicted, pooled=True),
+        "eps_ra_original": relative_absolute_error(case.original(v.t), v.predicted, pooled=True),
+    }
+
+
+def _sweep(case: _Case, ident: dict, reference_increase: float, p: int, extra: int, decades: int = 1) -> tuple[dict, object]:
+    """Search lambda from 1 in steps of ``decades`` decades (the choice rule of the module
+    docstring); ``extra`` decades beyond the first rejected weight are fitted too, as a
+    diagnostic."""
+    limit = chi2_radius(p)
+    tried: dict[int, dict] = {}  # by the exponent of lambda = 10**k
+    outcomes: dict[int, object] = {}
+
+    def fit(k: int) -> dict:
+        lam = 10.0**k
+        t0 = time.perf_counter()
+        try:
+            o = case.identify({**ident, "regularization_weight": lam})
+        except DynidError as exc:
+            tried[k] = {"lambda": lam, "error": str(exc).splitlines()[0]}
+            print(f"    {ident['regularization']} lambda {lam:g}: failed ({tried[k]['error']})", flush=True)
+            return tried[k]
+        inc = float(o.result.solver["residual_increase_chi2"]) - reference_increase
+        tried[k] = {"lambda": lam, "delta_chi2": inc, "accepted": inc <= limit, "total": float(o.validation.rmse.sum()),
+                    "active": len(o.result.solver["active_constraints"]), "seconds": time.perf_counter() - t0}
+        outcomes[k] = o
+        print(f"    {ident['regularization']} lambda {lam:g}: delta chi2 {inc:.1f}, held-out total RMSE "
+              f"{tried[k]['total']:.4g}", flush=True)
+        return tried[k]
+
+    k, first = 0, fit(0)
+    if "error" in first:  # the failures seen here do not depend on lambda (bench/README.md section 10)
+        return {"rows": [first], "chosen": None, "limit": limit}, None
+    step = decades if first["accepted"] else -decades
+    while -9 <= k + step <= 9:
+        r = fit(k + step)
+        if "error" in r or r["accepted"] != first["accepted"]:
+            break
+        k += step
+    accepted = [x for x, r in tried.items() if r.get("accepted")]
+    best = max(accepted) if accepted else min(x for x, r in tried.items() if "error" not in r)
+    for x in range(best + decades + 1, best + decades + 1 + extra):  # best + decades was fitted (rejected)
+        if x not in tried and "error" in fit(x):
+            break
+    rows = [tried[x] for x in sorted(tried)]
+    return {"rows": rows, "chosen": 10.0**best, "limit": limit, "none_accepted": not accepted}, outcomes[best]
+
+
+def _predict(outcome, beta: np.ndarray) -> np.ndarray:
+    """Held-out efforts predicted with base parameters ``beta``, exactly as the pipeline's
+    validation does (serial: ``validate``; a mechanism: the pipeline's chunks)."""
+    if not isinstance(outcome.robot, Mechanism):
+        return validate(dataclasses.replace(outcome.result, params=beta), outcome.robot, outcome.base,
+                        outcome.held_out).predicted
+    from dynid.pipeline.identify_mechanism import _chunks
+
+    chunks = _chunks(outcome.robot, outcome.base, outcome.held_out, None, 2000, lambda *a: None, "validate")
+    return np.concatenate([W @ beta for W, _, _ in chunks])
+
+
+def _inertial(B: np.ndarray, standard_names) -> np.ndarray:
+    """Base parameters made of body and rotor parameters only (no friction / offset term)."""
+    fr = np.array([bool(_FRICTION_NAME.match(n)) for n in standard_names])
+    return np.flatnonzero(~np.any(np.abs(B[:, fr]) > 0, axis=1))
+
+
+def _well_scaled(true_beta, idx) -> np.ndarray:
+    """The inertial base parameters whose true magnitude is at least 1 % of the largest (the
+    relative errors of the others say little)."""
+    return idx[np.abs(true_beta[idx]) >= 0.01 * np.abs(true_beta[idx]).max()]
+
+
+def _errors(beta, bse, std, true_beta, true_std, idx, blocks) -> dict:
+    e = np.asarray(beta) - true_beta
+    nz = _well_scaled(true_beta, idx)
+    out = {"rel_median_pct": float(np.median(100 * np.abs(e[nz]) / np.abs(true_beta[nz]))),
+           "eps_av_pct": average_error(true_beta[nz], np.asarray(beta)[nz]),
+           "norm_pct": float(100 * np.linalg.norm(e[idx]) / np.linalg.norm(true_beta[idx])),
+           "z_median": None, "z_max": None, "mass_median_pct": None, "mass_max_pct": None, "J_median_pct": None}
+    if bse is not None:
+        z = np.abs(e[idx]) / np.asarray(bse)[idx]
+        out["z_median"], out["z_max"] = float(np.median(z)), float(z.max())
+    if std is not None:
+        std = np.asarray(std)
+        m = [100 * abs(std[b[0]] - true_std[b[0]]) / true_std[b[0]] for b in blocks]
+        J = [100 * np.linalg.norm(pseudo_inertia(std[b]) - pseudo_inertia(true_std[b])) / np.linalg.norm(pseudo_inertia(true_std[b]))
+             for b in blocks]
+        out.update(mass_median_pct=float(np.median(m)), mass_max_pct=float(np.max(m)), J_median_pct=float(np.median(J)))
+    return out
+
+
+def run_case(case: _Case, extra: int, with_nonlinear: bool = True, decades: int = 1) -> dict:
+    """All rows on one training log; the reference rows (nominal model, noise floor)."""
+    rows: dict[str, dict] = {}
+    outcomes: dict = {}
+    sweeps: dict = {}
+    p = None
+    for label, ident in ROWS:
+        if "regularization" in ident:
+            print(f"  {label}: lambda search", flush=True)
+            sw, o = _sweep(case, ident, rows["WLS+LMI"]["chi2_increase"], p, extra, decades)
+            sweeps[label] = sw
+            if o is None:
+                rows[label] = {"label": label, "error": sw["rows"][-1]["error"]}
+                continue
+            rows[label] = _row(label, o, case, sum(r.get("seconds", 0.0) for r in sw["rows"]))
+            rows[label]["lambda"] = sw["chosen"]
+            outcomes[label] = o
+            continue
+        t0 = time.perf_counter()
+        o = case.identify(ident)
+        rows[label] = _row(label, o, case, time.perf_counter() - t0)
+        outcomes[label] = o
+        p = o.base.n_base
+        print(f"  {label}: held-out total RMSE {rows[label]['total']:.4g}, feasible {rows[label]['feasible']} "
+              f"({rows[label]['seconds']:.1f} s)", flush=True)
+    ls = outcomes["LS"]
+    base, smap = ls.base, _standard_map(ls)
+    true_beta, nominal_beta = base.from_standard(case.true_std), base.from_standard(case.nominal_std)
+    v = ls.validation
+    clean = case.original(v.t)
+    # the nominal (CAD) model as it is: the regularization's reference
+    nom_pred = _predict(ls, nominal_beta)
+    reference = {
+        "nominal": {"rmse": np.sqrt(np.mean((v.measured - nom_pred) ** 2, axis=0)).tolist(),
+                    "eps_ra_perturbed": relative_absolute_error(v.measured, nom_pred, pooled=True),
+                    "eps_ra_original": relative_absolute_error(clean, nom_pred, pooled=True),
+                    "feasible": bool(_feasible(nominal_beta, smap).feasible)},
+        "noise": {"rmse": np.sqrt(np.mean((v.measured - clean) ** 2, axis=0)).tolist()},
+    }
+    for r in reference.values():
+        r["total"] = float(np.sum(r["rmse"]))
+    truth_feas = _feasible(true_beta, smap)
+    idx = _inertial(base.B, base.standard_names)
+    blocks = smap.body_blocks
+    errors = {label: _errors(r["params"], r["bse"], r["standard"], true_beta, case.true_std, idx, blocks)
+              for label, r in rows.items() if "error" not in r}
+    errors["nominal (reference)"] = _errors(nominal_beta, None, case.nominal_std, true_beta, case.true_std, idx, blocks)
+    nonlinear = _nonlinear(case, rows) if with_nonlinear else {"status": "not run"}
+    return {"channels": list(v.channel_names), "rows": rows, "sweeps": sweeps, "reference": reference,
+            "errors": errors, "n_base": base.n_base, "n_inertial": int(idx.size),
+            "n_well_scaled": int(_well_scaled(true_beta, idx).size),
+            "truth_feasible": bool(truth_feas.feasible), "truth_violated": list(truth_feas.violated),
+            "truth_min_eig_standard": [float(np.linalg.eigvalsh(pseudo_inertia(case.true_std[b]))[0]) for b in blocks],
+            "n_train": int(ls.train.n_samples), "n_valid": int(v.n_samples), "nonlinear": nonlinear}
+
+
+def _nonlinear(case: _Case, rows: dict) -> dict:
+    """Paper 000's "Nonlinear (Opt.)": physically consistent fit with Stribeck friction, through
+    ``[identification] friction_model = "stribeck"``, only when ``dynid.estimation.nonlinear``
+    exists (it is being written; this study does not implement it)."""
+    if not nonlinear_available():
+        return {"status": "n/a (not available)"}
+    t0 = time.perf_counter()
+    try:
+        o = case.identify({"method": "ols", "physical_consistency": True, "friction_model": "stribeck"})
+    except DynidError as exc:
+        return {"status": f"n/a ({str(exc).splitlines()[0]})"}
+    if np.array_equal(o.result.params, rows["LS+LMI"]["params"]) and o.result.method == rows["LS+LMI"]["method"]:
+        return {"status": "n/a (friction_model = 'stribeck' gave the linear LS+LMI fit: not wired into identify yet)"}
+    return {"status": "ok", "row": _row("Nonlinear (Opt.)", o, case, time.perf_counter() - t0)}
+
+
+# ---------------------------------------------------------------------- the two parts
+def serial_study(quick: bool = False, reps: int | None = None) -> dict:
+    reps = (1 if quick else 4) if reps is None else reps
+    out: dict = {"robot": "cobot6r", "runs": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        valid_folder = valid_sim = None
+        for rep in range(reps):
+            print(f"A. cobot6r, training log {rep + 1}/{reps}", flush=True)
+            case, valid_sim = _case(COBOT, d, quick, rep, valid_folder, valid_sim)
+            valid_folder = case.valid
+            out["runs"].append(run_case(case, 0 if quick or rep else 2, with_nonlinear=rep == 0, decades=2 if quick else 1))
+        if not quick:
+            print("A. cobot6r, rich training log", flush=True)
+            case, _ = _case(COBOT, d, quick, 0, valid_folder, valid_sim, train_key="rich_train")
+            out["rich"] = run_case(case, 0, with_nonlinear=False)
+    return out
+
+
+def parallel_study(quick: bool = False) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        print("B. rps3", flush=True)
+        case, _ = _case(RPS3, Path(tmp), quick, 0)
+        return {"robot": "rps3", "runs": [run_case(case, 0 if quick else 2, decades=2 if quick else 1)]}
+
+
+# ---------------------------------------------------------------------- tables
+def _f(x, fmt: str = ".3f", width: int = 10) -> str:
+    return f"{'-':>{width}}" if x is None else f"{x:>{width}{fmt}}"
+
+
+def rmse_table(res: dict, title: str) -> str:
+    run = res["runs"][0]
+    ch = run["channels"]
+    lines = [title, f"{'method':<22}" + "".join(f"{c:>10}" for c in ch) + f"{'Sum':>10}{'vs LS':>8}"]
+    ls = run["rows"]["LS"]["total"]
+    for label, r in run["rows"].items():
+        if "error" in r:
+            lines.append(f"{label:<22}n/a ({r['error']})")
+            continue
+        lam = f"  (lambda {r['lambda']:g})" if "lambda" in r else ""
+        lines.append(f"{label:<22}" + "".join(f"{x:>10.3f}" for x in r["rmse"]) + f"{r['total']:>10.3f}"
+                     f"{r['total'] / ls:>8.2f}{lam}")
+    nl = run["nonlinear"]
+    if nl.get("status") == "ok":
+        r = nl["row"]
+        lines.append(f"{'Nonlinear (Opt.)':<22}" + "".join(f"{x:>10.3f}" for x in r["rmse"]) + f"{r['total']:>10.3f}"
+                     f"{r['total'] / ls:>8.2f}")
+    for label, key in (("nominal (CAD) model", "nominal"), ("noise floor", "noise")):
+        r = run["reference"][key]
+        lines.append(f"{label:<22}" + "".join(f"{x:>10.3f}" for x in r["rmse"]) + f"{r['total']:>10.3f}"
+                     f"{r['total'] / ls:>8.2f}")
+    lines.append(f"(training {run['n_train']} samples, held out {run['n_valid']}; 'noise floor' = RMSE of the noisy "
+                 "against the noise-free held-out efforts)")
+    return "\n".join(lines)
+
+
+def error_table(res: dict, title: str) -> str:
+    run = res["runs"][0]
+    lines = [title,
+             f"{'method':<22}{'med |e|/sd':>11}{'max |e|/sd':>11}{'med rel %':>10}{'eps_AV %':>10}{'|e|/|b| %':>10}"
+             f"{'mass med %':>11}{'mass max %':>11}{'J med %':>9}"]
+    for label, e in run["errors"].items():
+        lines.append(f"{label:<22}{_f(e['z_median'], '.3g', 11)}{_f(e['z_max'], '.3g', 11)}{e['rel_median_pct']:>10.3g}"
+                     f"{e['eps_av_pct']:>10.3g}{e['norm_pct']:>10.3g}{_f(e['mass_median_pct'], '.3g', 11)}"
+                     f"{_f(e['mass_max_pct'], '.3g', 11)}{_f(e['J_median_pct'], '.3g', 9)}")
+    lines.append(f"base parameters: the {run['n_inertial']} of {run['n_base']} without friction/offset terms (the truth's "
+                 f"friction is Stribeck); med rel % and eps_AV (paper 000 Eq. 34) over the {run['n_well_scaled']} of them "
+                 "whose true value is at least 1 % of the largest, |e|/|b| over all of them; sd = the method's standard "
+                 "error where it reports one; mass / J: the recovered standard parameters of each body against the true "
+                 "ones (relative error of the mass, Frobenius error of the 4x4 pseudo-inertia), median / max over bodies")
+    return "\n".join(lines)
+
+
+def feasibility_table(res: dict, title: str) -> str:
+    run = res["runs"][0]
+    lines = [title, f"{'method':<22}{'feasible':>9}{'violated':>9}{'min eig (is_feasible)':>23}{'min eig (estimate)':>20}"
+                    f"{'active':>8}{'chi2 increase':>15}"]
+    for label, r in run["rows"].items():
+        if "error" in r:
+            lines.append(f"{label:<22}n/a")
+            continue
+        lines.append(f"{label:<22}{str(r['feasible']):>9}{len(r['violated']):>9}{r['min_eig_feasibility']:>23.3e}"
+                     f"{_f(r['min_eig_estimate'], '.3e', 20)}{_f(r['active'], 'd', 8)}{_f(r['chi2_increase'], '.1f', 15)}")
+    for label, r in run["rows"].items():
+        if "error" not in r and r["violated"]:
+            lines.append(f"  {label} violates: {', '.join(r['violated'])}")
+        if "error" not in r and r["feasibility_status"] != "optimal":
+            lines.append(f"  {label}: is_feasible's solver status {r['feasibility_status']!r}")
+    lines.append(f"truth: base parameters feasible {run['truth_feasible']}"
+                 + (f" (violated: {', '.join(run['truth_violated'])})" if run["truth_violated"] else "")
+                 + "; smallest pseudo-inertia eigenvalue of each true body: "
+                 + ", ".join(f"{x:.2e}" for x in run["truth_min_eig_standard"]))
+    lines.append(f"nominal (CAD) model: base parameters feasible {run['reference']['nominal']['feasible']}")
+    return "\n".join(lines)
+
+
+def eps_table(res: dict, title: str) -> str:
+    run = res["runs"][0]
+    rows = run["rows"]
+    lines = [title, f"{'':<34}{'Perturbed':>10}{'Original':>10}"]
+
+    def line(name, r):
+        return f"{name:<34}{r['eps_ra_perturbed']:>10.2f}{r['eps_ra_original']:>10.2f}"
+
+    lines.append(line("Linear (LSM)         [LS]", rows["LS"]))
+    lines.append(line("Linear (Opt.)        [LS+LMI]", rows["LS+LMI"]))
+    nl = run["nonlinear"]
+    if nl.get("status") == "ok":
+        lines.append(line("Nonlinear (Opt.)", nl["row"]))
+    else:
+        lines.append(f"{'Nonlinear (Opt.)':<34}{nl['status']}")
+    for label in ("WLS", "WLS+LMI", "WLS+LMI+Euclidean", "WLS+LMI+log-det"):
+        if "error" not in rows[label]:
+            lines.append(line(f"  {label}", rows[label]))
+    lines.append(line("  nominal (CAD) model", run["reference"]["nominal"]))
+    lines.append("eps_RA (paper 000 Eq. 33) in %, pooled over the channels: against the measured (noisy) and the "
+                 "noise-free held-out efforts")
+    return "\n".join(lines)
+
+
+def sweep_table(res: dict, title: str) -> str:
+    run = res["runs"][0]
+    lines = [title]
+    for label, sw in run["sweeps"].items():
+        chosen = "none" if sw["chosen"] is None else f"{sw['chosen']:g}"
+        note = " (no weight accepted: the smallest tried)" if sw.get("none_accepted") else ""
+        lines.append(f"{label}: largest lambda with delta chi2 <= chi2_{{p,0.95}} = {sw['limit']:.1f}; chosen {chosen}{note}")
+        lines.append(f"  {'lambda':>8}{'delta chi2':>12}{'active':>8}{'held-out Sum':>14}")
+        for r in sw["rows"]:
+            if "error" in r:
+                lines.append(f"  {r['lambda']:>8g}  failed: {r['error']}")
+            else:
+                mark = "  <- chosen" if r["lambda"] == sw["chosen"] else ("" if r["accepted"] else "  (rejected)")
+                lines.append(f"  {r['lambda']:>8g}{r['delta_chi2']:>12.1f}{r['active']:>8}{r['total']:>14.3f}{mark}")
+    lines.append("(lambda searched from 1 by decades, by two with --quick; delta chi2 = residual increase over WLS+LMI in units of the "
+                 "residual variance; the held-out column is a diagnostic, never used for the choice)")
+    return "\n".join(lines)
+
+
+def summary_table(res: dict, title: str) -> str:
+    runs = res["runs"]
+    labels = [label for label, _ in ROWS]
+    lines = [title, f"{'method':<22}{'Sum median':>11}{'min':>9}{'max':>9}{'vs LS (median)':>16}{'feasible':>10}{'lambda':>16}"]
+    ls = np.array([r["rows"]["LS"]["total"] for r in runs])
+    for label in labels:
+        ok = [r["rows"][label] for r in runs if "error" not in r["rows"][label]]
+        if not ok:
+            lines.append(f"{label:<22}n/a")
+            continue
+        tot = np.array([r["total"] for r in ok])
+        ratio = np.median(tot / ls[: tot.size]) if tot.size == ls.size else float("nan")
+        lam = ",".join(f"{r['lambda']:g}" for r in ok) if "lambda" in ok[0] else "-"
+        lines.append(f"{label:<22}{np.median(tot):>11.3f}{tot.min():>9.3f}{tot.max():>9.3f}{ratio:>16.2f}"
+                     f"{sum(r['feasible'] for r in ok):>7}/{len(ok):<2}{lam:>16}")
+    return "\n".join(lines)
+
+
+def contrast_table(run: dict, title: str) -> str:
+    """The rows on one other training log, in brief."""
+    rows = run["rows"]
+    ls = rows["LS"]["total"]
+    lines = [title, f"{'method':<22}{'Sum':>9}{'vs LS':>7}{'eps_RA pert.':>13}{'eps_RA orig.':>13}{'feasible':>9}"
+                    f"{'chi2 increase':>15}{'lambda':>8}"]
+    for label, r in rows.items():
+        if "error" in r:
+            lines.append(f"{label:<22}n/a ({r['error']})")
+            continue
+        lam = f"{r['lambda']:g}" if "lambda" in r else "-"
+        lines.append(f"{label:<22}{r['total']:>9.3f}{r['total'] / ls:>7.2f}{r['eps_ra_perturbed']:>13.2f}"
+                     f"{r['eps_ra_original']:>13.2f}{str(r['feasible']):>9}{_f(r['chi2_increase'], '.1f', 15)}{lam:>8}")
+    lines.append(f"(training {run['n_train']} samples; the same held-out log)")
+    return "\n".join(lines)
+
+
+def print_part(res: dict, part: str) -> None:
+    name = "cobot6r (6R serial)" if res["robot"] == "cobot6r" else "rps3 (3-RPS parallel)"
+    unit = "N*m" if res["robot"] == "cobot6r" else "N"
+    print(rmse_table(res, f"{part}1. {name}: held-out RMSE per channel [{unit}] (paper 003 Tables 6/8)"), "\n")
+    print(error_table(res, f"{part}2. {name}: parameter errors against the truth"), "\n")
+    print(feasibility_table(res, f"{part}3. {name}: physical feasibility of the estimates"), "\n")
+    print(eps_table(res, f"{part}4. {name}: eps_RA [%] (paper 000 Table 3)"), "\n")
+    print(sweep_table(res, f"{part}5. {name}: regularization weight"), "\n")
+    if len(res["runs"]) > 1:
+        print(summary_table(res, f"{part}6. {name}: held-out total RMSE over {len(res['runs'])} training logs"), "\n")
+    if "rich" in res:
+        print(contrast_table(res["rich"], f"{part}7. {name}: a rich training log (5 harmonics, 60 % of the ranges)"), "\n")
+    sys.stdout.flush()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--part", choices=["A", "B"], action="append")
+    ap.add_argument("--reps", type=int, default=None, help="training logs of part A (default 4, --quick 1)")
+    args = ap.parse_args(argv)
+    parts = args.part or ["A", "B"]
+    t0 = time.perf_counter()
+    if "A" in parts:
+        print_part(serial_study(args.quick, args.reps), "A")
+    if "B" in parts:
+        print_part(parallel_study(args.quick), "B")
+    print(f"total {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
