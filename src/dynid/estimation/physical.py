@@ -509,11 +509,13 @@ class PhysicalLS:
             se_note = ("sandwich covariance of the regularized estimate, conditional on the reference; it does not "
                        "include the bias towards the reference")
             notes.append(f"no constraint active; {se_note}")
-        notes.append("standard parameters: the physically consistent vector closest to "
+        notes.append("standard parameters: a physically consistent vector near "
                      + ("the reference" if ref is not None else "zero (no reference)")
-                     + " among those giving the estimate; they have no standard error (not identifiable)")
+                     + (" (the regularized optimum)" if lam > 0 else " that gives the estimate up to the tie-break's "
+                        f"reported cost ({stages['standard']['residual_increase_chi2']:.2g} chi^2)")
+                     + "; they have no standard error (not identifiable)")
         it = [v.get("iterations") for v in stages.values() if v.get("iterations") is not None]
-        main = stages.get("sdp", stages.get("feasibility"))
+        main = stages["sdp"]
         return IdentificationResult(
             method=label,
             names=problem.names,
