@@ -122,11 +122,13 @@ seed = {seed}
     assert r.returncode == 0, r.stderr
     z, rel, est, res = _z_scores(tmp_path)
     assert min(res["validation"]["r2_per_joint"]) > 0.99
-    # inertial parameters with a small reported std are recovered within 5 %; Coulomb friction
-    # within 6 % (the simulator's reversals bias it, see dynid.simulation.control)
+    # inertial parameters with a small reported std are recovered within 5 % or 2.5 reported
+    # standard deviations; Coulomb friction within 6 % (the simulator's reversals bias it, see
+    # dynid.simulation.control)
     for n, p in est.items():
         if p["rel_std_pct"] < 5.0:
-            assert rel[n] < (0.06 if n.startswith("fc_") else 0.05), (n, rel[n])
+            tol = 0.06 if n.startswith("fc_") else max(0.05, 2.5 * p["rel_std_pct"] / 100)
+            assert rel[n] < tol, (n, rel[n], p["rel_std_pct"])
 
 
 @pytest.mark.parametrize(

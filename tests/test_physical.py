@@ -311,8 +311,16 @@ def test_config_builds_the_estimator():
         physical_options(_parse_identification({"physical_consistency": True, "bodies": {"3": {"mass": [5.0, 1.0]}}}))
 
 
-def test_stribeck_friction_model_is_refused_not_ignored():
+def test_friction_model_and_max_samples_are_parsed():
     from dynid.config import _parse_identification
 
-    with pytest.raises(ConfigError, match="not wired into dynid identify yet"):
-        _parse_identification({"physical_consistency": True, "friction_model": "stribeck"})
+    icfg = _parse_identification({"physical_consistency": True, "friction_model": "stribeck", "max_samples": 800})
+    assert icfg.friction_model == "stribeck" and icfg.max_samples == 800
+    with pytest.raises(ConfigError, match="friction_model"):
+        _parse_identification({"physical_consistency": True, "friction_model": "lugre"})
+    with pytest.raises(ConfigError, match="physical_consistency = true"):
+        _parse_identification({"friction_model": "stribeck"})
+    with pytest.raises(ConfigError, match="max_samples"):
+        _parse_identification({"physical_consistency": True, "friction_model": "stribeck", "max_samples": 10})
+    with pytest.raises(ConfigError, match="max_samples is for friction_model"):
+        _parse_identification({"physical_consistency": True, "max_samples": 1000})

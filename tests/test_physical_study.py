@@ -73,9 +73,14 @@ def test_serial_twin(serial, capsys):
     assert err["WLS+LMI+Euclidean"]["mass_median_pct"] < err["WLS+LMI"]["mass_median_pct"]
     assert err["LS"]["z_median"] is not None and err["LS+LMI"]["z_median"] is None
     nl = run["nonlinear"]
-    assert nl["status"] == "ok" or nl["status"].startswith("n/a")
+    # paper 000's "Nonlinear (Opt.)": the Stribeck fit ran through dynid identify, is physically
+    # consistent and has a friction curve per joint
+    assert nl["status"] == "ok", nl["status"]
+    assert nl["row"]["method"] == "WLS+LMI+Stribeck" and nl["row"]["feasible"] and _consistent(nl["row"])
+    assert sorted(nl["row"]["stribeck"]) == run["channels"]
+    assert "Nonlinear (Opt.)" in run["errors"]
     out = capsys.readouterr().out
-    for head in ("A1.", "A2.", "A3.", "A4.", "A5.", "Linear (LSM)", "Linear (Opt.)", "Nonlinear (Opt.)", "noise floor"):
+    for head in ("A1.", "A2.", "A3.", "A4.", "A4b.", "A5.", "Linear (LSM)", "Linear (Opt.)", "Nonlinear (Opt.)", "noise floor"):
         assert head in out, head
 
 

@@ -464,9 +464,8 @@ def _parse_identification(t: Any) -> IdentificationConfig:
     if margin < 0:
         raise ConfigError(f"{where}.margin must be >= 0, got {margin}")
     friction_model = _str(t.get("friction_model", "linear"), f"{where}.friction_model", ("linear", "stribeck"))
-    if friction_model == "stribeck":  # refused rather than silently fitting the linear model
-        raise ConfigError(f"{where}.friction_model = 'stribeck' is not wired into dynid identify yet; use "
-                          "dynid.estimation.nonlinear.StribeckLS from Python (issue 8, item 5)")
+    if "max_samples" in t and friction_model != "stribeck":
+        raise ConfigError(f"{where}.max_samples is for friction_model = 'stribeck' (the rows of the nonlinear fit)")
     for key, need in (("noise_covariance", ("gm", "ml")), ("iterations", ("gm",)), ("nominal_weighting", ("wls",)),
                       ("position_covariance", ("ml",)), ("cutoff_range_hz", ("ml",))):
         if key in t and method not in need:

@@ -115,9 +115,12 @@ def _parse_identify(t: Any, model: str, base_dir: Path) -> dict[str, Any]:
         _table(t["robot"], "identify.robot", {"model", "extras", "gear_ratios", "couplings", "drive_gains", "position_offset"})
     # validate every key now, on a stand-in log (the real one is written per trial)
     try:
-        parse_config(_identify_document(t, model, base_dir / "trial.npz", ["a"], "torque", 1000), base_dir)
+        cfg = parse_config(_identify_document(t, model, base_dir / "trial.npz", ["a"], "torque", 1000), base_dir)
     except ConfigError as exc:
         raise ConfigError(f"identify: {exc}") from None
+    if cfg.identification.friction_model != "linear":
+        raise ConfigError("identify.identification.friction_model = 'stribeck' is not available in dynid montecarlo: "
+                          "its trials compare base parameters with the simulated truth and do not map Stribeck parameters yet")
     return dict(t)
 
 

@@ -20,6 +20,7 @@ from dynid.estimation.identifiability import (
     structure_search,
 )
 from dynid.estimation.linear import OLS, WLS, check_identifiable, whitened_solve
+from dynid.estimation.nonlinear import SampleProblem, StribeckLS, stribeck_basis, stribeck_predict
 from dynid.estimation.physical import BodyBounds, PhysicalConstraints, PhysicalLS, logdet_divergence
 from dynid.estimation.problem import ProblemBuilder, RegressionProblem
 from dynid.estimation.results import IdentificationResult, Summary
@@ -75,6 +76,10 @@ __all__ = [
     "identified",
     "identified_names",
     "is_feasible",
+    "SampleProblem",
+    "StribeckLS",
+    "stribeck_basis",
+    "stribeck_predict",
     "select_friction_structure",
     "structure_search",
     "IRLS",

@@ -25,6 +25,7 @@ the dropped parameters fixed at zero.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Protocol
 
@@ -206,7 +207,9 @@ def is_feasible(
         objective = objective + cp.sum(s_nn)
     prob = cp.Problem(cp.Minimize(objective / scale), constraints)
     try:
-        prob.solve(solver=solver)
+        with warnings.catch_warnings():  # "Solution may be inaccurate": reported as the status instead
+            warnings.simplefilter("ignore", UserWarning)
+            prob.solve(solver=solver)
     except cp.error.SolverError as exc:
         raise DynidError(f"{solver} failed on the feasibility problem ({exc})") from None
     if prob.status not in ("optimal", "optimal_inaccurate") or pi.value is None:

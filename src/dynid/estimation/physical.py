@@ -95,6 +95,7 @@ __all__ = ["BodyBounds", "PhysicalConstraints", "PhysicalLS", "REGULARIZATIONS",
 
 WEIGHTINGS = ("ols", "wls", "gm")
 REGULARIZATIONS = ("none", "euclidean", "logdet")
+_LOGDET_REL_EIG = 1e-9  # smallest / largest pseudo-inertia eigenvalue a log-det reference needs
 _UNCHANGED = 1e-6  # chi^2 units: below this residual increase the unconstrained optimum is feasible
 _TIE_BREAK = 1e-3  # weight (x distance scale) of the closest-to-reference tie-break, in residual-norm units
 
@@ -279,11 +280,15 @@ class PhysicalLS:
             raise InputError(f"regularization = {self.regularization!r} needs reference standard parameters "
                              "(the model has no nominal values)")
         if self.regularization == "logdet":
-            bad = [name for name, blk in zip(smap.body_names, smap.body_blocks)
-                   if np.linalg.eigvalsh(pseudo_inertia(ref[blk]))[0] <= 0]
+            # relative: a reference whose smallest eigenvalue is rounding noise (a point mass or a
+            # thin rod, 1e-18 against 1e2) is singular for the divergence too (the solver would
+            # end "unbounded")
+            eigs = [np.linalg.eigvalsh(pseudo_inertia(ref[blk])) for blk in smap.body_blocks]
+            bad = [name for name, ev in zip(smap.body_names, eigs) if ev[0] <= _LOGDET_REL_EIG * max(abs(ev[-1]), 1e-300)]
             if bad:
                 raise InputError("the log-det divergence needs a reference whose every body has a positive definite "
-                                 f"pseudo-inertia; not so for bodies {bad} (use regularization = 'euclidean')")
+                                 f"pseudo-inertia (smallest eigenvalue above {_LOGDET_REL_EIG:g} of the largest); not so "
+                                 f"for bodies {bad} (use regularization = 'euclidean')")
         return smap, ref
 
     def _unconstrained(self, problem: RegressionProblem) -> _Fit:

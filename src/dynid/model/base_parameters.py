@@ -44,6 +44,8 @@ __all__ = [
     "StandardMap",
     "compute_base_parameters",
     "format_expression",
+    "parameters_from_pseudo_inertia",
+    "perturb_bodies",
     "pseudo_inertia",
     "random_states",
     "robot_base_parameters",
@@ -331,4 +333,51 @@ def pseudo_inertia(block: FloatArray) -> FloatArray:
     out[:3, :3] = 0.5 * np.trace(inertia) * np.eye(3) - inertia
     out[:3, 3] = out[3, :3] = (mx, my, mz)
     out[3, 3] = m
+    return out
+
+
+def parameters_from_pseudo_inertia(J: FloatArray) -> FloatArray:
+    """``[m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` of pseudo-inertia matrices (..., 4, 4):
+    the inverse of :func:`pseudo_inertia` (:math:`I = \\mathrm{tr}(\\Sigma)\\mathbf 1 - \\Sigma`)."""
+    J = np.asarray(J, dtype=float)
+    S = J[..., :3, :3]
+    return np.stack([J[..., 3, 3], J[..., 0, 3], J[..., 1, 3], J[..., 2, 3], S[..., 1, 1] + S[..., 2, 2], -S[..., 0, 1],
+                     S[..., 0, 0] + S[..., 2, 2], -S[..., 0, 2], -S[..., 1, 2], S[..., 0, 0] + S[..., 1, 1]], axis=-1)
+
+
+def perturb_bodies(params: FloatArray, body_blocks: Sequence[IntArray], relative: float,
+                   rng: np.random.Generator) -> FloatArray:
+    """Standard parameters a relative amount away from ``params`` that stay physically consistent.
+
+    Each body with a positive mass: the mass times :math:`1 + r\\varepsilon`; the second moments
+    of the mass distribution about the centre of mass (:math:`\\Sigma_c`, the pseudo-inertia's
+    covariance block) keep their principal axes, each principal value times
+    :math:`1 + r\\varepsilon` (floored at 0, then scaled with the mass); the centre of mass
+    moves by :math:`r k \\varepsilon` per axis, :math:`k = \\sqrt{\\mathrm{tr}\\,\\Sigma_c / m}` the
+    radius of gyration. Every :math:`\\varepsilon \\sim N(0, 1)`, factors floored at 0.1. The
+    resulting pseudo-inertia is positive semidefinite by construction (Wensing, Kim & Slotine
+    2017). Other parameters (massless bodies, joint terms) are multiplied by
+    :math:`1 + r\\varepsilon` as they are.
+    """
+    pi = np.array(params, dtype=float)
+    out = pi * (1.0 + relative * rng.standard_normal(pi.shape))
+    for blk in body_blocks:
+        blk = np.asarray(blk, dtype=int)
+        J = pseudo_inertia(pi[blk])
+        m = J[3, 3]
+        if m <= 0:
+            out[blk] = pi[blk] * (1.0 + relative * rng.standard_normal(10))
+            continue
+        c = J[:3, 3] / m
+        lam, V = np.linalg.eigh(J[:3, :3] - m * np.outer(c, c))
+        lam = np.maximum(lam, 0.0)
+        eps = rng.standard_normal(7)
+        m2 = m * max(1.0 + relative * eps[0], 0.1)
+        lam2 = lam * np.maximum(1.0 + relative * eps[1:4], 0.1) * (m2 / m)
+        c2 = c + relative * np.sqrt(lam.sum() / m) * eps[4:7]
+        J2 = np.zeros((4, 4))
+        J2[:3, :3] = (V * lam2) @ V.T + m2 * np.outer(c2, c2)
+        J2[:3, 3] = J2[3, :3] = m2 * c2
+        J2[3, 3] = m2
+        out[blk] = parameters_from_pseudo_inertia(J2)
     return out

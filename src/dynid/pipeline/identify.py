@@ -22,6 +22,7 @@ from dynid.model.base_parameters import BaseParameters, StandardMap, robot_base_
 from dynid.model.regressor import regressor
 from dynid.model.mechanism import Mechanism
 from dynid.model.robot import RobotModel
+from dynid.pipeline import stribeck
 from dynid.pipeline.data import (
     build_robot,
     check_joint_motion,
@@ -185,18 +186,20 @@ def validate(
     parallel_decimate: int = 1,
     chunk_size: int = 20000,
     progress: Progress = _no_progress,
+    friction: stribeck.FrictionJoints | None = None,
 ) -> ValidationMetrics:
     """Predict the held-out torques with the identified base parameters; per-joint errors.
 
     The held-out data go through exactly the processing of the training data
-    (including parallel decimation when used).
+    (including parallel decimation when used). ``friction``: the result is a Stribeck fit
+    (:mod:`dynid.pipeline.stribeck`) with these friction joints.
     """
-    if tuple(result.names) != base.names:
+    if friction is None and tuple(result.names) != base.names:
         raise InputError("the result's parameters are not the base parameters of this robot")
     meas, pred = [], []
-    for W, tau, _ in _chunks(robot, base, ds, parallel_decimate, max(1, int(chunk_size)), progress, "validate"):
+    for W, tau, dq in _chunks(robot, base, ds, parallel_decimate, max(1, int(chunk_size)), progress, "validate"):
         meas.append(tau)
-        pred.append(W @ result.params)
+        pred.append(W @ result.params if friction is None else stribeck.predict(result, friction, W, dq))
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
     k = max(1, parallel_decimate)
     return ValidationMetrics.of(robot.joint_names, np.asarray(ds.t)[::k][: measured.shape[0]], measured, predicted,
@@ -254,6 +257,9 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
         from dynid.pipeline.identify_mechanism import identify_mechanism
 
         return identify_mechanism(cfg, robot, progress, _versions())
+    nonlinear = cfg.identification.friction_model == "stribeck"
+    if nonlinear:
+        stribeck.check_config(cfg, robot)
     names = robot.joint_names
     readers: dict = {}
     raw_train = read_log(cfg.data, robot.dof, names, "data", readers)
@@ -284,23 +290,34 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
         "processing": steps,
         "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
     }
-    problem = build_problem(robot, base, train, min_velocity=pcfg.min_velocity, parallel_decimate=parallel,
-                            chunk_size=cfg.identification.chunk_size, progress=progress, meta=meta,
-                            cross=cfg.identification.method == "gm")
     icfg = cfg.identification
-    nominal = base.from_standard(robot.nominal_parameters()) if icfg.nominal_weighting else None
-    estimator = configured_estimator(icfg, steps, robot.joint_names, robot.joint_names, nominal)
-    result = estimator.fit(problem)
+    fj = None
+    if nonlinear:
+        fj = stribeck.friction_joints(robot, base)
+        rows = stribeck.subsample(train, icfg.max_samples)
+        chunks = ((W, tau) for W, tau, _ in _chunks(robot, base, rows, 1, icfg.chunk_size, progress, "Stribeck rows"))
+        sp = stribeck.sample_problem(chunks, rows, fj, base, robot.joint_names, StandardMap.of(robot, base), meta,
+                                     pcfg.min_velocity)
+        progress("Stribeck fit", 0, 1)
+        result = stribeck.describe(stribeck.estimator(cfg).fit(sp), base, fj, rows.n_samples, train.n_samples,
+                                   pcfg.min_velocity)
+        progress("Stribeck fit", 1, 1)
+    else:
+        problem = build_problem(robot, base, train, min_velocity=pcfg.min_velocity, parallel_decimate=parallel,
+                                chunk_size=icfg.chunk_size, progress=progress, meta=meta, cross=icfg.method == "gm")
+        nominal = base.from_standard(robot.nominal_parameters()) if icfg.nominal_weighting else None
+        estimator = configured_estimator(icfg, steps, robot.joint_names, robot.joint_names, nominal)
+        result = estimator.fit(problem)
     if pcfg.min_velocity is not None:
         result = result.with_provenance(
-            row_selection={"min_velocity_rad_s": list(pcfg.min_velocity), "rows_kept_per_joint": problem.n_obs.tolist(),
+            row_selection={"min_velocity_rad_s": list(pcfg.min_velocity), "rows_kept_per_joint": result.n_obs.tolist(),
                            "rule": ("whole samples with every joint at least that fast (full noise covariance)"
-                                    if problem.cross is not None else "per joint equation")}
+                                    if icfg.method == "gm" else "per joint equation")}
         )
     if notes:
         result = result.with_notes(*notes)
     metrics = validate(result, robot, base, held_out, parallel_decimate=parallel,
-                       chunk_size=cfg.identification.chunk_size, progress=progress)
+                       chunk_size=cfg.identification.chunk_size, progress=progress, friction=fj)
     return IdentifyOutcome(cfg, robot, base, result, metrics, train, held_out, tuple(notes), train_j)
 
 
@@ -347,10 +364,37 @@ def export_model(outcome: IdentifyOutcome, folder: Path) -> Path | None:
     return write_urdf(robot, params, folder / "model.urdf", name=f"{robot.name}_identified")
 
 
+def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]:
+    """Lines for summary.txt when the exported standard parameters are far from the model's
+    nominal ones: a body mass more than ``factor`` times above or below its nominal value. The
+    base parameters fix only combinations of the standard ones; without regularization the rest
+    comes from the tie-break, and a constrained fit on weak data can push it far (e.g. legs of
+    hundreds of tonnes that give the same actuator forces)."""
+    std = outcome.result.solver.get("standard_params")
+    robot = outcome.robot
+    if not std:
+        return []
+    nominal = robot.nominal_parameters()
+    names = robot.parameter_names
+    blocks = robot.body_blocks() if isinstance(robot, Mechanism) else [range(10 * b, 10 * b + 10)
+                                                                       for b in range(robot.layout.n_bodies)]
+    far = []
+    for blk in blocks:
+        i = blk[0]
+        m, m0 = float(std[names[i]]), float(nominal[i])
+        if m0 > 0 and not (m0 / factor <= m <= m0 * factor):
+            far.append(f"{names[i]} = {m:.4g} kg (nominal {m0:.4g} kg)")
+    if not far:
+        return []
+    return [f"warning: the exported model's masses are far from the nominal ones: {', '.join(far)}. The data fix "
+            "the base parameters only; regularization towards the nominal model (identification.regularization) "
+            "gives standard parameters a simulator can trust."]
+
+
 def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     """Write the output files into an existing folder (see :func:`write_outputs`)."""
     res = outcome.result
-    expressions = outcome.base.expressions()
+    expressions = res.expressions if res.expressions is not None else outcome.base.expressions()
     res.save(
         stage / "result",
         extra={
@@ -373,7 +417,8 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             stats = [("", "", "", "")] * len(res.names)
         for i, n in enumerate(res.names):
             w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i]])
-    (stage / "summary.txt").write_text(outcome.summary_text() + "\n")
+    warn = export_warnings(outcome)
+    (stage / "summary.txt").write_text(outcome.summary_text() + "\n" + "".join(f"\n{w}\n" for w in warn))
     export_model(outcome, stage)
     if outcome.config.output.plots:
         from dynid.report import plot_validation, write_html_report

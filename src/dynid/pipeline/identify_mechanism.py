@@ -39,6 +39,7 @@ from dynid.model.closed_loop import actuator_regressor, mechanism_base_parameter
 from dynid.model.loop_kinematics import actuator_states
 from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.transmission import Transmission
+from dynid.pipeline import stribeck
 from dynid.pipeline.data import configured_estimator, ml_covariances, preprocess, read_log
 
 __all__ = ["identify_mechanism", "mechanism_channels"]
@@ -217,6 +218,9 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
 
     _refuse_unsupported(cfg)
     _check_pose_domain(cfg, mech)
+    nonlinear, fj = cfg.identification.friction_model == "stribeck", None
+    if nonlinear:
+        stribeck.check_config(cfg, mech)
     force_model = _force_model(cfg, mech)
     names = tuple(mech.actuated_names)
     readers: dict = {}
@@ -257,6 +261,16 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
         at_fc = dataclasses.replace(cfg.processing, periodic=periodic)  # both logs as processed at the estimated f_c
         train, _ = preprocess(train_a, at_fc, "data")
         held_out, _ = preprocess(valid_a, at_fc, "validation")
+    elif nonlinear:
+        fj = stribeck.friction_joints(mech, base)
+        rows = stribeck.subsample(train, icfg.max_samples)
+        chunks = list(_chunks(mech, base, rows, force_model, chunk, progress, "Stribeck rows", periodic))
+        worst = max(float(r.max()) for _, _, r in chunks)
+        sp = stribeck.sample_problem(((W, y) for W, y, _ in chunks), rows, fj, base, channels,
+                                     _standard_map(mech, base), meta)
+        progress("Stribeck fit", 0, 1)
+        result = stribeck.describe(stribeck.estimator(cfg).fit(sp), base, fj, rows.n_samples, train.n_samples)
+        progress("Stribeck fit", 1, 1)
     else:
         problem, worst = _problem(mech, base, train, force_model, chunk, progress, meta, periodic,
                                   cross=icfg.method == "gm")
@@ -271,9 +285,14 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
         notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
     result = result.with_notes(*notes) if notes else result
     meas, pred = [], []
+    done = 0
     for W, y, _ in _chunks(mech, base, held_out, force_model, chunk, progress, "validate", periodic):
         meas.append(y)
-        pred.append(W @ result.params)
+        if nonlinear:
+            pred.append(stribeck.predict(result, fj, W, held_out.dq[done : done + W.shape[0]]))
+        else:
+            pred.append(W @ result.params)
+        done += W.shape[0]
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
     metrics = ValidationMetrics.of(channels, np.asarray(held_out.t)[: measured.shape[0]], measured, predicted,
                                    held_out.meta.get("source"))

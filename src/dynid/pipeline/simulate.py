@@ -110,11 +110,17 @@ def measure_signals(signals: TrueSignals, seed: int | None = None) -> tuple[Meas
     return meas, columns
 
 
-def _true_parameters(nominal: np.ndarray, cfg: SimulateConfig) -> np.ndarray:
+def _true_parameters(robot, nominal: np.ndarray, cfg: SimulateConfig) -> np.ndarray:
+    """The twin's truth: ``perturbation`` away from the nominal model, body by body in mass, centre
+    of mass and principal second moments, so that a physically consistent nominal model gives a
+    physically consistent truth (:func:`dynid.model.base_parameters.perturb_bodies`)."""
     if cfg.robot.perturbation == 0:
         return nominal.copy()
-    rng = np.random.default_rng(cfg.robot.perturbation_seed)
-    return nominal * (1.0 + cfg.robot.perturbation * rng.standard_normal(nominal.shape))
+    from dynid.model.base_parameters import perturb_bodies
+
+    blocks = robot.body_blocks() if isinstance(robot, Mechanism) else [np.arange(10 * b, 10 * b + 10)
+                                                                       for b in range(robot.layout.n_bodies)]
+    return perturb_bodies(nominal, blocks, cfg.robot.perturbation, np.random.default_rng(cfg.robot.perturbation_seed))
 
 
 def _coordinate_box(robot) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -262,7 +268,7 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
             raise ConfigError("trajectory.coordinates = 'task' is for parallel robots (a serial robot moves in joint space here)")
         robot = robot.in_task_space()
     nominal = robot.nominal_parameters()
-    true = _true_parameters(nominal, cfg)
+    true = _true_parameters(robot, nominal, cfg)
     model_params = true if cfg.control.model == "true" else nominal
     traj, coord_names = _trajectory(cfg, robot)
     duration = cfg.duration if cfg.duration is not None else float(getattr(traj, "duration", None) or traj.period)
