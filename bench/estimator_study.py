@@ -46,17 +46,9 @@ from dynid.model.robots import build_mechanism
 from dynid.pipeline import identify
 from dynid.pipeline.montecarlo import run_montecarlo
 from dynid.pipeline.simulate import run_simulation, write_simulation
-from dynid.studies.excitation import HEXAPOD_BOX, HEXAPOD_LIMITS
 
-
-def _design_file(folder: Path, design) -> Path:
-    tr = design.trajectory
-    path = folder / "design.json"
-    folder.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"coordinates": list(design.coordinates), "trajectory": {
-        "kind": "fourier", "base_frequency_hz": tr.base_frequency_hz, "a": tr.a.tolist(), "b": tr.b.tolist(),
-        "q0": tr.q0.tolist()}}))
-    return path
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _designs import design_file, hexapod_design  # noqa: E402
 
 
 # ---------------------------------------------------------------------- A: paper 001
@@ -106,7 +98,7 @@ def shang_tables(quick: bool = False) -> dict:
             pb = ExcitationProblem(mech, harmonics=4, base_frequency_hz=0.5, samples=48, criterion=criterion, limits=lim)
             design = pb.optimize(starts=1, seed=0, max_iter=iters)
             folder = d / criterion
-            traj = {"kind": "fourier", "design": str(_design_file(folder, design)), "periods": periods}
+            traj = {"kind": "fourier", "design": str(design_file(folder, design)), "periods": periods}
             write_simulation(run_simulation(parse_simulate_config({**SHANG_SIM, "trajectory": traj}, folder)), folder)
             runs[label] = _shang_identify(folder)
             out.setdefault("design_criteria", {})[label] = {k: float(v) for k, v in design.criteria.items()}
@@ -166,11 +158,8 @@ def hexapod_table2(quick: bool = False) -> dict:
     periods = 4 if quick else 8
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        pb = ExcitationProblem(build_mechanism("hexapod"), coordinates="task", harmonics=harmonics, base_frequency_hz=f0,
-                               samples=24 if quick else 40, criterion="d_opt", limits=HEXAPOD_LIMITS, box=HEXAPOD_BOX,
-                               noise_std=[2.0] * 6)
-        design = pb.optimize(starts=1, seed=0, max_iter=15 if quick else 100)
-        traj = {"kind": "fourier", "coordinates": "task", "design": str(_design_file(d, design)), "periods": periods + 1}
+        traj = {"kind": "fourier", "coordinates": "task", "design": str(hexapod_design(d, quick, f0, harmonics)),
+                "periods": periods + 1}
         sim = run_simulation(parse_simulate_config({
             "robot": {"model": "builtin:hexapod"},
             "trajectory": traj,

@@ -171,6 +171,18 @@ class TestWindows:
         with pytest.raises(InputError, match=rf"row window \[{start}, {stop}\) selects {selected} of 10 samples"):
             make(n=10).rows(start, stop)
 
+    def test_select_keeps_the_given_samples(self):
+        ds = make(n=10, dq=np.arange(20.0).reshape(10, 2))
+        w = ds.select(np.array([0, 3, 9]), "every third")
+        np.testing.assert_array_equal(w.t, ds.t[[0, 3, 9]])
+        np.testing.assert_array_equal(w.dq, ds.dq[[0, 3, 9]])
+        assert w.meta["history"] == ("every third",)
+
+    @pytest.mark.parametrize("idx", [[3], [4, 2], [0, 10], [-1, 3]])
+    def test_select_refuses_bad_indices(self, idx):
+        with pytest.raises(InputError, match="increasing sample indices within the 10 samples"):
+            make(n=10).select(np.array(idx), "bad")
+
     def test_time_window_is_half_open(self):
         ds = make(n=10, dt=0.25)  # t = 0, 0.25, ..., 2.25
         w = ds.time_window(0.5, 1.5)

@@ -148,6 +148,13 @@ class Dataset:
             )
         return self._take(slice(int(idx[0]), int(idx[-1]) + 1), f"time[{t0}:{t1}]")
 
+    def select(self, indices: np.ndarray, label: str) -> Dataset:
+        """The samples at ``indices`` (increasing integers), recorded as ``label`` in the history."""
+        idx = np.asarray(indices, dtype=int)
+        if idx.ndim != 1 or idx.size < 2 or np.any(np.diff(idx) <= 0) or idx[0] < 0 or idx[-1] >= self.n_samples:
+            raise InputError(f"{label}: need at least 2 increasing sample indices within the {self.n_samples} samples")
+        return self._take(idx, label)
+
     def _take(self, sl: slice | np.ndarray, label: str) -> Dataset:
         def pick(a: FloatArray | None) -> FloatArray | None:
             return None if a is None else a[sl]

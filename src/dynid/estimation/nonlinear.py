@@ -276,8 +276,8 @@ class StribeckLS:
             raise InputError(f"delta_grid {list(self.delta_grid)} must be non-empty and inside delta_bounds {self.delta_bounds}")
         if not (0 <= self.shrink < 1 and 0 <= self.damping < np.inf and self.max_nfev >= 1 and self.ftol > 0 and self.xtol > 0):
             raise InputError("need 0 <= shrink < 1, damping >= 0, max_nfev >= 1, ftol > 0 and xtol > 0")
+        used = sp.row_mask.any(axis=1)  # samples with at least one equation kept
         for k, name in enumerate(sp.friction_names):
-            used = sp.row_mask.any(axis=1)
             n_pos, n_neg = int(np.sum(used & (sp.velocity[:, k] > 0))), int(np.sum(used & (sp.velocity[:, k] < 0)))
             if n_pos + n_neg < _MIN_MOVES:
                 raise IdentifiabilityError(f"friction joint {name!r} never moves: its friction parameters are not identifiable",

@@ -313,7 +313,7 @@ class StandardMap:
         return cls(
             standard_names=lay.names,
             B=base.B,
-            body_blocks=tuple(np.arange(10 * j, 10 * j + 10) for j in range(lay.n_bodies)),
+            body_blocks=robot.body_blocks(),
             nonnegative=np.sort(np.concatenate(nonneg)).astype(int) if nonneg else np.zeros(0, dtype=int),
             reference=robot.nominal_parameters(),
         )

@@ -198,6 +198,11 @@ class RobotModel:
     def n_standard_params(self) -> int:
         return self.layout.n_params
 
+    def body_blocks(self) -> tuple[np.ndarray, ...]:
+        """Indices of each body's ``[m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` (as
+        :meth:`dynid.model.mechanism.Mechanism.body_blocks`)."""
+        return tuple(np.arange(10 * b, 10 * b + 10) for b in range(self.layout.n_bodies))
+
     def create_data(self) -> pin.Data:
         """Working memory for pinocchio algorithms on this model."""
         return self.pin_model.createData()

@@ -376,10 +376,8 @@ def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]
         return []
     nominal = robot.nominal_parameters()
     names = robot.parameter_names
-    blocks = robot.body_blocks() if isinstance(robot, Mechanism) else [range(10 * b, 10 * b + 10)
-                                                                       for b in range(robot.layout.n_bodies)]
     far = []
-    for blk in blocks:
+    for blk in robot.body_blocks():
         i = blk[0]
         m, m0 = float(std[names[i]]), float(nominal[i])
         if m0 > 0 and not (m0 / factor <= m <= m0 * factor):

@@ -118,9 +118,8 @@ def _true_parameters(robot, nominal: np.ndarray, cfg: SimulateConfig) -> np.ndar
         return nominal.copy()
     from dynid.model.base_parameters import perturb_bodies
 
-    blocks = robot.body_blocks() if isinstance(robot, Mechanism) else [np.arange(10 * b, 10 * b + 10)
-                                                                       for b in range(robot.layout.n_bodies)]
-    return perturb_bodies(nominal, blocks, cfg.robot.perturbation, np.random.default_rng(cfg.robot.perturbation_seed))
+    return perturb_bodies(nominal, robot.body_blocks(), cfg.robot.perturbation,
+                          np.random.default_rng(cfg.robot.perturbation_seed))
 
 
 def _coordinate_box(robot) -> tuple[np.ndarray, np.ndarray, list[str]]:

@@ -125,7 +125,8 @@ def friction_joints(robot, base: BaseParameters) -> FrictionJoints:
         raise IdentifiabilityError(f"friction coefficients {grouped} are not base parameters of their own: their Stribeck "
                                    "terms are not identifiable", tuple(grouped))
     return FrictionJoints(names=tuple(p[0] for p in pairs), coulomb=tuple(base.names.index(p[1]) for p in pairs),
-                          viscous=tuple(base.names.index(p[2]) for p in pairs), velocity=tuple(p[3] for p in pairs), units=tuple(units))
+                          viscous=tuple(base.names.index(p[2]) for p in pairs), velocity=tuple(p[3] for p in pairs),
+                          units=tuple(units))
 
 
 def subsample(ds: Dataset, max_samples: int) -> Dataset:
@@ -134,7 +135,7 @@ def subsample(ds: Dataset, max_samples: int) -> Dataset:
     if n <= max_samples:
         return ds
     idx = np.unique(np.round(np.linspace(0, n - 1, max_samples)).astype(int))
-    return ds._take(idx, f"stribeck_rows[{idx.size} of {n}]")
+    return ds.select(idx, f"stribeck_rows[{idx.size} of {n}]")
 
 
 def sample_problem(chunks: Iterable[tuple[FloatArray, FloatArray]], ds: Dataset, fj: FrictionJoints,
@@ -173,11 +174,11 @@ def describe(result: IdentificationResult, base: BaseParameters, fj: FrictionJoi
     fr = result.solver["stribeck"]
     lines = [f"  {j}: Fc {f['Fc']:.4g}, Fs {f['Fs']:.4g}, Fv {f['Fv']:.4g}, vS {f['vs']:.4g} {u}, delta {f['delta']:.3g}"
              for (j, f), u in zip(fr.items(), fj.units)]
-    rows = (f"the nonlinear fit used {n_rows} of the {n_total} processed training samples (identification.max_samples)"
+    used = (f"the nonlinear fit used {n_rows} of the {n_total} processed training samples (identification.max_samples)"
             if n_rows < n_total else f"the nonlinear fit used all {n_total} processed training samples")
     if min_velocity is not None:
-        rows += (f"; per joint equation, the samples slower than processing.min_velocity = {list(min_velocity)} are left "
+        used += (f"; per joint equation, the samples slower than processing.min_velocity = {list(min_velocity)} are left "
                  f"out (rows kept: {[int(k) for k in result.n_obs]})")
     exprs = tuple(base.expressions()) + tuple(result.names[len(base.names):])
     return dataclasses.replace(result, expressions=exprs).with_notes(
-        rows, "Stribeck friction per joint (F = [Fc + (Fs - Fc) exp(-|v/vS|^delta)] sign(v) + Fv v):", *lines)
+        used, "Stribeck friction per joint (F = [Fc + (Fs - Fc) exp(-|v/vS|^delta)] sign(v) + Fv v):", *lines)
