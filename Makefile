@@ -1,24 +1,41 @@
 # One-command set-up and entry points; every target is idempotent.
+# `make setup` installs exact versions from requirements.lock (pip constraints: the lock pins
+# every dependency, the build tools included); pyproject.toml keeps the ranges for people who
+# install dynid as a library. `make lock` refreshes the lock from pyproject.toml.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+LOCK   := requirements.lock
+EXTRAS := test,plot,sdp,montecarlo
+# the constraints reach pip's isolated build environment too (setuptools, wheel)
+PIP    := PIP_CONSTRAINT=$(CURDIR)/$(LOCK) $(BIN)/python -m pip
+# test workers: 2 by default (CI machines have 2 cores); TEST_WORKERS=0 runs in one process
+TEST_WORKERS ?= 2
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test bench lock clean
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml $(LOCK)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,plot,sdp,montecarlo]'
+	$(PIP) install --quiet pip
+	$(PIP) install --quiet -e '.[$(EXTRAS)]'
+	$(BIN)/python -m pip check
 	touch $(STAMP)
+
+lock:
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet uv
+	$(BIN)/uv pip compile --quiet pyproject.toml requirements-tools.in $(foreach e,$(subst $(comma), ,$(EXTRAS)),--extra $(e)) \
+		--python-version 3.11 --annotation-style line -o $(LOCK)
+	rm -f $(STAMP)
 
 demo: setup
 	$(BIN)/dynid demo --out out/demo
 
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS)
 
 bench: setup
 	$(BIN)/python bench/regressor_throughput.py
@@ -30,3 +47,5 @@ bench: setup
 
 clean:
 	rm -rf $(VENV) out build src/*.egg-info .pytest_cache
+
+comma := ,

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dynid._files import save_npz
 from dynid.config import parse_config
 from dynid.config.montecarlo import parse_montecarlo_config
 from dynid.config.simulate import parse_simulate_config
@@ -171,9 +172,7 @@ def hexapod_table2(quick: bool = False) -> dict:
         n_per = int(round(500 / f0))
         cols = {k: v[n_per:] for k, v in sim.columns.items()}
         cols["t"] = cols["t"] - cols["t"][0]
-        from dynid.pipeline.simulate import _write_npz
-
-        _write_npz(d / "log.npz", cols)
+        save_npz(d / "log.npz", cols)
         q = [f"q_P{j}" for j in range(1, 7)]
         base_doc = {
             "robot": {"model": "builtin:hexapod"},

@@ -287,11 +287,6 @@ case("info_mechanism_under_actuated")(
     lambda d, logs: [["info", _readme_mjcf(d, "one_motor.xml", '<motor joint="qa2"/>', "")]])
 
 
-@case("demo")
-def _(d, logs):
-    return [["demo", "--out", str(d / "out"), "-q"]]
-
-
 @dataclass
 class Run:
     folder: Path
@@ -422,8 +417,8 @@ def test_identify_recovers_the_simulated_robot(runs, logs):
     assert r.returncode == 0, r.stderr
     assert r.stderr == ""  # no progress bar when stderr is not a terminal
     assert "Validation on held-out data" in r.stdout  # the summary, as -q is not given
-    assert r.stdout.rstrip().endswith(f"outputs in {run.out}: params.csv, result.json, result.npz, summary.txt")
-    assert sorted(p.name for p in run.out.iterdir()) == ["params.csv", "result.json", "result.npz", "summary.txt"]
+    assert r.stdout.rstrip().endswith(f"outputs in {run.out}: params.csv, result.json, result.npz, summary.txt, timing.json")
+    assert sorted(p.name for p in run.out.iterdir()) == ["params.csv", "result.json", "result.npz", "summary.txt", "timing.json"]
 
     res = json.loads((run.out / "result.json").read_text())
     assert res["method"] == "WLS"
@@ -471,14 +466,15 @@ def test_identify_with_plots_writes_figure_and_report(runs):
     first, files = run.steps[0], run.after[0]
     assert first.returncode == 0, first.stderr
     assert first.stdout.strip() == (
-        f"outputs in {run.out}: params.csv, processing.png, report.html, result.json, result.npz, summary.txt, validation.png"
+        f"outputs in {run.out}: params.csv, processing.png, report.html, result.json, result.npz, summary.txt, timing.json, validation.png"
     )
     for name in ("validation.png", "processing.png"):
         png = files[name]
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     html = files["report.html"].decode()
     assert "<html" in html.lower() and "validation.png" in html
-    assert sorted(files) == ["params.csv", "processing.png", "report.html", "result.json", "result.npz", "summary.txt", "validation.png"]
+    assert sorted(files) == ["params.csv", "processing.png", "report.html", "result.json", "result.npz", "summary.txt", "timing.json",
+                             "validation.png"]
 
 
 def test_rerun_lists_only_the_files_it_wrote(runs):
@@ -487,7 +483,7 @@ def test_rerun_lists_only_the_files_it_wrote(runs):
     run = runs["plots_then_rerun_without"]
     assert [s.returncode for s in run.steps] == [0, 0], run.last.stderr
     listed = run.last.stdout.strip().split(": ", 1)[1].split(", ")
-    assert listed == ["params.csv", "result.json", "result.npz", "summary.txt"]
+    assert listed == ["params.csv", "result.json", "result.npz", "summary.txt", "timing.json"]
 
 
 # ---------------------------------------------------------------------- bad input
@@ -545,36 +541,3 @@ def test_unknown_config_key(runs):
 
 def test_bad_toml_syntax(runs):
     assert_input_error(runs["bad_toml"], "cfg.toml: invalid TOML")
-
-
-# ---------------------------------------------------------------------- demo
-def test_demo(runs):
-    """The parallel-robot study: simulate shang2dof, identify (WLS and OLS), validate, track again."""
-    run = runs["demo"]
-    r = run.last
-    assert r.returncode == 0, r.stderr
-    for label in ("WLS", "OLS"):
-        m = re.search(rf"Ground truth check \({label}\): (\d+) of (\d+) true base parameters", r.stdout)
-        assert m and int(m.group(2)) == 25, r.stdout
-    m = re.search(r"nominal\s+([0-9.e+-]+)\s+[0-9.e+-]+\nidentified \(WLS\)\s+([0-9.e+-]+)\s+[0-9.e+-]+\ntrue\s+([0-9.e+-]+)", r.stdout)
-    assert m, r.stdout
-    nominal, identified, true = (float(x) for x in m.groups())
-    assert true < nominal and true < identified  # the true model tracks best (paper 001, Table 5)
-    for name in ("summary.txt", "result.json", "params.csv", "config.toml", "tracking.png", "tracking.json"):
-        assert f"{run.out / name}" in r.stdout
-        assert (run.out / name).is_file()
-    assert (run.out / "ols" / "result.json").is_file()
-    for part in ("train", "validation"):
-        assert (run.out / "data" / part / "log.csv").is_file() and (run.out / "data" / part / "truth.json").is_file()
-    assert "Ground truth check" in (run.out / "summary.txt").read_text()
-
-
-def test_demo_provenance_points_at_the_delivered_files(runs):
-    # result.json records the config and data files it was computed from; they must be
-    # the files in the output folder, not the staging folder that no longer exists.
-    run = runs["demo"]
-    assert run.last.returncode == 0, run.last.stderr
-    prov = json.loads((run.out / "result.json").read_text())["provenance"]
-    sources = [prov["config_file"], *prov["training_data"]["source"].values(), *prov["validation_data"]["source"].values()]
-    missing = sorted({s for s in sources if not Path(s).is_file()})
-    assert not missing, f"provenance names files that do not exist: {missing}"

@@ -197,3 +197,21 @@ def test_velocity_and_acceleration_maps(name):
     fd = (state.dq[2 * n :] - state.dq[:n]) / (2 * h)
     np.testing.assert_allclose(state.ddq[n : 2 * n], fd, atol=1e-5 * np.abs(fd).max())
     np.testing.assert_allclose(mech.coordinates(state.q), u, atol=1e-10)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_rnea_route_equals_the_regressor_for_every_force_model(name):
+    """The controllers' route to the model forces (pinocchio RNEA with the parameters' inertias +
+    joint terms, projected; model and data reused across calls) equals the closed-loop regressor
+    times the parameters, for every force model of the mechanism."""
+    mech = mechanism(name)
+    rng = np.random.default_rng(7)
+    pi = _test_params(mech, rng)
+    state = random_consistent_states(mech, 12, rng)
+    model = mech.with_parameters(pi)
+    data = model.createData()
+    for dist in _distributions(mech):
+        by_regressor = np.einsum("nop,p->no", actuator_regressor(mech, state, distribution=dist).W, pi)
+        by_rnea = actuator_forces(mech, pi, state, distribution=dist, model=model, data=data)
+        scale = np.abs(by_regressor).max()
+        np.testing.assert_allclose(by_rnea, by_regressor, rtol=0, atol=1e-9 * scale, err_msg=str(dist))

@@ -27,6 +27,7 @@ LAYERS = {
     "stats": 3,
     "dataset": 2,
     "_typing": 1,
+    "_files": 1,
     "errors": 1,
 }
 

@@ -18,7 +18,8 @@ from dynid.errors import ConfigError, IdentifiabilityError, InputError
 from dynid.estimation import ProblemBuilder
 from dynid.estimation.likelihood import CutoffFamily, MaximumLikelihood, cutoff_candidates, position_cost
 from dynid.pipeline import identify
-from dynid.pipeline.simulate import _write_npz, run_simulation
+from dynid._files import save_npz
+from dynid.pipeline.simulate import run_simulation
 
 F0, H, PERIODS = 0.5, 3, 8
 N_PER = int(round(250 / F0))  # samples per period of the log
@@ -38,7 +39,7 @@ def rps3_log(tmp_path_factory):
     cols = sim.columns
     # drop the first period (start-up transient of the controller), keep 8 whole periods
     keep = slice(N_PER, N_PER + PERIODS * N_PER)
-    _write_npz(d / "log.npz", {k: v[keep] - (cols["t"][N_PER] if k == "t" else 0.0) for k, v in cols.items()})
+    save_npz(d / "log.npz", {k: v[keep] - (cols["t"][N_PER] if k == "t" else 0.0) for k, v in cols.items()})
     return d, sim
 
 

@@ -29,7 +29,13 @@ __all__ = [
     "relative_absolute_error",
     "average_error",
     "t_rsme",
+    "nearest_distances",
+    "REPEAT_THRESHOLD",
 ]
+
+REPEAT_THRESHOLD = 0.05
+"""Median nearest-state distance (in training standard deviations) below which a validation
+motion repeats the training motion (see :func:`nearest_distances`)."""
 
 
 def t_quantile(alpha: float, dof: int) -> float:
@@ -341,3 +347,41 @@ def t_rsme(measured: FloatArray, predicted: FloatArray) -> FloatArray | float:
     a, b = _paired(measured, predicted)
     out = np.sqrt(np.mean((a - b) ** 2, axis=0))
     return float(out) if np.ndim(out) == 0 else out
+
+
+def _even(n: int, m: int) -> np.ndarray:
+    """``min(n, m)`` indices spread evenly over ``range(n)`` (first and last included)."""
+    return np.unique(np.linspace(0, n - 1, min(n, m)).round().astype(int))
+
+
+def nearest_distances(reference: FloatArray, query: FloatArray, *, max_reference: int = 20000,
+                      max_query: int = 1000) -> FloatArray:
+    """Distance of each query state to the nearest reference state, in reference standard deviations.
+
+    Both arrays are ``(n_samples, n_channels)`` (e.g. positions, velocities and accelerations of
+    every joint side by side). Each channel is divided by its standard deviation over
+    ``reference`` (channels that do not vary keep unit scale), and the Euclidean distance of
+    each query row to its nearest reference row is returned, shape ``(m,)``. Long arrays are
+    thinned to evenly spaced rows (at most ``max_reference`` and ``max_query``), so the cost is
+    bounded; the thinning is deterministic.
+
+    Used to tell a held-out motion that repeats the training motion (a tail window of a
+    periodic excitation: distances at the noise level, far below :data:`REPEAT_THRESHOLD`) from
+    a new one (distances of the order of one standard deviation): sampled states fill a space
+    of 3 x n_joints dimensions far too sparsely for a new motion to come that close by chance.
+    """
+    ref = np.asarray(reference, dtype=float)
+    qry = np.asarray(query, dtype=float)
+    if ref.ndim != 2 or qry.ndim != 2 or ref.shape[1] != qry.shape[1] or not len(ref) or not len(qry):
+        raise InputError(f"nearest_distances: expected two non-empty (n, k) arrays of the same k, got {ref.shape}, {qry.shape}")
+    scale = ref.std(axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    ref = ref[_even(len(ref), max_reference)] / scale
+    qry = qry[_even(len(qry), max_query)] / scale
+    r2 = np.einsum("ij,ij->i", ref, ref)
+    best = np.empty(len(qry))
+    for a in range(0, len(qry), 256):  # blocks of query rows: bounded memory
+        block = qry[a : a + 256]
+        d2 = np.einsum("ij,ij->i", block, block)[:, None] + r2[None, :] - 2.0 * block @ ref.T
+        best[a : a + 256] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
+    return best

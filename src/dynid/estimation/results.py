@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from dynid._files import save_npz
 from dynid._typing import FloatArray
 from dynid.errors import InputError
 from dynid.stats import chi2_radius, correlation_condition_number, ellipsoid_statistic, relative_std, t_quantile
@@ -254,6 +255,13 @@ class IdentificationResult:
         """Outputs ``W @ params`` for a regressor of shape (..., p)."""
         return np.asarray(W) @ self.params
 
+    @property
+    def timing(self) -> dict[str, Any]:
+        """The wall-clock figures of the solver information (``wall_time_s``, ``solve_time_s``,
+        nested as in :attr:`solver`). They differ between equal runs, so :meth:`to_dict` and
+        :meth:`save` leave them out; ``dynid identify`` writes them to ``timing.json``."""
+        return _timing_only(self.solver)
+
     def with_provenance(self, **entries: Any) -> IdentificationResult:
         return dataclasses.replace(self, provenance={**self.provenance, **entries})
 
@@ -354,7 +362,7 @@ class IdentificationResult:
                 )
             ],
             "has_covariance": self.cov_params is not None,
-            "solver": _jsonable(self.solver),
+            "solver": _jsonable(_without_timing(self.solver)),
             "provenance": _jsonable(self.provenance),
             "notes": list(self.notes),
         }
@@ -372,7 +380,7 @@ class IdentificationResult:
         arrays = {"params": self.params, "n_obs": self.n_obs, "rss_per_channel": self.rss_per_channel, "noise_std": self.noise_std}
         if self.cov_params is not None:
             arrays["cov_params"] = self.cov_params
-        np.savez(npath, **arrays)
+        save_npz(npath, arrays)
         doc = self.to_dict()
         if extra:
             clash = set(extra) & set(doc)
@@ -415,6 +423,25 @@ class IdentificationResult:
             provenance=doc.get("provenance", {}),
             notes=tuple(doc.get("notes", ())),
         )
+
+
+_TIMING_KEYS = frozenset({"wall_time_s", "solve_time_s"})
+
+
+def _without_timing(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {k: _without_timing(v) for k, v in x.items() if k not in _TIMING_KEYS}
+    return x
+
+
+def _timing_only(x: Mapping[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in x.items():
+        if k in _TIMING_KEYS:
+            out[k] = v
+        elif isinstance(v, Mapping) and (sub := _timing_only(v)):
+            out[k] = sub
+    return out
 
 
 def _jsonable(x: Any) -> Any:

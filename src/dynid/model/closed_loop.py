@@ -48,6 +48,7 @@ __all__ = [
     "actuator_regressor",
     "mechanism_base_parameters",
     "random_consistent_states",
+    "term_basis",
     "term_columns",
     "term_forces",
     "tree_regressor",
@@ -57,7 +58,8 @@ DISTRIBUTIONS = ("projected", "min_norm", "min_norm_local_friction")
 Distribution = Literal["projected", "min_norm", "min_norm_local_friction"]
 
 
-def _basis(kind: str, v: FloatArray, a: FloatArray) -> FloatArray:
+def term_basis(kind: str, v: FloatArray, a: FloatArray) -> FloatArray:
+    """The basis function of a joint term of ``kind`` at velocities ``v`` and accelerations ``a``."""
     if kind == "inertia":
         return a
     if kind == "viscous":
@@ -83,14 +85,10 @@ def term_columns(mech: Mechanism, dq: FloatArray, ddq: FloatArray) -> FloatArray
     dq = np.atleast_2d(dq)
     ddq = np.atleast_2d(ddq)
     n, nv = dq.shape
-    nt = len(mech.terms)
-    incidence = np.zeros((nv, nt))  # incidence[j, k] = 1 if term k acts on joint j
-    for k, t in enumerate(mech.terms):
-        incidence[list(t.joints), k] = 1.0
-    F = np.empty((n, nv, nt))
-    for kind in {t.kind for t in mech.terms}:
-        ks = [k for k, t in enumerate(mech.terms) if t.kind == kind]
-        F[:, :, ks] = _basis(kind, dq, ddq)[:, :, None] * incidence[None, :, ks]
+    incidence = mech.term_incidence  # incidence[j, k] = 1 if term k acts on joint j
+    F = np.empty((n, nv, incidence.shape[1]))
+    for kind, ks in mech.term_groups:
+        F[:, :, ks] = term_basis(kind, dq, ddq)[:, :, None] * incidence[None, :, ks]
     return F
 
 
@@ -312,17 +310,20 @@ def _chain_groups(mech: Mechanism) -> list:
 
 
 def actuator_forces(
-    mech: Mechanism, params: FloatArray, state: KinematicState, *, distribution: Distribution | None = None
+    mech: Mechanism, params: FloatArray, state: KinematicState, *, distribution: Distribution | None = None,
+    model: pin.Model | None = None, data: pin.Data | None = None,
 ) -> FloatArray:
     """Actuator forces by pinocchio's RNEA on the tree plus the joint terms, then projected.
 
     A second route to the forces (no regressor): :math:`\\tau_{tree}` = RNEA with inertias
     from ``params`` + :func:`term_forces`; then the same projection/distribution as
-    :func:`actuator_regressor`. Shape (n, n_a) (or (n, n_u) for ``"projected"``).
+    :func:`actuator_regressor`. Shape (n, n_a) (or (n, n_u) for ``"projected"``). ``model``
+    (``mech.with_parameters(params)``) and ``data`` may be passed to reuse them call after call
+    (a controller).
     """
     params = np.asarray(params, dtype=float)
-    model = mech.with_parameters(params)
-    data = model.createData()
+    model = mech.with_parameters(params) if model is None else model
+    data = model.createData() if data is None else data
     tau = np.array([pin.rnea(model, data, q, v, a) for q, v, a in zip(state.q, state.dq, state.ddq)])
     terms = term_columns(mech, state.dq, state.ddq) * params[mech.n_body_params :]
     act = list(mech.actuated)

@@ -130,6 +130,8 @@ class Mechanism:
     # derived
     bodies: tuple[int, ...] = dataclasses.field(init=False)
     parameter_names: tuple[str, ...] = dataclasses.field(init=False)
+    term_incidence: np.ndarray = dataclasses.field(init=False, repr=False)  # (n_v, n_terms): term k acts on joint j
+    term_groups: tuple = dataclasses.field(init=False, repr=False)  # ((kind, term indices), ...)
     q_ref: FloatArray = dataclasses.field(init=False)
     constraint_rows: np.ndarray = dataclasses.field(init=False)
     mobility: int = dataclasses.field(init=False)
@@ -185,6 +187,14 @@ class Mechanism:
         tnames = [t.name for t in self.terms]
         if len(set(tnames)) != len(tnames):
             raise ModelError("duplicate joint-term names")
+        incidence = np.zeros((nv, len(self.terms)))  # incidence[j, k] = 1 if term k acts on joint j
+        for k, t in enumerate(self.terms):
+            incidence[list(t.joints), k] = 1.0
+        incidence.setflags(write=False)
+        set_(self, "term_incidence", incidence)
+        kinds = dict.fromkeys(t.kind for t in self.terms)
+        set_(self, "term_groups", tuple((kind, np.array([k for k, t in enumerate(self.terms) if t.kind == kind]))
+                                        for kind in kinds))
         unknown = sorted(set(self.nominal_terms) - set(tnames))
         if unknown:
             raise ModelError(f"nominal values given for unknown joint terms {unknown}")

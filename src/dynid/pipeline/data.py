@@ -31,7 +31,7 @@ from dynid.model.robot import RobotModel
 from dynid.model.transmission import Coupling, Transmission
 from dynid.signals import central_difference, lowpass, padlen_for, resample_uniform
 
-__all__ = ["build_robot", "read_log", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask"]
+__all__ = ["build_robot", "read_log", "check_held_out", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask"]
 
 
 def build_robot(cfg: RobotConfig):
@@ -126,6 +126,25 @@ def read_log(
         )
     except InputError as exc:
         raise InputError(f"{label}: {exc}") from None
+
+
+def check_held_out(train: Dataset, held_out: Dataset) -> None:
+    """Refuse a validation log that is the training log under another name.
+
+    The configuration already refuses one file read by both with overlapping windows; this
+    catches a copy: when the validation files have the same content (SHA-256) as the training
+    files and the two windows share any instant, the "held-out" samples are training samples.
+    """
+    a, b = train.meta.get("sha256", {}), held_out.meta.get("sha256", {})
+    if not a or sorted(a.values()) != sorted(b.values()) or set(a) == set(b):
+        return  # other content, or the same files (whose windows the configuration checked)
+    t_a, t_b = np.asarray(train.t), np.asarray(held_out.t)
+    if max(t_a[0], t_b[0]) <= min(t_a[-1], t_b[-1]):
+        copy = ", ".join(f"{Path(v).name} = {Path(t).name}" for v, t in zip(sorted(b), sorted(a)))
+        raise InputError(f"validation: the validation log has the same content (SHA-256) as the training log ({copy}) "
+                         f"and its window [{t_b[0]:.6g}, {t_b[-1]:.6g}] s overlaps the training window "
+                         f"[{t_a[0]:.6g}, {t_a[-1]:.6g}] s: that is not held-out data; validate on another log or "
+                         "on a window that training does not use")
 
 
 def to_joint_space(ds: Dataset, robot: RobotModel, label: str) -> tuple[Dataset, list[str]]:

@@ -21,10 +21,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import time
 from pathlib import Path
 
 import numpy as np
 
+from dynid._files import write_timing
 from dynid.config import load_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.io.output import staged_output
@@ -115,14 +118,16 @@ class DemoOutcome:
         return "\n".join(lines)
 
 
-def _relocate(obj, old: str, new: str):
-    """Replace the path prefix ``old`` by ``new`` in every string of a nested structure."""
+def _relocate(obj, stage: str, folder: str):
+    """Paths under ``stage`` made relative to ``folder`` (both in the staging tree), in every
+    string of a nested structure: the record then names the delivered files wherever the output
+    folder is, and two equal runs into different folders write equal files."""
     if isinstance(obj, str):
-        return new + obj[len(old):] if obj.startswith(old) else obj
+        return os.path.relpath(obj, folder) if obj == stage or obj.startswith(stage + os.sep) else obj
     if isinstance(obj, dict):
-        return {(_relocate(k, old, new)): _relocate(v, old, new) for k, v in obj.items()}
+        return {(_relocate(k, stage, folder)): _relocate(v, stage, folder) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_relocate(v, old, new) for v in obj]
+        return [_relocate(v, stage, folder) for v in obj]
     return obj
 
 
@@ -138,6 +143,7 @@ def _track(mech, true_params, model_params, path) -> tuple[np.ndarray, dict]:
 def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int = DEMO_SEED) -> DemoOutcome:
     """Simulate, identify, validate, track again; write everything into ``out_dir``."""
     out = Path(out_dir)
+    t0 = time.perf_counter()
     with staged_output(out) as stage:
         sims = {}
         for k, (name, traj) in enumerate((("train", _CIRCLE), ("validation", _POLYLINE))):
@@ -153,9 +159,13 @@ def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int =
             (folder / "config.toml").write_text(_CONFIG.format(method=method).replace(
                 'file = "data/', 'file = "' + ("" if method == "wls" else "../") + "data/"))
             o = identify(load_config(folder / "config.toml"), progress)
-            # the inputs were read from the staging folder; the record must name their final place
-            relocated = _relocate(dict(o.result.provenance), str(stage.resolve()), str(out.resolve()))
-            outcomes[method] = dataclasses.replace(o, result=o.result.with_provenance(**relocated))
+            # the inputs were read from the staging folder: the record names them relative to the
+            # folder of its result.json
+            where = (str(stage.resolve()), str(folder.resolve()))
+            relocated = _relocate(dict(o.result.provenance), *where)
+            outcomes[method] = dataclasses.replace(
+                o, result=o.result.with_provenance(**relocated),
+                validation=dataclasses.replace(o.validation, source=_relocate(o.validation.source, *where)))
             write_files(outcomes[method], folder)
         wls = outcomes["wls"]
         truth = sims["train"].truth
@@ -180,4 +190,7 @@ def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int =
                       title="shang2dof: rectangle with diagonals, augmented PD at 500 Hz")
         with open(stage / "summary.txt", "a") as fh:
             fh.write("\n" + demo.truth_table() + "\n\n" + demo.tracking_table() + "\n")
+        write_timing(stage, {"demo_s": time.perf_counter() - t0,
+                             "identify_s": {m: o.elapsed_s for m, o in outcomes.items()},
+                             "simulation_s": {k: s.elapsed_s for k, s in sims.items()}})
     return demo

@@ -4,7 +4,8 @@ Writes, all or nothing: ``design.json`` (trajectory coefficients, every criterio
 feasibility verdict with the worst limit, the predicted standard deviation of each base
 parameter), ``trajectory.csv`` (the design sampled at ``output.rate_hz`` over one period:
 design coordinates and actuator positions, velocities, accelerations), ``params.csv``,
-``summary.txt``, and the plots ``trajectory.png`` and ``spectrum.png``.
+``summary.txt``, the plots ``trajectory.png`` and ``spectrum.png``, and ``timing.json`` (the
+search's wall-clock time: the one file that differs between two equal runs).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dynid._files import TIMING_FILE, write_timing
 from dynid.config.design import DesignConfig
 from dynid.errors import ConfigError
 from dynid.excitation.criteria import predicted_std
@@ -41,7 +43,7 @@ class DesignOutcome:
             f"criterion   : {d.criterion} = {d.value:.6g} (initial {d.initial_value:.6g})",
             "all criteria: " + ", ".join(f"{k} {v:.4g}" for k, v in d.criteria.items()),
             f"feasible    : {'yes' if d.success else 'NO - ' + str(d.violation)}",
-            f"search      : {d.starts} start(s), seed {d.seed}, {d.evaluations} evaluations, {d.elapsed_s:.1f} s",
+            f"search      : {d.starts} start(s), seed {d.seed}, {d.evaluations} evaluations",
             "",
             "predicted standard deviations of the base parameters (one period, given noise):",
         ]
@@ -121,7 +123,7 @@ def write_design(outcome: DesignOutcome, out_dir: str | Path) -> list[str]:
             "initial_value": d.initial_value, "criteria": d.criteria, "success": d.success,
             "worst_violation": None if d.violation is None else dataclasses.asdict(d.violation),
             "trajectory": _trajectory_doc(traj), "seed": d.seed, "starts": d.starts, "evaluations": d.evaluations,
-            "elapsed_s": d.elapsed_s, "limits": {k: (np.asarray(v).tolist() if v is not None else None)
+            "limits": {k: (np.asarray(v).tolist() if v is not None else None)
                                                  for k, v in dataclasses.asdict(pb.limits).items()},
             "noise_std": pb.noise.tolist(),
             "predicted": {"names": list(d.base_names), "nominal": d.nominal_base.tolist(), "std": d.predicted_std.tolist(),
@@ -141,7 +143,8 @@ def write_design(outcome: DesignOutcome, out_dir: str | Path) -> list[str]:
             for nm, v, s, r in zip(d.base_names, d.nominal_base, d.predicted_std, d.predicted_rel_std_pct):
                 fh.write(f"{nm},{v!r},{s!r},{r!r}\n")
         (stage / "summary.txt").write_text(outcome.summary_text() + "\n")
-        names += ["design.json", "trajectory.csv", "params.csv", "summary.txt"]
+        write_timing(stage, {"design_s": d.elapsed_s})
+        names += ["design.json", "trajectory.csv", "params.csv", "summary.txt", TIMING_FILE]
         if cfg.plots:
             from dynid.report.plots import plot_design
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import platform
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from dynid import __version__
+from dynid._files import TIMING_FILE, write_timing
 from dynid._typing import FloatArray
 from dynid.config import Config
 from dynid.dataset import Dataset
@@ -25,6 +27,7 @@ from dynid.model.robot import RobotModel
 from dynid.pipeline import stribeck
 from dynid.pipeline.data import (
     build_robot,
+    check_held_out,
     check_joint_motion,
     configured_estimator,
     preprocess,
@@ -33,6 +36,7 @@ from dynid.pipeline.data import (
     velocity_mask,
 )
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos
+from dynid.stats import REPEAT_THRESHOLD, nearest_distances
 
 __all__ = ["Progress", "ValidationMetrics", "IdentifyOutcome", "build_problem", "validate", "identify", "write_outputs", "write_files", "OUTPUT_FILES"]
 
@@ -129,6 +133,27 @@ class ValidationMetrics:
     measured: FloatArray
     predicted: FloatArray
     source: dict[str, Any]
+    overlap: dict[str, Any] | None = None  # how close the validation motion comes to the training motion
+
+    @property
+    def in_sample(self) -> bool:
+        """The validation motion repeats the training motion (see :func:`motion_overlap`): its
+        errors are in-sample errors, whatever window or file they come from."""
+        return bool(self.overlap and self.overlap["repeats_training"])
+
+    @property
+    def label(self) -> str:
+        """``"held-out"`` or ``"in-sample"`` (what the validation errors are)."""
+        return "in-sample" if self.in_sample else "held-out"
+
+    def heading(self) -> str:
+        """The title of the validation table."""
+        if not self.in_sample:
+            return f"Validation on held-out data ({self.n_samples} samples; never used for training)"
+        return (f"Validation IN-SAMPLE ({self.n_samples} samples): the validation motion repeats the training motion "
+                f"(median distance to the nearest training state {self.overlap['median_distance']:.3g} training "
+                f"standard deviations, below {self.overlap['threshold']:g}); these errors do not show how the model "
+                "predicts new motion: validate on another trajectory")
 
     @classmethod
     def of(cls, channel_names, t: FloatArray, measured: FloatArray, predicted: FloatArray, source) -> ValidationMetrics:
@@ -165,6 +190,9 @@ class ValidationMetrics:
             "r2_per_joint": self.r2.tolist(),
             "rms_measured_per_joint": self.rms_measured.tolist(),
             "source": self.source,
+            "kind": self.label,
+            "motion_overlap": self.overlap,
+            **({"warning": self.heading()} if self.in_sample else {}),
         }
 
     def table(self) -> str:
@@ -217,13 +245,14 @@ class IdentifyOutcome:
     held_out: Dataset
     notes: tuple[str, ...]
     raw_train: Dataset | None = None  # the training log before processing (for the processing plot)
+    elapsed_s: float = float("nan")  # wall-clock time of the identification (timing.json)
 
     def summary_text(self) -> str:
         v = self.validation
         lines = [
             str(self.result.summary()),
             "",
-            f"Validation on held-out data ({v.n_samples} samples; never used for training)",
+            v.heading(),
             v.table(),
         ]
         return "\n".join(lines)
@@ -247,6 +276,31 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     """Run the whole identification described by ``cfg`` (nothing is written).
 
     Closed-loop mechanisms go through :func:`dynid.pipeline.identify_mechanism.identify_mechanism`."""
+    t0 = time.perf_counter()
+    outcome = _identify(cfg, progress)
+    validation = dataclasses.replace(outcome.validation, overlap=motion_overlap(outcome.train, outcome.held_out))
+    return dataclasses.replace(outcome, validation=validation, elapsed_s=time.perf_counter() - t0)
+
+
+def motion_overlap(train: Dataset, held_out: Dataset) -> dict[str, Any]:
+    """Does the validation motion repeat the training motion?
+
+    The processed states ``(q, dq, ddq)`` of every joint (actuator) are compared: each held-out
+    state's distance to the nearest training state, in training standard deviations
+    (:func:`dynid.stats.nearest_distances`). A median below
+    :data:`dynid.stats.REPEAT_THRESHOLD` (0.05) means the validation motion retraces the training
+    motion (a tail window of a periodic excitation, a copy of the log): its errors are in-sample
+    errors. A new trajectory lies about one standard deviation away.
+    """
+    states = lambda ds: np.hstack([ds.q, ds.dq, ds.ddq])  # noqa: E731
+    d = nearest_distances(states(train), states(held_out))
+    median = float(np.median(d))
+    return {"median_distance": median, "p90_distance": float(np.quantile(d, 0.9)), "threshold": REPEAT_THRESHOLD,
+            "repeats_training": median < REPEAT_THRESHOLD, "n_compared": int(d.size),
+            "metric": "distance of held-out (q, dq, ddq) to the nearest training state, in training standard deviations"}
+
+
+def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     robot = build_robot(cfg.robot)
     if cfg.processing.periodic is not None and cfg.processing.periodic.domain == "pose" and not isinstance(robot, Mechanism):
         raise ConfigError("processing.periodic.domain = 'pose' is for parallel robots (serial robots have no platform pose)")
@@ -264,6 +318,7 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     readers: dict = {}
     raw_train = read_log(cfg.data, robot.dof, names, "data", readers)
     raw_valid = read_log(cfg.validation, robot.dof, names, "validation", readers)
+    check_held_out(raw_train, raw_valid)
     train_j, notes = to_joint_space(raw_train, robot, "data")
     valid_j, _ = to_joint_space(raw_valid, robot, "validation")
     train, steps = preprocess(train_j, cfg.processing, "data")
@@ -322,11 +377,11 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
-                "model.urdf", "model.mjcf")
+                "model.urdf", "model.mjcf", TIMING_FILE)
 
 
 def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Path]:
-    """Write result.json, result.npz, params.csv, summary.txt (+ plots, report.html).
+    """Write result.json, result.npz, params.csv, summary.txt, timing.json (+ plots, report.html).
 
     Files are staged and moved into ``out_dir`` only when all were written; dynid
     outputs of an earlier run that this run did not produce are removed. Returns the
@@ -418,6 +473,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     warn = export_warnings(outcome)
     (stage / "summary.txt").write_text(outcome.summary_text() + "\n" + "".join(f"\n{w}\n" for w in warn))
     export_model(outcome, stage)
+    write_timing(stage, {"identify_s": outcome.elapsed_s, "solver": res.timing})
     if outcome.config.output.plots:
         from dynid.report import plot_validation, write_html_report
 

@@ -40,7 +40,7 @@ from dynid.model.loop_kinematics import actuator_states
 from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.transmission import Transmission
 from dynid.pipeline import stribeck
-from dynid.pipeline.data import configured_estimator, ml_covariances, preprocess, read_log
+from dynid.pipeline.data import check_held_out, configured_estimator, ml_covariances, preprocess, read_log
 
 __all__ = ["identify_mechanism", "mechanism_channels"]
 
@@ -226,6 +226,7 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
     readers: dict = {}
     raw_train = read_log(cfg.data, mech.n_actuators, names, "data", readers)
     raw_valid = read_log(cfg.validation, mech.n_actuators, names, "validation", readers)
+    check_held_out(raw_train, raw_valid)
     train_a, notes = _actuator_space(raw_train, mech, "data")
     valid_a, _ = _actuator_space(raw_valid, mech, "validation")
     train, steps = preprocess(train_a, cfg.processing, "data")

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from dynid import __version__
+from dynid._files import TIMING_FILE, save_npz, write_timing
 from dynid.config.montecarlo import MonteCarloConfig
 from dynid.errors import ConfigError, IdentifiabilityError, InputError, ModelError
 from dynid.io.output import staged_output
@@ -49,7 +50,7 @@ from dynid.io.output import staged_output
 __all__ = ["MonteCarloResult", "TrialOutcome", "chi2_statistic", "run_montecarlo", "run_trial", "write_montecarlo", "MONTECARLO_FILES",
            "SCHEDULER_TIMEOUT_S"]
 
-MONTECARLO_FILES = ("trials.npz", "montecarlo.json", "history.png", "chi2.png", "config.toml")
+MONTECARLO_FILES = ("trials.npz", "montecarlo.json", "history.png", "chi2.png", "timing.json", "config.toml")
 SCHEDULER_TIMEOUT_S = 10.0
 """Seconds to wait for a Dask scheduler before giving up."""
 
@@ -128,7 +129,7 @@ def run_trial(plan: _Plan, k: int) -> TrialOutcome:
     from threadpoolctl import threadpool_limits
 
     from dynid.pipeline.identify import identify
-    from dynid.pipeline.simulate import _write_npz, measure_signals, run_simulation
+    from dynid.pipeline.simulate import measure_signals, run_simulation
 
     cfg = plan.config
     seed = cfg.seed + k
@@ -140,7 +141,7 @@ def run_trial(plan: _Plan, k: int) -> TrialOutcome:
                 signals, truth = sim.signals, sim.truth
             meas, columns = measure_signals(signals, seed)
             log = Path(tmp) / "log.npz"
-            _write_npz(log, columns)
+            save_npz(log, columns)
             icfg = cfg.identify_config(log, signals.actuators, meas.effort_kind, int(meas.t.size))
             t0 = time.perf_counter()
             outcome = identify(icfg)
@@ -302,7 +303,6 @@ class MonteCarloResult:
             },
             "parameters": params,
             "failures": {"count": len(self.failures), "trials": list(self.failures)},
-            "timing": self.timing,
             "notes": list(self.notes),
         }
 
@@ -322,8 +322,12 @@ class MonteCarloResult:
             "chi2": self.chi2,
             "radius": np.array(self.radius),
             "alpha": np.array(self.alpha),
-            "identify_s": self.seconds,
         }
+
+    def timing_record(self) -> dict[str, Any]:
+        """The content of ``timing.json``: wall-clock seconds and where the trials ran (the
+        one output that differs between equal runs)."""
+        return {**self.timing, "identify_s_per_trial": self.seconds}
 
     def summary_text(self) -> str:
         """Coverage per parameter, overall coverage, ellipsoid share (the CLI prints it)."""
@@ -442,8 +446,6 @@ def run_montecarlo(cfg: MonteCarloConfig, progress: Progress = _no_progress) -> 
         "resimulate": cfg.resimulate,
         "mode": MODE_TEXT[cfg.resimulate],
         "alpha": cfg.alpha,
-        "workers": cfg.workers if cfg.workers > 0 else "auto",
-        "scheduler": cfg.scheduler,
         "robot": cfg.simulate.robot.model,
         "identify": cfg.identify,
     }
@@ -455,6 +457,7 @@ def run_montecarlo(cfg: MonteCarloConfig, progress: Progress = _no_progress) -> 
         "identify_total_s": float(np.nansum(seconds)),
         "backend": backend,
         "workers": workers,
+        "scheduler": cfg.scheduler,
     }
     return MonteCarloResult(
         names=names, expressions=good[0].expressions, method=good[0].method, alpha=cfg.alpha,
@@ -468,16 +471,16 @@ def run_montecarlo(cfg: MonteCarloConfig, progress: Progress = _no_progress) -> 
 def write_montecarlo(result: MonteCarloResult, out_dir: str | Path, source: Path | None = None) -> list[str]:
     """Write ``trials.npz``, ``montecarlo.json``, ``history.png``, ``chi2.png`` (and the
     configuration ``source`` as ``config.toml``) into ``out_dir``, all or nothing."""
-    from dynid.pipeline.simulate import _write_npz
     from dynid.report.plots import plot_montecarlo_chi2, plot_montecarlo_history
 
     names = []
     with staged_output(out_dir) as stage:
-        _write_npz(stage / "trials.npz", result.arrays())
+        save_npz(stage / "trials.npz", result.arrays())
         (stage / "montecarlo.json").write_text(json.dumps(result.to_dict(), indent=2, default=str) + "\n")
         plot_montecarlo_history(result, stage / "history.png")
         plot_montecarlo_chi2(result, stage / "chi2.png")
-        names += ["trials.npz", "montecarlo.json", "history.png", "chi2.png"]
+        write_timing(stage, result.timing_record())
+        names += ["trials.npz", "montecarlo.json", "history.png", "chi2.png", TIMING_FILE]
         if source is not None:
             (stage / "config.toml").write_text(Path(source).read_text())
             names.append("config.toml")

@@ -14,21 +14,24 @@ closures); sensors turn the true signals into a log (see
 * ``metadata.json``: what every column means, units, seeds, control and sensor settings,
   tracking metrics (per-axis RMS, P-RSME of Shang 2009, Eq. 23), the largest loop-closure
   error, the versions;
-* ``config.toml``: the configuration used.
+* ``config.toml``: the configuration used;
+* ``timing.json``: the wall-clock time of the simulation.
 
-The same configuration (seeds included) gives bit-identical files.
+The same configuration (seeds included) gives bit-identical files, ``timing.json`` aside.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from dynid import __version__
+from dynid._files import TIMING_FILE, save_npz, write_timing
 from dynid.config.simulate import SimulateConfig
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, InputError
@@ -62,6 +65,7 @@ class SimulationOutcome:
     config: SimulateConfig
     motion: object = None  # the true motion at the control instants (q, dq, ddq of all joints)
     signals: TrueSignals | None = None  # what the sensors saw (measure again with another seed)
+    elapsed_s: float = float("nan")  # wall-clock time of the simulation (timing.json)
 
     def summary_text(self) -> str:
         m = self.metadata
@@ -260,6 +264,12 @@ def _force_covariance(s, n_a: int) -> np.ndarray:
 
 def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> SimulationOutcome:
     """Run the virtual experiment of ``cfg`` (nothing is written)."""
+    t0 = time.perf_counter()
+    outcome = _run_simulation(cfg, progress)
+    return dataclasses.replace(outcome, elapsed_s=time.perf_counter() - t0)
+
+
+def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> SimulationOutcome:
     robot = load_model(cfg.robot.model)
     mech = isinstance(robot, Mechanism)
     if cfg.trajectory.values["coordinates"] == "task":
@@ -385,19 +395,6 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
                              signals=signals)
 
 
-def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """An NPZ (zip of .npy) with fixed time stamps, so that equal data give equal bytes
-    (``numpy.savez`` stamps each member with the current time)."""
-    import io
-    import zipfile
-
-    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as z:
-        for name, arr in arrays.items():
-            buf = io.BytesIO()
-            np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
-            z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), buf.getvalue())
-
-
 def write_simulation(outcome: SimulationOutcome, out_dir: str | Path) -> list[str]:
     """Write the files of the module docstring into ``out_dir`` (all or nothing)."""
     cfg = outcome.config
@@ -409,11 +406,12 @@ def write_simulation(outcome: SimulationOutcome, out_dir: str | Path) -> list[st
             np.savetxt(stage / "log.csv", table, delimiter=",", header=header, comments="", fmt="%.17g")
             names.append("log.csv")
         else:
-            _write_npz(stage / "log.npz", outcome.columns)
+            save_npz(stage / "log.npz", outcome.columns)
             names.append("log.npz")
         (stage / "truth.json").write_text(json.dumps(outcome.truth, indent=2) + "\n")
         (stage / "metadata.json").write_text(json.dumps(outcome.metadata, indent=2, default=str) + "\n")
-        names += ["truth.json", "metadata.json"]
+        write_timing(stage, {"simulation_s": outcome.elapsed_s})
+        names += ["truth.json", "metadata.json", TIMING_FILE]
         if cfg.source is not None:
             (stage / "config.toml").write_text(Path(cfg.source).read_text())
             names.append("config.toml")

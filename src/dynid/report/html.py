@@ -27,8 +27,9 @@ def write_html_report(result: IdentificationResult, metrics: Any, path: str | Pa
     )
     body = (
         f"<h1>dynid identification report</h1>{result.summary().as_html()}"
-        f"<h2>Held-out validation ({metrics.n_samples} samples)</h2>"
-        f"<table><tr><th>joint</th><th>RMSE [N·m]</th><th>rel RMSE %</th><th>R²</th></tr>{rows}</table>"
+        + (f"<h2>Held-out validation ({metrics.n_samples} samples)</h2>" if not getattr(metrics, "in_sample", False)
+           else f"<h2>In-sample validation ({metrics.n_samples} samples)</h2><p><b>{html.escape(metrics.heading())}</b></p>")
+        + f"<table><tr><th>joint</th><th>RMSE [N·m]</th><th>rel RMSE %</th><th>R²</th></tr>{rows}</table>"
         + (f"<img src='{html.escape(plot)}' alt='validation plot'>" if plot else "")
     )
     path = Path(path)

@@ -19,7 +19,8 @@ def _pyplot():
     return plt
 
 def plot_validation(metrics: Any, path: str | Path) -> Path:
-    """Measured vs predicted torques on held-out data, one panel per joint, with errors.
+    """Measured vs predicted torques on the validation data, one panel per joint, with errors
+    (titled held-out or in-sample, as ``metrics.label`` says).
 
     ``metrics`` is a :class:`dynid.pipeline.identify.ValidationMetrics`.
     """
@@ -41,7 +42,9 @@ def plot_validation(metrics: Any, path: str | Path) -> Path:
         ax.tick_params(labelsize=8)
     axes[0, 0].legend(loc="upper left", fontsize=8, ncol=3)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle("Held-out validation: measured vs predicted joint torques", fontsize=10)
+    label = getattr(metrics, "label", "held-out")
+    fig.suptitle(f"{label.capitalize()} validation: measured vs predicted joint torques"
+                 + (" (the validation motion repeats the training motion)" if label == "in-sample" else ""), fontsize=10)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)

@@ -17,7 +17,7 @@ import pinocchio as pin
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
-from dynid.model.closed_loop import term_columns
+from dynid.model.closed_loop import actuator_forces, term_basis
 from dynid.model.mechanism import Mechanism
 from dynid.simulation._integrate import rk4_step
 
@@ -80,6 +80,9 @@ class ConstrainedSimulator:
                 raise ModelError(f"shared inertia term {t.name!r} cannot be simulated as an armature")
         model.armature = arm
         self._theta = np.where(keep, theta, 0.0)
+        # the joint terms as one weight vector per kind of basis function (rotor inertia is armature)
+        self._term_weights = tuple((kind, mech.term_incidence[:, ks] @ self._theta[ks])
+                                   for kind, ks in mech.term_groups if kind != "inertia")
         self.model = model
         self.data = model.createData()
         self.cmodels = pin.StdVec_RigidConstraintModel()
@@ -102,8 +105,10 @@ class ConstrainedSimulator:
         """Generalized forces on the tree: actuators minus the joint terms (rotor inertia excluded)."""
         if self.friction is not None:
             return self.Sa.T @ tau_a - np.asarray(self.friction(dq), dtype=float).reshape(-1)
-        F = term_columns(self.mech, dq[None], np.zeros((1, dq.size)))[0]
-        return self.Sa.T @ tau_a - F @ self._theta
+        f = self.Sa.T @ tau_a
+        for kind, w in self._term_weights:
+            f = f - term_basis(kind, dq, dq) * w  # velocity terms: the acceleration argument is unused
+        return f
 
     def acceleration(self, q: FloatArray, dq: FloatArray, tau_a: FloatArray) -> FloatArray:
         """Joint accelerations under actuator forces ``tau_a`` (shape (n_a,))."""
@@ -169,15 +174,18 @@ class AugmentedPD:
         self.mech, self.params = mech, np.asarray(params, dtype=float)
         self.kp, self.kv = np.asarray(kp, dtype=float), np.asarray(kv, dtype=float)
         self.distribution = distribution
+        self._model = mech.with_parameters(self.params)  # the model's inertias, for RNEA at every period
+        self._data = self._model.createData()
 
     def __call__(self, dt: float, q: FloatArray, dq: FloatArray, ref: tuple[FloatArray, FloatArray, FloatArray]) -> FloatArray:
-        from dynid.model.closed_loop import actuator_regressor
-
         u = self.mech.coordinates(q)[0]
         du = self.mech.coordinate_velocities(q, dq)[0]
         a = ref[2] + self.kv * (ref[1] - du) + self.kp * (ref[0] - u)
         state = self.mech.states(q[None], du[None], a[None])
-        return actuator_regressor(self.mech, state, distribution=self.distribution).W[0] @ self.params
+        # RNEA + joint terms, projected: equal to the closed-loop regressor times the parameters
+        # (tests/test_closed_loop.py checks the two routes against each other)
+        return actuator_forces(self.mech, self.params, state, distribution=self.distribution,
+                               model=self._model, data=self._data)[0]
 
 
 def simulate_mechanism_control(

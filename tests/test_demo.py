@@ -1,0 +1,87 @@
+"""``dynid demo``, the main job on a built-in default: the parallel-robot study of paper 001
+(simulate shang2dof under control, identify with WLS and OLS, validate, track again).
+
+The demo runs twice, as two real processes in parallel (into two output folders, from two
+working directories): the first run's outputs are checked, and the second run must have
+written the same bytes in every file (``timing.json``, the wall-clock times, aside).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+
+def _dynid(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).with_name("dynid")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "dynid.cli"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    return subprocess.run(cmd + args, cwd=cwd, env=env, capture_output=True, text=True, timeout=900)
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory) -> list[tuple[subprocess.CompletedProcess, Path]]:
+    root = tmp_path_factory.mktemp("demo")
+    jobs = []
+    for name in ("a", "b"):
+        (root / name).mkdir()
+        jobs.append((root / name, root / name / "out"))
+    with ThreadPoolExecutor(2) as pool:
+        runs = list(pool.map(lambda job: _dynid(["demo", "--out", str(job[1]), "-q"], job[0]), jobs))
+    return [(r, out) for r, (_, out) in zip(runs, jobs)]
+
+
+def test_demo(demos):
+    """The parallel-robot study: simulate shang2dof, identify (WLS and OLS), validate, track again."""
+    r, out = demos[0]
+    assert r.returncode == 0, r.stderr
+    for label in ("WLS", "OLS"):
+        m = re.search(rf"Ground truth check \({label}\): (\d+) of (\d+) true base parameters", r.stdout)
+        assert m and int(m.group(2)) == 25, r.stdout
+    m = re.search(r"nominal\s+([0-9.e+-]+)\s+[0-9.e+-]+\nidentified \(WLS\)\s+([0-9.e+-]+)\s+[0-9.e+-]+\ntrue\s+([0-9.e+-]+)", r.stdout)
+    assert m, r.stdout
+    nominal, identified, true = (float(x) for x in m.groups())
+    assert true < nominal and true < identified  # the true model tracks best (paper 001, Table 5)
+    for name in ("summary.txt", "result.json", "params.csv", "config.toml", "tracking.png", "tracking.json"):
+        assert f"{out / name}" in r.stdout
+        assert (out / name).is_file()
+    assert (out / "ols" / "result.json").is_file()
+    for part in ("train", "validation"):
+        assert (out / "data" / part / "log.csv").is_file() and (out / "data" / part / "truth.json").is_file()
+    assert "Ground truth check" in (out / "summary.txt").read_text()
+
+
+def test_demo_provenance_points_at_the_delivered_files(demos):
+    # result.json records the config and data files it was computed from; they must be the files
+    # in the output folder (named relative to the result's folder), not the staging folder that
+    # no longer exists
+    for r, out in demos:
+        assert r.returncode == 0, r.stderr
+        for folder in (out, out / "ols"):
+            doc = json.loads((folder / "result.json").read_text())
+            prov = doc["provenance"]
+            sources = [prov["config_file"], *prov["training_data"]["source"].values(),
+                       *prov["validation_data"]["source"].values(), *doc["validation"]["source"].values()]
+            assert all(not Path(s).is_absolute() for s in sources), sources
+            missing = sorted({s for s in sources if not (folder / s).is_file()})
+            assert not missing, f"provenance names files that do not exist: {missing}"
+
+
+def test_two_demos_write_the_same_bytes(demos):
+    (ra, a), (rb, b) = demos
+    assert ra.returncode == 0 and rb.returncode == 0, ra.stderr + rb.stderr
+    files = lambda root: {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}  # noqa: E731
+    fa, fb = files(a), files(b)
+    assert set(fa) == set(fb)
+    timing = {n for n in fa if Path(n).name == "timing.json"}
+    assert timing >= {"timing.json", "data/train/timing.json", "ols/timing.json"}
+    differ = sorted(n for n in fa if n not in timing and fa[n] != fb[n])
+    assert not differ, f"files differ between two equal demo runs: {differ}"
+    assert json.loads(fa["timing.json"])["demo_s"] > 0
