@@ -10,7 +10,8 @@ LOCK   := requirements.lock
 EXTRAS := test,plot,sdp,montecarlo
 # the constraints reach pip's isolated build environment too (setuptools, wheel)
 PIP    := PIP_CONSTRAINT=$(CURDIR)/$(LOCK) $(BIN)/python -m pip
-# test workers: 2 by default (CI machines have 2 cores); TEST_WORKERS=0 runs in one process
+# test workers: 2 by default (CI machines have 2 cores), one test module per worker at a time
+# (a module fixture runs once); TEST_WORKERS=0 runs everything in one process
 TEST_WORKERS ?= 2
 
 .PHONY: setup demo test bench lock clean
@@ -35,7 +36,7 @@ demo: setup
 	$(BIN)/dynid demo --out out/demo
 
 test: setup
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS)
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 bench: setup
 	$(BIN)/python bench/regressor_throughput.py

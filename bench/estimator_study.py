@@ -103,6 +103,8 @@ def shang_tables(quick: bool = False) -> dict:
             write_simulation(run_simulation(parse_simulate_config({**SHANG_SIM, "trajectory": traj}, folder)), folder)
             runs[label] = _shang_identify(folder)
             out.setdefault("design_criteria", {})[label] = {k: float(v) for k, v in design.criteria.items()}
+            out.setdefault("design_search", {})[label] = {"criterion": criterion, "initial": float(design.initial_value),
+                                                          "reached": float(design.value), "feasible": bool(design.success)}
         base = runs["circle"].base
         true_base = base.from_standard(truth)
         nominal_base = base.from_standard(mech.nominal_parameters())

@@ -35,7 +35,8 @@ def test_serial_design_is_feasible_and_improves(arm, criterion):
     pb = ExcitationProblem(arm, harmonics=3, base_frequency_hz=0.2, samples=24, criterion=criterion, limits=ARM_LIMITS)
     d = pb.optimize(starts=1, seed=3, max_iter=25)
     assert d.success and d.violation is None
-    assert d.value < d.initial_value  # the criterion decreased from the (feasible) start
+    assert d.value <= d.initial_value  # never worse than the (feasible) start: the search's guarantee
+    assert d.value < d.initial_value  # and this search moves: 25 SLSQP iterations from a random start
     # independent feasibility check on a grid 20 times finer than the optimizer's
     q, dq, ddq = d.trajectory.sample(_fine(d.trajectory, 20 * 24))
     lo, hi = arm.position_limits()
