@@ -12,6 +12,27 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("DYNID_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 
+_BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def pytest_configure(config):
+    """Under pytest-xdist, share the cores between the workers: each worker (and each dynid
+    process a test starts) gets cpu_count // workers BLAS threads, unless the caller chose a
+    thread count. Two workers with two spinning OpenBLAS threads each on a 2-core machine are
+    several times slower than either alone."""
+    workers = os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+    if not workers or any(v in os.environ for v in _BLAS_VARS):
+        return
+    n = max(1, (os.cpu_count() or 1) // int(workers))
+    for var in _BLAS_VARS:
+        os.environ[var] = str(n)  # for the dynid processes the tests start, and BLAS libraries loaded later
+    import numpy  # noqa: F401  (load the BLAS libraries, so that the limit reaches them)
+    import scipy.linalg  # noqa: F401
+    from threadpoolctl import threadpool_limits
+
+    config._dynid_blas_limits = threadpool_limits(limits=n)  # this worker's BLAS, from now on
+
+
 def shared_file(*parts: str) -> Path:
     """Path inside ../shared/data, or skip the test when it is not there."""
     path = SHARED_DATA.joinpath(*parts)

@@ -101,7 +101,7 @@ def test_logged_forces_are_the_true_robot_s(tmp_path):
     assert np.abs(reg.outputs(logged) - reg.W @ nominal).max() > 1e-3 * np.abs(logged).max()
     np.testing.assert_allclose(np.column_stack([out.columns[f"q_qa{i}"] for i in (1, 2, 3)]), m.q[:, [0, 2, 4]])
     written = write_simulation(out, tmp_path / "o")
-    assert written == ["log.csv", "truth.json", "metadata.json"]
+    assert written == ["log.csv", "truth.json", "metadata.json", "timing.json"]
 
 
 @pytest.mark.parametrize("path", TWINS, ids=[p.stem for p in TWINS])

@@ -38,6 +38,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from scipy.optimize import minimize
 
 from dynid._typing import FloatArray
@@ -425,7 +426,14 @@ class ExcitationProblem:
     def optimize(self, *, starts: int = 3, seed: int = 0, max_iter: int = 100,
                  progress: Callable[[str, int, int], None] | None = None) -> ExcitationDesign:
         """Multi-start SLSQP (see module docstring). Raises :class:`DesignError` when no start
-        can be made feasible at all (e.g. an offset outside the limits)."""
+        can be made feasible at all (e.g. an offset outside the limits).
+
+        Runs on one BLAS thread: thousands of small SVDs, for which threads only cost (and two
+        spinning OpenBLAS threads on a busy machine cost ten times over)."""
+        with threadpool_limits(limits=1, user_api="blas"):
+            return self._optimize(starts, seed, max_iter, progress)
+
+    def _optimize(self, starts: int, seed: int, max_iter: int, progress) -> ExcitationDesign:
         t0 = time.perf_counter()
         rng = np.random.default_rng(seed)
         K, n = self.harmonics, self.n_u

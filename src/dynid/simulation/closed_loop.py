@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 import pinocchio as pin
 
 from dynid._typing import FloatArray
@@ -206,6 +207,11 @@ def simulate_mechanism_control(
     (:meth:`Mechanism.project`), so the constraint error stays at the 1e-12 level instead of
     drifting. The initial state is the assembly at ``u_d(0)`` at rest unless ``q0`` is given.
     """
+    with threadpool_limits(limits=1, user_api="blas"):  # small matrices, step after step: threads only cost
+        return _simulate_mechanism_control(sim, controller, reference, duration, dt, substeps, q0)
+
+
+def _simulate_mechanism_control(sim, controller, reference, duration, dt, substeps, q0) -> SimulatedMotion:
     mech = sim.mech
     n = int(round(duration / dt)) + 1
     t = np.arange(n) * dt
