@@ -81,9 +81,7 @@ class ConstrainedSimulator:
                 raise ModelError(f"shared inertia term {t.name!r} cannot be simulated as an armature")
         model.armature = arm
         self._theta = np.where(keep, theta, 0.0)
-        # the joint terms as one weight vector per kind of basis function (rotor inertia is armature)
-        self._term_weights = tuple((kind, mech.term_incidence[:, ks] @ self._theta[ks])
-                                   for kind, ks in mech.term_groups if kind != "inertia")
+        self._friction_coefficients = _piecewise_linear_terms(mech, self._theta)
         self.model = model
         self.data = model.createData()
         self.cmodels = pin.StdVec_RigidConstraintModel()
@@ -106,10 +104,9 @@ class ConstrainedSimulator:
         """Generalized forces on the tree: actuators minus the joint terms (rotor inertia excluded)."""
         if self.friction is not None:
             return self.Sa.T @ tau_a - np.asarray(self.friction(dq), dtype=float).reshape(-1)
-        f = self.Sa.T @ tau_a
-        for kind, w in self._term_weights:
-            f = f - term_basis(kind, dq, dq) * w  # velocity terms: the acceleration argument is unused
-        return f
+        a, b, c, d, e = self._friction_coefficients
+        terms = a * np.maximum(dq, 0.0) + b * np.minimum(dq, 0.0) + c * (dq > 0) + d * (dq < 0) + e
+        return self.Sa.T @ tau_a - terms
 
     def acceleration(self, q: FloatArray, dq: FloatArray, tau_a: FloatArray) -> FloatArray:
         """Joint accelerations under actuator forces ``tau_a`` (shape (n_a,))."""
@@ -148,6 +145,28 @@ class ConstrainedSimulator:
             q = q + dt / 6 * (k1q + 2 * k2q + 2 * k3q + k4q)
             v = v + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
         return SimulatedMotion(t=t, q=Q, dq=V, ddq=A, tau_a=T)
+
+
+def _piecewise_linear_terms(mech: Mechanism, theta: FloatArray) -> FloatArray:
+    """The velocity-dependent joint terms (viscous, Coulomb, their one-sided forms, offsets) summed
+    per joint, as coefficients ``(a, b, c, d, e)``, each (n_v,), of
+    :math:`a\\,v^+ + b\\,v^- + c\\,[v>0] + d\\,[v<0] + e` (one vectorized evaluation per
+    simulation step instead of one per kind of term).
+
+    Every such basis function is piecewise linear in the joint velocity with a jump at 0, so its
+    five coefficients follow exactly from :func:`~dynid.model.closed_loop.term_basis` at
+    v = 0, +-1, +-2 (no second copy of the basis definitions). Rotor inertia (``inertia``
+    terms) is not among them: the simulator puts it into the armature."""
+    probe = np.array([0.0, 1.0, 2.0, -1.0, -2.0])
+    coef = np.zeros((5, mech.nv))
+    for kind, ks in mech.term_groups:
+        if kind == "inertia":
+            continue
+        b0, b1, b2, bm1, bm2 = term_basis(kind, probe, np.zeros_like(probe))
+        slope_pos, slope_neg = b2 - b1, bm1 - bm2
+        k = np.array([slope_pos, slope_neg, b1 - slope_pos - b0, bm1 + slope_neg - b0, b0])
+        coef += np.outer(k, mech.term_incidence[:, ks] @ theta[ks])
+    return coef
 
 
 class AugmentedPD:
