@@ -4,6 +4,8 @@ them skip with a clear reason when the folder is absent. DYNID_SHARED_DATA overr
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -44,3 +46,15 @@ def shared_file(*parts: str) -> Path:
 @pytest.fixture
 def shared():
     return shared_file
+
+
+def dynid_command() -> list[str]:
+    """The installed ``dynid`` entry point (or ``python -m dynid.cli`` without one)."""
+    script = Path(sys.executable).with_name("dynid")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "dynid.cli"]
+
+
+def run_dynid(args: list[str], cwd: Path, timeout: float = 900) -> subprocess.CompletedProcess:
+    """``dynid <args>`` as a real process in ``cwd``, on one BLAS thread (callers run several at once)."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    return subprocess.run(dynid_command() + args, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)

@@ -14,7 +14,6 @@ import math
 import os
 import re
 import subprocess
-import sys
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -22,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import dynid_command
 
 from dynid.model import load_robot, robot_base_parameters
 from dynid.simulation import FourierTrajectory, simulate_serial
@@ -33,11 +33,6 @@ N_TRAIN, N_VALID = 2000, 1000  # 20 s and 10 s at 100 Hz
 JOINTS = 6
 Q = [f"q{j + 1}" for j in range(JOINTS)]
 TAU = [f"tau{j + 1}" for j in range(JOINTS)]
-
-
-def dynid_command() -> list[str]:
-    script = Path(sys.executable).with_name("dynid")  # the installed entry point
-    return [str(script)] if script.exists() else [sys.executable, "-m", "dynid.cli"]
 
 
 # ---------------------------------------------------------------------- simulated logs

@@ -9,21 +9,13 @@ written the same bytes in every file (``timing.json``, the wall-clock times, asi
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
-import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-
-
-def _dynid(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    exe = Path(sys.executable).with_name("dynid")
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "dynid.cli"]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-    return subprocess.run(cmd + args, cwd=cwd, env=env, capture_output=True, text=True, timeout=900)
+from conftest import run_dynid
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +26,7 @@ def demos(tmp_path_factory) -> list[tuple[subprocess.CompletedProcess, Path]]:
         (root / name).mkdir()
         jobs.append((root / name, root / name / "out"))
     with ThreadPoolExecutor(2) as pool:
-        runs = list(pool.map(lambda job: _dynid(["demo", "--out", str(job[1]), "-q"], job[0]), jobs))
+        runs = list(pool.map(lambda job: run_dynid(["demo", "--out", str(job[1]), "-q"], job[0]), jobs))
     return [(r, out) for r, (_, out) in zip(runs, jobs)]
 
 

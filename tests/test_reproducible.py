@@ -10,14 +10,12 @@ the one non-reproducible file) aside. ``dynid demo`` is checked the same way in
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_dynid
 
 TIMING = "timing.json"
 
@@ -116,13 +114,6 @@ workers = 1
 """
 
 
-def _dynid(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    exe = Path(sys.executable).with_name("dynid")
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "dynid.cli"]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}  # the pairs already run in parallel
-    return subprocess.run(cmd + args, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
-
-
 def _files(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
@@ -133,7 +124,7 @@ def _pair(root: Path, name: str, args: list[str]) -> tuple[Path, Path]:
     other = root / f"{name}_cwd"
     other.mkdir(exist_ok=True)
     with ThreadPoolExecutor(2) as pool:
-        runs = list(pool.map(lambda job: _dynid(args + ["--out", str(job[1])], job[0]),
+        runs = list(pool.map(lambda job: run_dynid(args + ["--out", str(job[1])], job[0]),
                              [(root, root / f"{name}_a"), (other, root / f"{name}_b")]))
     for r in runs:
         assert r.returncode == 0, r.stderr
