@@ -250,29 +250,30 @@ class ExcitationProblem:
         blo, bhi = self.box
         centre = 0.5 * (blo + bhi)
         for j, name in enumerate(self.names):
-            rng = f"[{lo[j]:.6g}, {hi[j]:.6g}]"
+            rng, box = f"[{lo[j]:.6g}, {hi[j]:.6g}]", f"[{blo[j]:.6g}, {bhi[j]:.6g}]"
             if hi[j] <= lo[j]:
                 raise InputError(f"limits.position of {name} {rng}: lower must be below upper")
             if hi[j] <= blo[j] or lo[j] >= bhi[j]:
-                raise InputError(f"limits.position of {name} {rng} does not meet the range of the design coordinate "
-                                 f"{name} [{blo[j]:.6g}, {bhi[j]:.6g}]: no design can respect it")
+                raise DesignError(f"no feasible excitation: limits.position of {name} {rng} does not meet the range "
+                                  f"of the design coordinate {name} {box}: no design can respect it")
             if not lo[j] < centre[j] < hi[j]:
-                raise InputError(f"limits.position of {name} {rng} excludes the centre {centre[j]:.6g} of the design "
-                                 f"range [{blo[j]:.6g}, {bhi[j]:.6g}] where every design starts; give design.box inside the limits")
+                raise DesignError(f"no feasible excitation: limits.position of {name} {rng} excludes the centre "
+                                  f"{centre[j]:.6g} of the design range {box} where every design starts; give "
+                                  "design.box inside the limits")
 
     def _check_holding_forces(self) -> None:
         """Serial robots: force limits below what the nominal model needs to hold the rest pose at the
         centre of the box cannot be met by any design."""
         q = self.centre[None]
         zero = np.zeros_like(q)
-        tau = (regressor(self.robot, q, zero, zero)[0] @ self.nominal)
+        tau = regressor(self.robot, q, zero, zero)[0] @ self.nominal
         lim = np.broadcast_to(np.asarray(self.limits.force, float), tau.shape)
         over = [j for j in range(tau.size) if abs(tau[j]) > lim[j]]
         if over:
             j = over[0]
-            raise InputError(f"limits.force of {self.act_names[j]} is {lim[j]:.4g}, but the nominal model needs "
-                             f"{abs(tau[j]):.4g} to hold the rest pose at the centre of the design range: no design "
-                             "can respect it")
+            raise DesignError(f"no feasible excitation: limits.force of {self.act_names[j]} is {lim[j]:.4g}, but the "
+                              f"nominal model needs {abs(tau[j]):.4g} to hold the rest pose at the centre of the design "
+                              "range: no design can respect it")
 
     # ------------------------------------------------------------------ variables
     @property
