@@ -1,21 +1,12 @@
-"""Known-good inputs of every command and the checks of tests/test_bad_inputs.py.
-
-Bad input, one defect at a time, for every command: exit status 2, exactly one stderr line
-``dynid: error: ...`` naming the cause, no traceback, nothing on stdout, and the ``--out`` folder
-not created (or, when it already held files, left byte for byte as it was, with no staging folder
-beside it).
-
-Every case starts from a known-good input (a two-joint revolute + prismatic robot in a DH table,
-a 3 s log of it, and a good configuration of each command, all written into the case's folder)
-and changes exactly one thing; ``test_good_inputs_succeed`` runs the unchanged inputs to exit 0,
-so no case can pass because the good input itself is refused. The cases call
-:func:`dynid.cli.main` in-process and capture file descriptors 1 and 2 (``capfd``), so text that
-C++ parsers write straight to descriptor 2 is seen too; a few run the installed ``dynid``
-executable to show that the entry point behaves the same. Each fails before any heavy work.
+"""The known-good inputs that each case of tests/test_bad_inputs.py changes in one place, and the
+check of a refusal: a two-joint revolute + prismatic robot in a DH table, a 3 s log of it, and a
+good configuration of each command (identify, simulate, design, montecarlo), all written into the
+case's folder by :class:`Work`; a URDF and an MJCF five-bar for ``dynid info``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -237,6 +228,45 @@ class Work:
 
     def run(self, command: str, old: str = "", new: str = "", *extra: str) -> list[str]:
         return [command, str(self.config(command, old, new)), "--out", str(self.out), *extra]
+
+    def set_log(self, value: float, rows=slice(None), cols=slice(None)) -> None:
+        """log.csv with ``table[rows, cols] = value``."""
+        t = self.table.copy()
+        t[rows, cols] = value
+        self.log("log.csv", t)
+
+    def set_log_text(self, text: str, row: int, col: int) -> None:
+        """log.csv with the cell of data row ``row`` (0-based), column ``col`` replaced by ``text``."""
+        lines = self.log("log.csv").read_text().splitlines()
+        fields = lines[row + 1].split(",")
+        fields[col] = text
+        lines[row + 1] = ",".join(fields)
+        self.write("log.csv", "\n".join(lines) + "\n")
+
+    def fill_out(self) -> None:
+        """An --out folder that already holds files (a refused run must leave them as they are)."""
+        self.out.mkdir()
+        (self.out / "result.json").write_text("{}")
+        (self.out / "mine.txt").write_text("keep me")
+
+
+Case = Callable[[Work], list[str]]
+CASES: list = []
+
+
+def case(command: str, name: str, *fragments: str, marks=()):
+    """Register a case of tests/test_bad_inputs.py: ``fn(work) -> argv``; the error line must contain
+    every fragment."""
+    def register(fn: Case) -> Case:
+        CASES.append(pytest.param(fn, fragments, id=f"{command}-{name}", marks=marks))
+        return fn
+
+    return register
+
+
+def edit(command: str, name: str, old: str, new: str, *fragments: str) -> None:
+    """Register a case that changes one piece of the good configuration of ``command``."""
+    case(command, name, *fragments)(lambda w: w.run(command, old, new))
 
 
 def snapshot(path: Path) -> dict | None:

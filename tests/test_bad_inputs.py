@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -24,8 +23,11 @@ from _bad_inputs import (
     ROBOT,
     SIMULATE,
     URDF,
+    CASES,
     Work,
     assert_refused,
+    case,
+    edit,
     make_table,
     snapshot,
 )
@@ -36,24 +38,6 @@ from dynid.cli import main
 @pytest.fixture(scope="module")
 def table() -> np.ndarray:
     return make_table()
-
-
-Case = Callable[[Work], list[str]]
-CASES: list = []
-
-
-def case(command: str, name: str, *fragments: str, marks=()):
-    """Register a case: ``fn(work) -> argv``; the error line must contain every fragment."""
-    def register(fn: Case) -> Case:
-        CASES.append(pytest.param(fn, fragments, id=f"{command}-{name}", marks=marks))
-        return fn
-
-    return register
-
-
-def edit(command: str, name: str, old: str, new: str, *fragments: str) -> None:
-    """Register a case that changes one piece of the good configuration of ``command``."""
-    case(command, name, *fragments)(lambda w: w.run(command, old, new))
 
 
 # ---------------------------------------------------------------------- the cases
@@ -192,36 +176,20 @@ edit("identify", "column-missing", '["tau1", "tau2"]', '["tau1", "torque2"]', "l
 edit("identify", "log-unknown-type", 'file = "log.csv"', 'file = "rp2.toml"', "unknown data file type '.toml'")
 
 
-def _log_case(name: str, change, *fragments: str, before: Callable | None = None):
+def _log_case(name: str, change, *fragments: str):
     """A case whose log.csv is changed by ``change(work)`` (the configuration stays good)."""
     def setup(w):
         change(w)
-        if before is not None:
-            before(w)
         return w.run("identify")
+
     case("identify", name, *fragments)(setup)
 
 
-def _zero(*cols):
-    def change(w):
-        t = w.table.copy()
-        t[:, list(cols)] = 0.0
-        w.log("log.csv", t)
-    return change
-
-
-def _existing_out(w):
-    w.out.mkdir()
-    (w.out / "result.json").write_text("{}")
-    (w.out / "mine.txt").write_text("keep me")
-
-
-_log_case("all-efforts-zero", _zero(3, 4), "data.effort: every column of log.csv (tau1, tau2) is 0 in all 240 samples",
-          before=_existing_out)
-_log_case("one-effort-zero", _zero(4), "data.effort: log.csv: 'tau2' is 0 in all 240 samples", "constant channel")
-_log_case("one-effort-constant", lambda w: w.log("log.csv", np.column_stack([w.table[:, :3], np.full(300, 1.5), w.table[:, 4]])),
-          "'tau1' is 1.5 in all 240 samples")
-_log_case("validation-effort-zero", lambda w: w.log("log.csv", np.vstack([w.table[:240], _zero_rows(w.table[240:], 4)])),
+_log_case("all-efforts-zero", lambda w: w.set_log(0.0, cols=[3, 4]) or w.fill_out(),
+          "data.effort: every column of log.csv (tau1, tau2) is 0 in all 240 samples")
+_log_case("one-effort-zero", lambda w: w.set_log(0.0, cols=4), "data.effort: log.csv: 'tau2' is 0 in all 240 samples", "constant channel")
+_log_case("one-effort-constant", lambda w: w.set_log(1.5, cols=3), "'tau1' is 1.5 in all 240 samples")
+_log_case("validation-effort-zero", lambda w: w.set_log(0.0, rows=slice(240, None), cols=4),
           "validation.effort: log.csv: 'tau2' is 0 in all 60 samples")
 _log_case("duplicate-header", lambda w: w.log("log.csv", header=["t", "q1", "q2", "tau1", "q1"]),
           "log.csv: the header names a column more than once ('q1' is columns 2, 5)")
@@ -234,29 +202,9 @@ _log_case("log-blank-lines", lambda w: w.write("log.csv", "\n\n\n"), "log.csv ha
 _log_case("log-binary", lambda w: w.write("log.csv", b"\x89PNG\r\n\x1a\n\x00\x00" + bytes(range(256))), "log.csv is binary, not a CSV text file")
 _log_case("log-latin1-header", lambda w: w.write("log.csv", "t,q1,q2,tau1,tau2,température\n1,2,3,4,5,6\n".encode("latin-1")),
           "log.csv is not UTF-8 text (byte 0xe9")
-_log_case("log-nan", lambda w: w.log("log.csv", _set(w.table, 17, 2, np.nan)), "data: positions contains NaN values", "first at sample 17")
-_log_case("log-non-numeric", lambda w: _replace_cell(w, 6, 2, "abc"), "log.csv: non-numeric value 'abc' in column 'q2' (row 6)")
-_log_case("log-time-backwards", lambda w: w.log("log.csv", _set(w.table, 50, 0, 0.1)), "time is not strictly increasing at sample 50")
-
-
-def _replace_cell(w, line: int, col: int, text: str) -> None:
-    lines = w.log("log.csv").read_text().splitlines()
-    fields = lines[line].split(",")
-    fields[col] = text
-    lines[line] = ",".join(fields)
-    w.write("log.csv", "\n".join(lines) + "\n")
-
-
-def _set(table, row, col, value):
-    t = table.copy()
-    t[row, col] = value
-    return t
-
-
-def _zero_rows(rows, col):
-    r = rows.copy()
-    r[:, col] = 0.0
-    return r
+_log_case("log-nan", lambda w: w.set_log(np.nan, 17, 2), "data: positions contains NaN values", "first at sample 17")
+_log_case("log-non-numeric", lambda w: w.set_log_text("abc", 5, 2), "log.csv: non-numeric value 'abc' in column 'q2' (row 6)")
+_log_case("log-time-backwards", lambda w: w.set_log(0.1, 50, 0), "time is not strictly increasing at sample 50")
 
 
 @case("identify", "log-too-short", "data: 30 samples; after trimming 16 filter-transient samples at each end none remain",
@@ -452,7 +400,7 @@ edit("montecarlo", "stribeck", 'method = "ols"', 'method = "ols"\nphysical_consi
      "friction_model = 'stribeck' is not available in dynid montecarlo")
 edit("montecarlo", "simulate-file-and-tables", 'file = "sim.toml"', 'file = "sim.toml"\nrobot = { model = "rp2.toml" }',
      "simulate: give either file = \"...\" or the configuration's tables")
-edit("montecarlo", "simulate-file-missing", 'file = "sim.toml"', 'file = "simulation.toml"', "config file not found", "simulation.toml")
+edit("montecarlo", "simulate-file-missing", 'file = "sim.toml"', 'file = "simulation.toml"', "simulate.file", "config file not found", "simulation.toml")
 edit("montecarlo", "identify-robot-unknown", "[identify.identification]", '[identify.robot]\nmodel = "builtin:nope"\n\n[identify.identification]',
      "identify.robot.model", "unknown built-in robot 'nope'")
 edit("montecarlo", "identify-min-motion", 'method = "ols"', 'method = "ols"\nmin_joint_motion = -1',

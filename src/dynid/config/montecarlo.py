@@ -36,7 +36,7 @@ from typing import Any
 
 from dynid.config import Config, _bool, _int, _num, _str, _table, parse_config, read_toml
 from dynid.config.simulate import SimulateConfig, load_simulate_config, parse_simulate_config
-from dynid.errors import ConfigError
+from dynid.errors import ConfigError, InputError
 
 __all__ = ["MonteCarloConfig", "load_montecarlo_config", "parse_montecarlo_config", "parse_scheduler", "parse_workers",
            "DEFAULT_TRAIN_SHARE"]
@@ -137,8 +137,8 @@ def _parse_simulate(t: Any, base_dir: Path) -> SimulateConfig:
         path = p if p.is_absolute() else base_dir / p
         try:
             return load_simulate_config(path)
-        except ConfigError as exc:
-            raise ConfigError(f"simulate.file {path}: {exc}") from None
+        except (ConfigError, InputError) as exc:
+            raise type(exc)(f"simulate.file {path}: {exc}") from None
     try:
         return parse_simulate_config(t, base_dir)
     except ConfigError as exc:
