@@ -142,14 +142,16 @@ def test_defaults():
     cfg = parse(minimal())
     assert cfg.robot.extras == ("Ia", "fv", "fc", "offset")
     assert cfg.robot.gear_ratios is None and not cfg.robot.has_transmission
-    assert (cfg.data.position.unit, cfg.data.position.side) == ("rad", "joint")
-    assert (cfg.data.effort.kind, cfg.data.effort.unit, cfg.data.effort.side) == ("torque", "N*m", "joint")
+    # no unit: SI for each joint (rad or m, N*m or N), checked against the joints once the model is known
+    assert (cfg.data.position.unit, cfg.data.position.side) == (None, "joint")
+    assert (cfg.data.effort.kind, cfg.data.effort.unit, cfg.data.effort.side) == ("torque", None, "joint")
     assert cfg.data.time.unit == "s"
     assert cfg.processing.resample == "auto" and cfg.processing.lowpass is None
     assert (cfg.processing.derivatives, cfg.processing.decimate, cfg.processing.trim_samples) == ("central", 1, None)
     assert (cfg.identification.method, cfg.identification.chunk_size) == ("wls", 20000)
     assert cfg.output.plots is True
-    assert parse(with_(minimal(), "data.effort.kind", "current")).data.effort.unit == "A"
+    assert parse(with_(minimal(), "data.effort.kind", "current")).data.effort.unit is None  # A
+    assert parse(with_(minimal(), "data.effort.unit", ["N*m", "N"])).data.effort.unit == ("N*m", "N")
 
 
 # ---------------------------------------------------------------------- paths
@@ -260,15 +262,15 @@ WRONG = [
     ("robot.couplings", {"motor": 1, "joints": [1]}, None, r"robot.couplings: expected a list of tables"),
     ("robot.gear_ratios", [1, "x"], None, r"robot.gear_ratios\[1\]: expected a number, got 'x'"),
     ("processing.lowpass", {"cutoff_hz": -5.0}, None, r"processing.lowpass.cutoff_hz: must be positive"),
-    ("processing.lowpass", {"cutoff_hz": math.nan}, None, r"processing.lowpass.cutoff_hz: expected a number, got nan"),
-    ("processing.lowpass", {"cutoff_hz": math.inf}, None, r"processing.lowpass.cutoff_hz: must be positive and finite"),
+    ("processing.lowpass", {"cutoff_hz": math.nan}, None, r"processing.lowpass.cutoff_hz: expected a finite number, got nan"),
+    ("processing.lowpass", {"cutoff_hz": math.inf}, None, r"processing.lowpass.cutoff_hz: expected a finite number, got inf"),
     ("processing.lowpass", {"cutoff_hz": 5.0, "order": 0}, None, r"processing.lowpass.order: must be >= 1, got 0"),
     ("processing.lowpass", {"cutoff_hz": True}, None, r"processing.lowpass.cutoff_hz: expected a number, got True"),
     ("processing.resample", "sometimes", None, r"processing.resample: must be one of \['auto', 'off'\]"),
     ("processing.derivatives", "spline", None, r"processing.derivatives: must be one of \['central', 'measured'\]"),
     ("processing.decimate", 0, None, r"processing.decimate: must be >= 1, got 0"),
     ("processing.min_velocity", -0.1, None, r"processing.min_velocity: must be >= 0"),
-    ("processing.min_velocity", math.nan, None, r"processing.min_velocity: expected a number, got nan"),
+    ("processing.min_velocity", math.nan, None, r"processing.min_velocity: expected a finite number, got nan"),
     ("identification.method", "gls", None, r"identification.method: must be one of \['ols', 'wls', 'gm', 'irls', 'tls', 'ml'\]"),
     ("identification.chunk_size", 2.5, None, r"identification.chunk_size: expected an integer, got 2.5"),
     ("output.plots", "yes", None, r"output.plots: expected true or false, got 'yes'"),
@@ -322,7 +324,7 @@ def test_bad_toml_syntax(tmp_path):
 def test_binary_file(tmp_path):
     path = tmp_path / "cfg.toml"
     path.write_bytes(b"\xff\xfe\x00garbage")
-    with pytest.raises(ConfigError, match="cfg.toml: not a text file"):
+    with pytest.raises(ConfigError, match=r"cfg.toml is not UTF-8 text \(byte 0xff at offset 0\); it looks binary"):
         load_config(path)
 
 

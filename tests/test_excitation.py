@@ -69,8 +69,8 @@ def test_infeasible_request_fails_clearly(arm):
     lo, hi = arm.position_limits()
     # offsets forced outside the actuator position limits: nothing can be feasible
     lim = DesignLimits(position=(lo + 0.5 * (hi - lo) + 0.1, hi), velocity=np.full(6, 1.0))
-    pb = ExcitationProblem(arm, harmonics=2, samples=16, limits=lim, box=(lo, lo + 0.05 * (hi - lo)))
-    with pytest.raises(DesignError, match="position of joint_"):
+    with pytest.raises(DesignError, match="position of joint_"):  # refused before the search starts
+        pb = ExcitationProblem(arm, harmonics=2, samples=16, limits=lim, box=(lo, lo + 0.05 * (hi - lo)))
         pb.optimize(starts=1, seed=0, max_iter=5)
     with pytest.raises(DynidError, match="unknown criterion"):
         ExcitationProblem(arm, criterion="magic")

@@ -42,7 +42,9 @@ def test_puma_golden_dynamics(shared, tmp_path, convention, pset):
     expected = g[f"expected_{pset}"]
     path = tmp_path / f"puma_{convention}.toml"
     _write_dh_toml(path, convention, g["dh"], params)
-    robot = load_robot(str(path), extras=())
+    # Corke's link 1 (I = diag(0, 0.35, 0)) and the random set are not physical bodies: dynid
+    # refuses them by default; the golden values are about the dynamics formulas, so read them as given
+    robot = load_robot(str(path), extras=(), check_inertia=False)
     model, data = robot.pin_model, robot.create_data()
     q, dq, ddq = (np.array(g[k]) for k in ("q", "dq", "ddq"))
     zero = np.zeros(6)

@@ -69,7 +69,7 @@ class TestCsv:
     def test_binary_garbage(self, tmp_path):
         path = tmp_path / "log.csv"
         path.write_bytes(bytes(np.random.default_rng(1).integers(128, 256, 500, dtype=np.uint8)))
-        with pytest.raises(InputError, match="log.csv: cannot read"):
+        with pytest.raises(InputError, match=r"log.csv is not UTF-8 text \(byte 0x[0-9a-f]{2} at offset 0 of the header\)"):
             TableReader(path).columns("t")
 
     def test_empty_column_list(self, tmp_path):
@@ -85,7 +85,7 @@ def test_missing_file(tmp_path):
 
 def test_a_folder_is_not_a_file(tmp_path):
     (tmp_path / "dir.csv").mkdir()
-    with pytest.raises(InputError, match="data file not found"):
+    with pytest.raises(InputError, match="dir.csv is a folder, not a file"):
         TableReader(tmp_path / "dir.csv")
 
 

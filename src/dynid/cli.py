@@ -16,6 +16,16 @@ EXIT_OK = 0
 EXIT_INPUT = 2
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with dynid's error format: one line ``dynid: error: ...``, status 2 (no usage
+    block; ``--help`` still prints it)."""
+
+    def error(self, message: str):  # type: ignore[override]
+        command = self.prog.split(" ", 1)[1] if " " in self.prog else ""
+        hint = f" (see dynid {command + ' ' if command else ''}--help)"
+        self.exit(EXIT_INPUT, f"dynid: error: {' '.join(message.split())}{hint}\n")
+
+
 @contextmanager
 def _progress_bar(enabled: bool):
     """A rich progress bar on stderr, fed through ``progress(task, done, total)``.
@@ -127,6 +137,8 @@ def _info_mechanism(mech, as_json: bool) -> int:
 
 def _check_out(out: str) -> None:
     """Refuse an --out that cannot be a folder before any long computation."""
+    if not out.strip():
+        raise InputError("--out: empty folder name")
     path = Path(out)
     for p in (path, *path.parents):
         if p.exists():
@@ -200,21 +212,30 @@ def _workers(value: str) -> int | str:
     return n
 
 
+def _trials(value: str) -> int:
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value!r}")
+    return n
+
+
 def _cmd_montecarlo(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from dynid.config.montecarlo import load_montecarlo_config, parse_workers
+    from dynid.config.montecarlo import load_montecarlo_config, parse_scheduler, parse_workers
 
     _check_out(args.out)
+    scheduler = parse_scheduler(args.scheduler, "--scheduler") if args.scheduler is not None else None
     cfg = load_montecarlo_config(args.config)  # config errors come before the heavy imports below
     if args.trials is not None:
-        if args.trials < 1:
-            raise InputError(f"--trials must be >= 1, got {args.trials}")
         cfg = dataclasses.replace(cfg, trials=args.trials)
     if args.workers is not None:
         cfg = dataclasses.replace(cfg, workers=parse_workers(args.workers, "--workers"))
-    if args.scheduler is not None:
-        cfg = dataclasses.replace(cfg, scheduler=args.scheduler)
+    if scheduler is not None:
+        cfg = dataclasses.replace(cfg, scheduler=scheduler)
     from dynid.pipeline.montecarlo import run_montecarlo, write_montecarlo
 
     with _progress_bar(not args.no_progress) as progress:
@@ -258,7 +279,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="dynid", description="Identify the dynamic parameters of robot manipulators.")
+    p = _Parser(prog="dynid", description="Identify the dynamic parameters of robot manipulators.")
     p.add_argument("--version", action="version", version=f"dynid {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -291,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
                                            "intervals, chi2 against the confidence ellipsoid")
     pm.add_argument("config", help="TOML configuration (schema in the README, 'Monte Carlo robustness')")
     pm.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
-    pm.add_argument("--trials", type=int, default=None, metavar="N", help="number of trials (default: the config's, 100)")
+    pm.add_argument("--trials", type=_trials, default=None, metavar="N", help="number of trials (default: the config's, 100)")
     pm.add_argument("--workers", type=_workers, default=None, metavar="K",
                     help="local worker processes; 0 or 'auto': all cores (default: the config's, 1)")
     pm.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -307,7 +328,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help, --version (0) or a usage error (2, one line already printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_INPUT
     try:
         return args.func(args)
     except DynidError as exc:

@@ -8,6 +8,8 @@ catch the specific subclass.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 __all__ = [
     "DynidError",
     "InputError",
@@ -15,6 +17,10 @@ __all__ = [
     "ModelError",
     "IdentifiabilityError",
     "MissingExtraError",
+    "decode_text",
+    "existing_file",
+    "read_file_bytes",
+    "read_file_text",
 ]
 
 
@@ -59,3 +65,51 @@ def require(module: str, extra: str):
         raise MissingExtraError(
             f"{module} is not installed: pip install 'dynid[{extra}]'"
         ) from exc
+
+
+# ---------------------------------------------------------------------- user files
+def existing_file(path: str | Path, what: str) -> Path:
+    """``path`` when it names an existing regular file, else an :class:`InputError` that says
+    what is there instead (nothing, a folder, a device) and names ``what`` (``"config file"``)."""
+    p = Path(path)
+    try:
+        if p.is_file():
+            return p
+        if p.is_dir():
+            raise InputError(f"{what} {p} is a folder, not a file")
+        if p.exists():
+            raise InputError(f"{what} {p} is not a regular file")
+    except OSError as exc:  # e.g. a name too long for the file system
+        raise InputError(f"{what} {p}: {exc.strerror or exc}") from None
+    blocker = next((a for a in p.parents if a.exists() and not a.is_dir()), None)
+    if blocker is not None:
+        raise InputError(f"{what} not found: {p} ({blocker} is a file, not a folder)")
+    raise InputError(f"{what} not found: {p}")
+
+
+def read_file_bytes(path: str | Path, what: str) -> bytes:
+    """The content of a user's file, or a one-line :class:`InputError` (missing, a folder,
+    unreadable: permission, I/O error)."""
+    p = existing_file(path, what)
+    try:
+        return p.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read {what} {p}: {exc.strerror or exc}") from None
+
+
+def decode_text(data: bytes, path: str | Path, what: str, error: type[DynidError] = InputError) -> str:
+    """``data`` (the content of ``path``) as UTF-8 text, a leading byte-order mark dropped, or a
+    one-line ``error`` (binary, not UTF-8)."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(f"{what} {Path(path)} is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})"
+                    + ("; it looks binary" if b"\0" in data[:4096] else "")) from None
+    if "\0" in text:
+        raise error(f"{what} {Path(path)} is not a text file (it contains NUL bytes)")
+    return text.removeprefix("\ufeff")
+
+
+def read_file_text(path: str | Path, what: str) -> str:
+    """The UTF-8 text of a user's file (see :func:`read_file_bytes` and :func:`decode_text`)."""
+    return decode_text(read_file_bytes(path, what), path, what)

@@ -8,12 +8,23 @@ The complete schema with one example is documented in the README ("Configuration
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from dynid.errors import ConfigError, InputError
+from dynid.config._schema import (  # noqa: F401 - re-exported to the other schemas
+    _bool,
+    _int,
+    _list,
+    _num,
+    _num_or_list,
+    _path,
+    _reject_unknown,
+    _str,
+    _table,
+    read_toml,
+)
+from dynid.errors import ConfigError
 
 __all__ = [
     "Config",
@@ -43,80 +54,6 @@ EFFORT_UNITS = {
 _METHODS = ("ols", "wls", "gm", "irls", "tls", "ml")
 _FORCE_MODELS = ("projected", "min_norm", "min_norm_local_friction")
 _EXTRAS = ("Ia", "fv", "fc", "offset")
-
-
-# ---------------------------------------------------------------------- helpers
-def _table(value: Any, where: str, allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:
-    if not isinstance(value, dict):
-        raise ConfigError(f"{where}: expected a table, got {type(value).__name__}")
-    _reject_unknown(value, where, allowed)
-    missing = sorted(required - set(value))
-    if missing:
-        raise ConfigError(f"{where}: missing required keys {missing}")
-    return value
-
-
-def _reject_unknown(value: Mapping[str, Any], where: str, allowed: set[str]) -> None:
-    unknown = sorted(set(value) - allowed)
-    if unknown:
-        dotted = [k if where == "config" else f"{where}.{k}" for k in unknown]
-        raise ConfigError(
-            f"unknown key{'s' if len(dotted) > 1 else ''} {', '.join(dotted)}; allowed keys in "
-            f"{'the top level' if where == 'config' else f'[{where}]'} are {sorted(allowed)}"
-        )
-
-
-def _str(value: Any, where: str, choices: tuple[str, ...] | None = None) -> str:
-    if not isinstance(value, str):
-        raise ConfigError(f"{where}: expected a string, got {value!r}")
-    if choices is not None and value not in choices:
-        raise ConfigError(f"{where}: must be one of {list(choices)}, got {value!r}")
-    return value
-
-
-def _num(value: Any, where: str, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{where}: expected a number, got {value!r}")
-    if value != value:  # TOML allows nan
-        raise ConfigError(f"{where}: expected a number, got nan")
-    if positive and not 0 < value < float("inf"):
-        raise ConfigError(f"{where}: must be positive and finite, got {value!r}")
-    return float(value)
-
-
-def _int(value: Any, where: str, minimum: int | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ConfigError(f"{where}: expected an integer, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise ConfigError(f"{where}: must be >= {minimum}, got {value}")
-    return int(value)
-
-
-def _bool(value: Any, where: str) -> bool:
-    if not isinstance(value, bool):
-        raise ConfigError(f"{where}: expected true or false, got {value!r}")
-    return value
-
-
-def _list(value: Any, where: str, item, n: int | None = None) -> tuple:
-    if not isinstance(value, list):
-        raise ConfigError(f"{where}: expected a list, got {value!r}")
-    if n is not None and len(value) != n:
-        raise ConfigError(f"{where}: expected {n} entries, got {len(value)}")
-    return tuple(item(v, f"{where}[{i}]") for i, v in enumerate(value))
-
-
-def _num_or_list(value: Any, where: str, positive: bool = False):
-    """A number, or a list of numbers (per joint / actuator / channel)."""
-    if isinstance(value, list):
-        return _list(value, where, lambda v, w: _num(v, w, positive))
-    return _num(value, where, positive)
-
-
-def _path(value: Any, where: str, base: Path) -> Path:
-    p = Path(_str(value, where)).expanduser()
-    # canonical, so that one file named two ways is recognised as the same file
-    return (p if p.is_absolute() else (base / p)).resolve()
 
 
 # ---------------------------------------------------------------------- schema
@@ -150,7 +87,7 @@ class SignalConfig:
     """A group of columns: ``{ columns = [...], unit = ..., side = ..., kind = ..., file = ... }``."""
 
     columns: tuple[str, ...]
-    unit: str
+    unit: str | tuple[str, ...] | None  # one for all columns, one per column, None: SI (rad or m; N*m or N; A)
     side: str = "joint"
     kind: str = "torque"
     file: Path | None = None
@@ -318,13 +255,23 @@ def _parse_robot(t: Any, base: Path) -> RobotConfig:
                 weights=_list(c.get("weights", []), f"{cw}.weights", _num),
             )
         )
-    num_list = lambda key: _list(t[key], f"{where}.{key}", _num) if key in t else None  # noqa: E731
+    def num_list(key: str, nonzero: bool = False):
+        if key not in t:
+            return None
+        values = _list(t[key], f"{where}.{key}", _num)
+        if not values:
+            raise ConfigError(f"{where}.{key}: empty list; give one value per joint")
+        zero = [i for i, v in enumerate(values) if nonzero and v == 0]
+        if zero:
+            raise ConfigError(f"{where}.{key}[{zero[0]}] is 0; {key.replace('_', ' ')} must be non-zero")
+        return values
+
     return RobotConfig(
         model=model,
         extras=extras,
-        gear_ratios=num_list("gear_ratios"),
+        gear_ratios=num_list("gear_ratios", nonzero=True),
         couplings=tuple(couplings),
-        drive_gains=num_list("drive_gains"),
+        drive_gains=num_list("drive_gains", nonzero=True),
         position_offset=num_list("position_offset"),
     )
 
@@ -336,14 +283,25 @@ def _parse_signal(t: Any, where: str, base: Path, what: str) -> SignalConfig:
     columns = (_str(cols, f"{where}.columns"),) if isinstance(cols, str) else _list(cols, f"{where}.columns", _str)
     if not columns:
         raise ConfigError(f"{where}.columns: empty")
+    twice = sorted({c for c in columns if columns.count(c) > 1})
+    if twice:
+        raise ConfigError(f"{where}.columns: {', '.join(repr(c) for c in twice)} named more than once "
+                          "(one column per joint or actuator)")
     side = _str(t.get("side", "joint"), f"{where}.side", ("joint", "motor"))
+    # a unit, one per column, or none (SI: rad or m, N*m or N, A); checked against the joints
+    # once the model is known (dynid.pipeline.data.check_units)
     if what == "effort":
         kind = _str(t.get("kind", "torque"), f"{where}.kind", ("torque", "current"))
-        default_unit = "A" if kind == "current" else "N*m"
-        unit = _str(t.get("unit", default_unit), f"{where}.unit", tuple(EFFORT_UNITS[kind]))
+        units = tuple(EFFORT_UNITS[kind])
     else:
         kind = "torque"
-        unit = _str(t.get("unit", "rad"), f"{where}.unit", tuple(POSITION_UNITS))
+        units = tuple(POSITION_UNITS)
+    unit = None
+    if "unit" in t:
+        u = t["unit"]
+        unit = _list(u, f"{where}.unit", lambda v, w: _str(v, w, units)) if isinstance(u, list) else _str(u, f"{where}.unit", units)
+        if isinstance(unit, tuple) and len(unit) != len(columns) and len(columns) > 1:
+            raise ConfigError(f"{where}.unit: {len(unit)} units for {len(columns)} columns")
     file = _path(t["file"], f"{where}.file", base) if "file" in t else None
     return SignalConfig(columns=columns, unit=unit, side=side, kind=kind, file=file)
 
@@ -389,7 +347,8 @@ def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
         rows=rows,
         time_window=window,
     )
-    for s, label in ((spec.position, "position"), (spec.effort, "effort"), (spec.velocity, "velocity"), (spec.acceleration, "acceleration")):
+    for s, label in ((spec.position, "position"), (spec.effort, "effort"), (spec.velocity, "velocity"),
+                     (spec.acceleration, "acceleration"), (spec.time, "time")):
         if s is not None and s.file is None and spec.file is None:
             raise ConfigError(f"{where}.{label}: no file (set {where}.file or {where}.{label}.file)")
     return spec
@@ -413,9 +372,8 @@ def _parse_processing(t: Any) -> ProcessingConfig:
     mv = None
     if "min_velocity" in t:
         v = t["min_velocity"]
-        mv = (_num(v, f"{where}.min_velocity"),) if not isinstance(v, list) else _list(v, f"{where}.min_velocity", _num)
-        if any(x < 0 for x in mv):
-            raise ConfigError(f"{where}.min_velocity: must be >= 0")
+        mv = _num_or_list(v, f"{where}.min_velocity", minimum=0.0)
+        mv = mv if isinstance(mv, tuple) else (mv,)
     periodic = None
     if "periodic" in t:
         pt = _table(t["periodic"], f"{where}.periodic", {"period_s", "cutoff_hz", "average", "filter_effort", "domain"}, {"period_s", "cutoff_hz"})
@@ -509,7 +467,7 @@ def _parse_identification(t: Any) -> IdentificationConfig:
         chunk_size=_int(t.get("chunk_size", 20000), f"{where}.chunk_size", 1),
         base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),
         base_samples=_int(t["base_samples"], f"{where}.base_samples", 1) if "base_samples" in t else None,
-        min_joint_motion=_num(t.get("min_joint_motion", 1e-3), f"{where}.min_joint_motion"),
+        min_joint_motion=_num(t.get("min_joint_motion", 1e-3), f"{where}.min_joint_motion", minimum=0.0),
         force_model=_str(t["force_model"], f"{where}.force_model", _FORCE_MODELS) if "force_model" in t else None,
     )
 
@@ -547,28 +505,23 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
         if a[0] < b[1] and b[0] < a[1]:
             raise ConfigError(f"validation window {list(b)} overlaps the training window {list(a)}")
     out_t = _table(doc.get("output", {}), "output", {"plots"})
+    processing = _parse_processing(doc.get("processing", {}))
+    for label, spec in (("data", data), ("validation", validation)):
+        given = [k for k in ("velocity", "acceleration") if getattr(spec, k) is not None]
+        if given and processing.derivatives != "measured":
+            raise ConfigError(f"{label}.{given[0]} columns are given but processing.derivatives = "
+                              f"{processing.derivatives!r} differentiates the positions and would ignore them: "
+                              "set processing.derivatives = 'measured' or drop them")
     return Config(
         robot=_parse_robot(doc["robot"], base_dir),
         data=data,
         validation=validation,
-        processing=_parse_processing(doc.get("processing", {})),
+        processing=processing,
         identification=_parse_identification(doc.get("identification", {})),
         output=OutputConfig(plots=_bool(out_t.get("plots", True), "output.plots")),
         source=source,
         raw=doc,
     )
-
-
-def read_toml(path: Path) -> dict[str, Any]:
-    """A TOML document, or a one-line error naming the file (missing, not text, invalid)."""
-    if not path.is_file():
-        raise InputError(f"config file not found: {path}")
-    try:
-        return tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a text file") from None
 
 
 def load_config(path: str | Path) -> Config:

@@ -93,6 +93,8 @@ def parse_design_config(doc: Mapping[str, Any], base_dir: Path, source: Path | N
         if k in lim_t:
             limits[k] = _num_or_list(lim_t[k], f"limits.{k}", True)
     limits["max_condition"] = _num(lim_t.get("max_condition", 1e4), "limits.max_condition", True)
+    if limits["max_condition"] <= 1:
+        raise ConfigError(f"limits.max_condition must be > 1 (a condition number is at least 1), got {limits['max_condition']:g}")
     out = _table(doc.get("output", {}), "output", {"rate_hz", "plots"})
     return DesignConfig(
         model=model,

@@ -29,15 +29,17 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from dynid.config import Config, _bool, _int, _num, _str, _table, parse_config, read_toml
 from dynid.config.simulate import SimulateConfig, load_simulate_config, parse_simulate_config
-from dynid.errors import ConfigError
+from dynid.errors import ConfigError, InputError
 
-__all__ = ["MonteCarloConfig", "load_montecarlo_config", "parse_montecarlo_config", "parse_workers", "DEFAULT_TRAIN_SHARE"]
+__all__ = ["MonteCarloConfig", "load_montecarlo_config", "parse_montecarlo_config", "parse_scheduler", "parse_workers",
+           "DEFAULT_TRAIN_SHARE"]
 
 DEFAULT_TRAIN_SHARE = 0.8
 """Share of the simulated log's rows used for training when no window is given."""
@@ -135,8 +137,8 @@ def _parse_simulate(t: Any, base_dir: Path) -> SimulateConfig:
         path = p if p.is_absolute() else base_dir / p
         try:
             return load_simulate_config(path)
-        except ConfigError as exc:
-            raise ConfigError(f"simulate.file {path}: {exc}") from None
+        except (ConfigError, InputError) as exc:
+            raise type(exc)(f"simulate.file {path}: {exc}") from None
     try:
         return parse_simulate_config(t, base_dir)
     except ConfigError as exc:
@@ -152,6 +154,21 @@ def parse_workers(value: Any, where: str) -> int:
     return _int(value, where, 0)
 
 
+_SCHEDULER = re.compile(r"^(?:(?P<scheme>[A-Za-z][A-Za-z0-9+.-]*)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
+                        r"(?::(?P<port>\d{1,5}))?$")
+_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
+
+
+def parse_scheduler(value: Any, where: str) -> str:
+    """A Dask scheduler address: ``[tcp|tls|ucx|ws|wss://]host[:port]``."""
+    text = _str(value, where)
+    m = _SCHEDULER.match(text)
+    if m is None or (m.group("scheme") or "tcp") not in _SCHEMES or (m.group("port") and not 0 < int(m.group("port")) < 65536):
+        raise ConfigError(f"{where}: {text!r} is not a Dask scheduler address; expected "
+                          f"[{'|'.join(_SCHEMES)}://]host[:port], e.g. tcp://127.0.0.1:8786")
+    return text
+
+
 def parse_montecarlo_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = None) -> MonteCarloConfig:
     """Validate a parsed TOML document (see module docstring)."""
     doc = _table(dict(doc), "config", {"simulate", "identify", "montecarlo"}, {"simulate"})
@@ -161,7 +178,7 @@ def parse_montecarlo_config(doc: Mapping[str, Any], base_dir: Path, source: Path
     alpha = _num(mc.get("alpha", 0.05), "montecarlo.alpha")
     if not 0 < alpha < 1:
         raise ConfigError(f"montecarlo.alpha: must be in (0, 1), got {alpha}")
-    scheduler = _str(mc["scheduler"], "montecarlo.scheduler") if "scheduler" in mc else None
+    scheduler = parse_scheduler(mc["scheduler"], "montecarlo.scheduler") if "scheduler" in mc else None
     return MonteCarloConfig(
         simulate=sim,
         identify=ident,

@@ -151,16 +151,33 @@ def _parse_friction(t: Any) -> dict[str, Any]:
         raise ConfigError(f"{where}: model {model!r} needs {missing}")
     if extra:
         raise ConfigError(f"{where}: keys {extra} do not apply to model {model!r}")
-    return {"model": model, **{k: _num_or_list(v, f"{where}.{k}") for k, v in t.items() if k != "model"}}
+    out: dict[str, Any] = {"model": model}
+    for k, v in t.items():
+        if k == "model":
+            continue
+        sign = _FRICTION_SIGN.get(k)
+        out[k] = _num_or_list(v, f"{where}.{k}", sign == "positive", minimum=0.0 if sign == "nonnegative" else None)
+    return out
+
+
+_FRICTION_SIGN = {"fc": "nonnegative", "fv": "nonnegative", "fs": "nonnegative", "fv_neg": "nonnegative",
+                  "vs": "positive", "delta": "positive", "alpha": "positive", "kv": "positive"}
+"""Physical sign of each friction coefficient (``fc_neg``, the force at negative velocity, and
+``offset`` may have either sign)."""
 
 
 def _parse_payload(t: Any) -> dict[str, Any]:
     where = "robot.payload"
     t = _table(t, where, {"mass", "com", "inertia"}, {"mass"})
+    inertia = _list(t.get("inertia", [0.0, 0.0, 0.0]), f"{where}.inertia", lambda v, w: _num(v, w, minimum=0.0), 3)
+    big = max(inertia)
+    if big > sum(inertia) - big + 1e-9 * big:
+        raise ConfigError(f"{where}.inertia {list(inertia)}: principal moments must satisfy the triangle inequality "
+                          "(each at most the sum of the other two); no rigid body has these")
     return {
         "mass": _num(t["mass"], f"{where}.mass", True),
         "com": _list(t.get("com", [0.0, 0.0, 0.0]), f"{where}.com", _num, 3),
-        "inertia": _list(t.get("inertia", [0.0, 0.0, 0.0]), f"{where}.inertia", _num, 3),
+        "inertia": inertia,
     }
 
 
@@ -187,6 +204,10 @@ def _parse_trajectory(t: Any) -> TrajectoryConfig:
             if k not in t:
                 raise ConfigError(f"trajectory: a polyline needs {k!r}")
         v["vertices"] = _list(t["vertices"], f"{w}.vertices", lambda x, ww: _list(x, ww, _num))
+        if len(v["vertices"]) < 2:
+            raise ConfigError(f"{w}.vertices: a polyline needs at least 2 vertices, got {len(v['vertices'])}")
+        if len({len(p) for p in v["vertices"]}) != 1 or not v["vertices"][0]:
+            raise ConfigError(f"{w}.vertices: every vertex needs the same number (>= 1) of coordinates")
         v["speed"] = _num(t["speed"], f"{w}.speed", True)
         v["ramp"] = _num(t.get("ramp", 0.1), f"{w}.ramp", True)
     else:
@@ -218,9 +239,9 @@ def _parse_control(t: Any) -> ControlSimConfig:
     c = ControlSimConfig(
         kind=_str(t.get("kind", "computed_torque"), "control.kind", ("computed_torque", "pid", "feedforward_pid")),
         rate_hz=_num(t.get("rate_hz", 1000.0), "control.rate_hz", True),
-        kp=_num_or_list(t.get("kp", 400.0), "control.kp"),
-        kd=_num_or_list(t.get("kd", 40.0), "control.kd"),
-        ki=_num_or_list(t.get("ki", 0.0), "control.ki"),
+        kp=_num_or_list(t.get("kp", 400.0), "control.kp", True),
+        kd=_num_or_list(t.get("kd", 40.0), "control.kd", minimum=0.0),
+        ki=_num_or_list(t.get("ki", 0.0), "control.ki", minimum=0.0),
         model=_str(t.get("model", "nominal"), "control.model", ("nominal", "true")),
         distribution=_str(t.get("distribution", "min_norm_local_friction"), "control.distribution",
                           ("min_norm", "min_norm_local_friction")),
@@ -231,6 +252,31 @@ def _parse_control(t: Any) -> ControlSimConfig:
     return c
 
 
+def _check_covariance(cov: tuple[tuple[float, ...], ...], where: str) -> None:
+    import numpy as np
+
+    n = len(cov)
+    if n == 0 or any(len(r) != n for r in cov):
+        raise ConfigError(f"{where}: expected a square matrix (a list of {n} rows of {n} numbers)")
+    c = np.array(cov, dtype=float)
+    scale = max(float(np.abs(c).max()), 1e-300)
+    if not np.allclose(c, c.T, rtol=0.0, atol=1e-12 * scale):
+        raise ConfigError(f"{where}: the matrix is not symmetric")
+    w = np.linalg.eigvalsh(c)
+    if w[0] < -1e-12 * scale:
+        raise ConfigError(f"{where}: not positive semi-definite (smallest eigenvalue {w[0]:.3g}); a covariance cannot be")
+
+
+def _torque_constants(value: Any) -> tuple[float, ...]:
+    k = _list(value, "sensors.torque_constants", _num)
+    if not k:
+        raise ConfigError("sensors.torque_constants: empty list; give one per actuator")
+    zero = [i for i, x in enumerate(k) if x == 0]
+    if zero:
+        raise ConfigError(f"sensors.torque_constants[{zero[0]}] is 0; currents i = tau / k need non-zero constants")
+    return k
+
+
 def _parse_sensors(t: Any) -> SensorsConfig:
     keys = {f.name for f in dataclasses.fields(SensorsConfig)}
     t = _table(t, "sensors", keys)
@@ -239,6 +285,7 @@ def _parse_sensors(t: Any) -> SensorsConfig:
         if "force_noise_std" in t or "force_correlation" in t:
             raise ConfigError("sensors: give force_covariance or force_noise_std/force_correlation, not both")
         cov = _list(t["force_covariance"], "sensors.force_covariance", lambda x, w: _list(x, w, _num))
+        _check_covariance(cov, "sensors.force_covariance")
     corr = _num(t.get("force_correlation", 0.0), "sensors.force_correlation")
     if not -1 < corr < 1:
         raise ConfigError(f"sensors.force_correlation must be in (-1, 1), got {corr}")
@@ -246,12 +293,12 @@ def _parse_sensors(t: Any) -> SensorsConfig:
         log_rate_hz=_num(t["log_rate_hz"], "sensors.log_rate_hz", True) if "log_rate_hz" in t else None,
         encoder_resolution=_num_or_list(t["encoder_resolution"], "sensors.encoder_resolution", True)
         if "encoder_resolution" in t else None,
-        position_noise_std=_num_or_list(t.get("position_noise_std", 0.0), "sensors.position_noise_std"),
-        force_noise_std=_num_or_list(t.get("force_noise_std", 0.0), "sensors.force_noise_std"),
+        position_noise_std=_num_or_list(t.get("position_noise_std", 0.0), "sensors.position_noise_std", minimum=0.0),
+        force_noise_std=_num_or_list(t.get("force_noise_std", 0.0), "sensors.force_noise_std", minimum=0.0),
         force_correlation=corr,
         force_covariance=cov,
-        torque_constants=_list(t["torque_constants"], "sensors.torque_constants", _num) if "torque_constants" in t else None,
-        time_jitter_std=_num(t.get("time_jitter_std", 0.0), "sensors.time_jitter_std"),
+        torque_constants=_torque_constants(t["torque_constants"]) if "torque_constants" in t else None,
+        time_jitter_std=_num(t.get("time_jitter_std", 0.0), "sensors.time_jitter_std", minimum=0.0),
         seed=_int(t.get("seed", 0), "sensors.seed", 0),
     )
 

@@ -54,6 +54,15 @@ from dynid.trajectories import FourierTrajectory
 __all__ = ["DesignLimits", "DesignError", "ExcitationDesign", "ExcitationProblem", "Violation"]
 
 
+def _sized(value, n: int, what: str, of: str, exact: bool = False) -> None:
+    """``value`` is None, a number (unless ``exact``) or ``n`` numbers."""
+    if value is None:
+        return
+    a = np.asarray(value, dtype=float)
+    if (a.ndim == 0 and exact) or a.ndim > 1 or (a.ndim == 1 and a.size != n):
+        raise InputError(f"{what} has {a.size} entries for {n} {of}")
+
+
 class DesignError(DynidError):
     """No feasible design could be found; the message names the worst violated limit."""
 
@@ -191,26 +200,40 @@ class ExcitationProblem:
                 point_box = (u_ref - half, u_ref + half)
             self.act_names = tuple(robot.actuated_names)
             self.distribution = "projected" if robot.redundant else None
-            self.base = mechanism_base_parameters(robot, distribution=self.distribution)
             n_out = robot.dof if robot.redundant else robot.n_actuators
         else:
             self.coord_joints = list(range(robot.dof))
             self.act = list(range(robot.dof))
             self.names = self.act_names = tuple(robot.joint_names)
-            self.base = robot_base_parameters(robot)
             n_out = robot.dof
-        self.nominal = robot.nominal_parameters()
-        self.nominal_base = self.base.from_standard(self.nominal)
         self.n_u = len(self.names)
+        _sized(noise_std, n_out, "noise_std", "output channels")
         self.noise = np.ones(n_out) if noise_std is None else np.broadcast_to(np.asarray(noise_std, float), (n_out,)).copy()
         default_box = point_box if point_box is not None else (lo_j[self.coord_joints], hi_j[self.coord_joints])
+        if box is not None:
+            _sized(box[0], self.n_u, "box", "design coordinates", exact=True)
+            _sized(box[1], self.n_u, "box", "design coordinates", exact=True)
         box_lo = default_box[0] if box is None else np.asarray(box[0], float)
         box_hi = default_box[1] if box is None else np.asarray(box[1], float)
         if np.any(~np.isfinite(box_lo)) or np.any(~np.isfinite(box_hi)) or np.any(box_hi <= box_lo):
             raise InputError(f"the design coordinates {self.names} need finite ranges (give limits or a box)")
         self.box = (box_lo, box_hi)
+        n_a = len(self.act)
+        if limits.position is not None:
+            _sized(limits.position[0], n_a, "limits.position", "actuators", exact=True)
+            _sized(limits.position[1], n_a, "limits.position", "actuators", exact=True)
+        for key in ("velocity", "acceleration", "force"):
+            _sized(getattr(limits, key), n_a, f"limits.{key}", "actuators")
         pos = limits.position if limits.position is not None else (lo_j[self.act], hi_j[self.act])
         self.limits = dataclasses.replace(limits, position=(np.asarray(pos[0], float), np.asarray(pos[1], float)))
+        if not self.mech:
+            self._check_reachable()
+        if self.mech:
+            self.base = mechanism_base_parameters(robot, distribution=self.distribution)
+        else:
+            self.base = robot_base_parameters(robot)
+        self.nominal = robot.nominal_parameters()
+        self.nominal_base = self.base.from_standard(self.nominal)
         self.evaluations = 0
         self._cache: dict[bytes, tuple[float, FloatArray]] = {}
         self._q_warm: FloatArray | None = None
@@ -220,6 +243,41 @@ class ExcitationProblem:
             self.centre = np.clip(u_ref, box_lo, box_hi)
         else:
             self.centre = 0.5 * (box_lo + box_hi)
+        if not self.mech and limits.force is not None:
+            self._check_holding_forces()
+
+    def _check_reachable(self) -> None:
+        """Serial robots (the design coordinates are the actuators): every design starts at rest at
+        the centre of the box and shrinks towards it, so position limits that exclude the centre
+        make every design infeasible."""
+        lo, hi = self.limits.position
+        blo, bhi = self.box
+        centre = 0.5 * (blo + bhi)
+        for j, name in enumerate(self.names):
+            rng, box = f"[{lo[j]:.6g}, {hi[j]:.6g}]", f"[{blo[j]:.6g}, {bhi[j]:.6g}]"
+            if hi[j] <= lo[j]:
+                raise InputError(f"limits.position of {name} {rng}: lower must be below upper")
+            if hi[j] <= blo[j] or lo[j] >= bhi[j]:
+                raise DesignError(f"no feasible excitation: limits.position of {name} {rng} does not meet the range "
+                                  f"of the design coordinate {name} {box}: no design can respect it")
+            if not lo[j] < centre[j] < hi[j]:
+                raise DesignError(f"no feasible excitation: limits.position of {name} {rng} excludes the centre "
+                                  f"{centre[j]:.6g} of the design range {box} where every design starts; give "
+                                  "design.box inside the limits")
+
+    def _check_holding_forces(self) -> None:
+        """Serial robots: force limits below what the nominal model needs to hold the rest pose at the
+        centre of the box cannot be met by any design."""
+        q = self.centre[None]
+        zero = np.zeros_like(q)
+        tau = regressor(self.robot, q, zero, zero)[0] @ self.nominal
+        lim = np.broadcast_to(np.asarray(self.limits.force, float), tau.shape)
+        over = [j for j in range(tau.size) if abs(tau[j]) > lim[j]]
+        if over:
+            j = over[0]
+            raise DesignError(f"no feasible excitation: limits.force of {self.act_names[j]} is {lim[j]:.4g}, but the "
+                              f"nominal model needs {abs(tau[j]):.4g} to hold the rest pose at the centre of the design "
+                              "range: no design can respect it")
 
     # ------------------------------------------------------------------ variables
     @property

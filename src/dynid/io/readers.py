@@ -12,6 +12,7 @@ column 3 of a 2-D array.
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import re
 import zipfile
@@ -21,11 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from dynid._typing import FloatArray
-from dynid.errors import InputError, MissingExtraError
+from dynid.errors import InputError, MissingExtraError, existing_file
 
 __all__ = ["TableReader", "file_sha256"]
 
 _INDEXED = re.compile(r"^(?P<key>.+)\[(?P<col>\d+)\]$")
+_SEPARATORS = {",": "comma", ";": "semicolon", "\t": "tab", "|": "vertical bar"}
+_HEAD_BYTES = 1 << 16
 
 
 def file_sha256(path: str | Path) -> str:
@@ -47,9 +50,7 @@ class TableReader:
     """
 
     def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise InputError(f"data file not found: {self.path}")
+        self.path = existing_file(path, "data file")
         suffix = self.path.suffix.lower()
         if suffix in (".csv", ".tsv", ".txt"):
             self.kind = "csv"
@@ -60,38 +61,98 @@ class TableReader:
         else:
             raise InputError(f"{self.path}: unknown data file type {suffix!r} (use .csv, .npz or .parquet)")
         self._frame = None
+        self._header: list[str] = []
         self._npz: dict[str, np.ndarray] | None = None
         self._sha256: str | None = None
 
     # ------------------------------------------------------------------ loading
+    def _head(self) -> bytes:
+        """The first bytes of the file (refusing an unreadable or empty file)."""
+        try:
+            with open(self.path, "rb") as fh:
+                head = fh.read(_HEAD_BYTES)
+        except OSError as exc:
+            raise InputError(f"cannot read data file {self.path}: {exc.strerror or exc}") from None
+        if not head:
+            raise InputError(f"data file {self.path} is empty")
+        return head
+
+    @property
+    def _sep(self) -> str:
+        return "\t" if self.path.suffix.lower() == ".tsv" else ","
+
+    def _check_csv_header(self) -> None:
+        """Refuse binary or non-UTF-8 files and headers that name a column twice (pandas would
+        silently rename the second ``q1`` to ``q1.1``); keep the header for the messages."""
+        head = self._head()
+        if b"\0" in head:
+            raise InputError(f"data file {self.path} is binary, not a CSV text file")
+        line = head.split(b"\n", 1)[0].rstrip(b"\r")
+        try:
+            text = line.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            if exc.start < len(line) - 3 or b"\n" in head:  # not a character cut at the end of the chunk
+                raise InputError(f"data file {self.path} is not UTF-8 text (byte 0x{line[exc.start]:02x} at offset "
+                                 f"{exc.start} of the header)") from None
+            text = line[: exc.start].decode("utf-8")
+        self._header = next(csv.reader([text.removeprefix("\ufeff")], delimiter=self._sep), [])
+        seen: dict[str, list[int]] = {}
+        for i, name in enumerate(self._header):
+            seen.setdefault(name, []).append(i + 1)
+        twice = {n: pos for n, pos in seen.items() if len(pos) > 1}
+        if twice:
+            detail = "; ".join(f"{n!r} is columns {', '.join(map(str, pos))}" for n, pos in twice.items())
+            raise InputError(f"{self.path}: the header names a column more than once ({detail}); column names must be unique")
+
+    def _separator_hint(self) -> str:
+        """When the header is one field holding another separator: say so."""
+        if len(self._header) != 1:
+            return ""
+        field = self._header[0]
+        other = next((c for c in _SEPARATORS if c != self._sep and c in field), None)
+        if other is None:
+            return ""
+        wanted = "tab-separated (.tsv)" if self._sep == "\t" else "comma-separated CSV (.tsv for tab-separated)"
+        return (f"its header is one field {field[:60]!r}: the file seems to be separated by {_SEPARATORS[other]}s "
+                f"({other!r}), and dynid reads {wanted}")
+
     def _load_frame(self):
         if self._frame is None:
             import pandas as pd
 
+            if self.kind == "csv":
+                self._check_csv_header()
+            else:
+                self._head()
             try:
                 if self.kind == "csv":
-                    sep = "\t" if self.path.suffix.lower() == ".tsv" else ","
-                    self._frame = pd.read_csv(self.path, sep=sep)
+                    self._frame = pd.read_csv(self.path, sep=self._sep)
                 else:
                     try:
                         self._frame = pd.read_parquet(self.path)
                     except ImportError as exc:
                         raise MissingExtraError(f"reading Parquet needs pyarrow: pip install pyarrow ({exc})") from None
+            except UnicodeDecodeError as exc:
+                raise InputError(f"data file {self.path} is not UTF-8 text ({exc})") from None
+            except pd.errors.EmptyDataError:
+                raise InputError(f"data file {self.path} has no header row (it is blank)") from None
             except (ValueError, OSError, pd.errors.ParserError) as exc:
-                raise InputError(f"{self.path}: cannot read ({str(exc).splitlines()[0]})") from None
+                raise InputError(f"{self.path}: cannot read ({str(exc).strip().splitlines()[0]})") from None
             if self._frame.shape[0] == 0:
-                raise InputError(f"{self.path}: no data rows")
+                raise InputError(f"{self.path}: no data rows (the file has a header only)")
         return self._frame
 
     def _load_npz(self) -> dict[str, np.ndarray]:
         if self._npz is None:
-            if not zipfile.is_zipfile(self.path):
+            if not self._head().startswith((b"PK\x03\x04", b"PK\x05\x06")):
                 raise InputError(f"{self.path}: not an NPZ file (not a zip archive of arrays)")
             try:
                 with np.load(self.path, allow_pickle=False) as z:
                     self._npz = {k: z[k] for k in z.files}
-            except (ValueError, OSError) as exc:
-                raise InputError(f"{self.path}: cannot read NPZ ({str(exc).splitlines()[0]})") from None
+            except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+                raise InputError(f"{self.path}: cannot read NPZ ({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__})") from None
+            if not self._npz:
+                raise InputError(f"{self.path}: the NPZ archive holds no arrays")
         return self._npz
 
     @property
@@ -113,7 +174,8 @@ class TableReader:
         missing = [n for n in names if n not in frame.columns]
         if missing:
             raise InputError(
-                f"{self.path.name}: missing columns {missing}; the file has {self.available[:20]}"
+                f"{self.path.name}: missing columns {missing}; "
+                + (self._separator_hint() or f"the file has {self.available[:20]}")
             )
         import pandas as pd
 

@@ -59,8 +59,8 @@ import numpy as np
 import pinocchio as pin
 
 from dynid._typing import FloatArray
-from dynid.errors import InputError, ModelError
-from dynid.model.robot import inertia_from_parameters
+from dynid.errors import ModelError, read_file_text
+from dynid.model.robot import check_inertia as check_body, inertia_from_parameters
 
 __all__ = ["DHJoint", "build_dh_model", "inertia_from_link_params", "read_dh_toml"]
 
@@ -172,7 +172,7 @@ def _angle(value: Any, where: str) -> float:
     if isinstance(value, bool):
         raise ModelError(f"{where}: expected a number, got {value!r}")
     if isinstance(value, (int, float)):
-        return float(value)
+        return _num(value, where)
     if isinstance(value, str):
         m = _PI_EXPR.match(value)
         if m:
@@ -184,8 +184,8 @@ def _angle(value: Any, where: str) -> float:
 
 
 def _num(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ModelError(f"{where}: expected a number, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ModelError(f"{where}: expected a finite number, got {value!r}")
     return float(value)
 
 
@@ -220,7 +220,7 @@ _ROW_KEYS = {"name", "type", "alpha", "a", "d", "theta", "lower", "upper", "mass
 _TOP_KEYS = {"name", "convention", "gravity", "joints"}
 
 
-def read_dh_toml(path: str | Path) -> tuple[pin.Model, dict[str, FloatArray], str]:
+def read_dh_toml(path: str | Path, *, check_inertia: bool = True) -> tuple[pin.Model, dict[str, FloatArray], str]:
     """Read a DH table from TOML (format in the module docstring).
 
     Returns
@@ -229,12 +229,15 @@ def read_dh_toml(path: str | Path) -> tuple[pin.Model, dict[str, FloatArray], st
     nominal_extras : dict
         ``{"Ia": array, ...}`` for extras given in the file.
     name : str
+
+    ``check_inertia``: refuse a joint row whose body no rigid body can be (negative mass,
+    inertia about the centre of mass not positive semi-definite or breaking the triangle
+    inequality).
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"robot file not found: {path}")
+    text = read_file_text(path, "robot file")
     try:
-        doc = tomllib.loads(path.read_text())
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelError(f"{path}: invalid TOML ({exc})") from None
     unknown = sorted(set(doc) - _TOP_KEYS)
@@ -259,19 +262,25 @@ def read_dh_toml(path: str | Path) -> tuple[pin.Model, dict[str, FloatArray], st
             if req not in row:
                 raise ModelError(f"{where}: missing '{req}'")
         kind = row.get("type", "revolute")
-        joints.append(
-            DHJoint(
-                alpha=_angle(row["alpha"], f"{where}.alpha"),
-                a=_num(row["a"], f"{where}.a"),
-                d=_num(row["d"], f"{where}.d"),
-                theta=_angle(row.get("theta", 0.0), f"{where}.theta"),
-                kind=kind,
-                name=str(row.get("name", "")),
-                lower=_num(row.get("lower", -math.pi), f"{where}.lower"),
-                upper=_num(row.get("upper", math.pi), f"{where}.upper"),
-                inertia=_joint_inertia(row, where),
-            )
+        inertia = _joint_inertia(row, where)
+        if check_inertia and inertia is not None:
+            check_body(inertia.mass, inertia.inertia, f"{where} ({row.get('name', f'joint_{i + 1}')})")
+        values = dict(
+            alpha=_angle(row["alpha"], f"{where}.alpha"),
+            a=_num(row["a"], f"{where}.a"),
+            d=_num(row["d"], f"{where}.d"),
+            theta=_angle(row.get("theta", 0.0), f"{where}.theta"),
+            kind=kind,
+            name=str(row.get("name", "")),
+            lower=_num(row.get("lower", -math.pi), f"{where}.lower"),
+            upper=_num(row.get("upper", math.pi), f"{where}.upper"),
+            inertia=inertia,
         )
+        try:
+            joint = DHJoint(**values)
+        except ModelError as exc:
+            raise ModelError(f"{where}: {exc}") from None
+        joints.append(joint)
         for k in _EXTRA_KEYS:
             extras[k].append(_num(row.get(k, 0.0), f"{where}.{k}"))
     gravity = doc.get("gravity")

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import contextlib
+import os
+import sys
+import tempfile
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from dynid.errors import InputError, ModelError
-from dynid.model.robot import JOINT_EXTRAS, RobotModel
+from dynid.errors import ModelError, existing_file, read_file_bytes
+from dynid.model.robot import JOINT_EXTRAS, RobotModel, check_inertia
 from dynid.model.transmission import Transmission
 
 __all__ = ["load_model", "load_pin_model", "load_robot"]
@@ -49,7 +53,9 @@ def _bounded_revolute(model: pin.Model) -> pin.Model:
             lo = model.lowerPositionLimit[jm.idx_q : jm.idx_q + jm.nq]
             hi = model.upperPositionLimit[jm.idx_q : jm.idx_q + jm.nq]
         else:
-            raise ModelError(f"joint {model.names[j]!r} of type {short} is not supported in a serial model")
+            kind = {"JointModelSpherical": "a ball joint", "JointModelFreeFlyer": "a free joint"}.get(short, f"of type {short}")
+            raise ModelError(f"joint {model.names[j]!r} is {kind} ({jm.nv} DOF); a serial robot needs 1-DOF joints "
+                             "(hinge/revolute or slide/prismatic)")
         jid = new.addJoint(
             model.parents[j], njm, model.jointPlacements[j], model.names[j],
             np.full(njm.nv, 1e3), np.full(njm.nv, 1e2), np.asarray(lo, float), np.asarray(hi, float),
@@ -62,54 +68,155 @@ def _bounded_revolute(model: pin.Model) -> pin.Model:
     return new
 
 
-def _urdf_without_dynamics(path: Path) -> tuple[str, dict[str, tuple[float, float]]]:
+@contextlib.contextmanager
+def native_stderr() -> Iterator[list[str]]:
+    """Collect what C++ code (urdfdom, pinocchio's parsers) writes to file descriptor 2 instead
+    of letting it reach the terminal; the yielded list gets its non-empty lines on exit."""
+    lines: list[str] = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no file descriptor 2: nothing to protect
+        yield lines
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            lines.extend(x.strip() for x in tmp.read().decode("utf-8", "replace").splitlines() if x.strip())
+
+
+def parse_failure(exc: BaseException, native: list[str]) -> str:
+    """The first meaningful line of a parser failure: urdfdom's own message (``Error: ...``)
+    when it wrote one, else the exception's."""
+    for line in native:
+        text = line.removeprefix("Error:").strip()
+        if text and not text.startswith("at line "):
+            return text
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def _floats(text: str | None, n: int, where: str) -> np.ndarray:
+    try:
+        values = np.array([float(x) for x in (text or "").split()])
+    except ValueError:
+        raise ModelError(f"{where}: {text!r} is not {n} number{'s' if n > 1 else ''}") from None
+    if values.size != n:
+        raise ModelError(f"{where}: {text!r} is not {n} number{'s' if n > 1 else ''}")
+    return values
+
+
+def check_urdf_inertials(root: ET.Element, path: Path) -> None:
+    """Refuse a URDF link whose ``<inertial>`` no rigid body can have (negative mass, inertia
+    not positive semi-definite or breaking the triangle inequality), naming the link."""
+    for link in root.iter("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        where = f"{path.name}: link {link.get('name', '?')!r}"
+        mass_el, inertia_el = inertial.find("mass"), inertial.find("inertia")
+        mass = _floats(mass_el.get("value") if mass_el is not None else "0", 1, f"{where} <mass value>")[0]
+        I = np.zeros((3, 3))
+        if inertia_el is not None:
+            keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+            v = dict(zip(keys, (_floats(inertia_el.get(k, "0"), 1, f"{where} <inertia {k}>")[0] for k in keys)))
+            I = np.array([[v["ixx"], v["ixy"], v["ixz"]], [v["ixy"], v["iyy"], v["iyz"]], [v["ixz"], v["iyz"], v["izz"]]])
+        check_inertia(mass, I, where)
+
+
+def check_mjcf_inertials(root: ET.Element, path: Path) -> None:
+    """As :func:`check_urdf_inertials` for the ``<inertial>`` of MJCF bodies."""
+    for body in root.iter("body"):
+        inertial = body.find("inertial")
+        if inertial is None:
+            continue
+        where = f"{path.name}: body {body.get('name', '?')!r}"
+        mass = _floats(inertial.get("mass"), 1, f"{where} <inertial mass>")[0]
+        if inertial.get("fullinertia") is not None:
+            xx, yy, zz, xy, xz, yz = _floats(inertial.get("fullinertia"), 6, f"{where} <inertial fullinertia>")
+            I = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+        else:
+            I = np.diag(_floats(inertial.get("diaginertia", "0 0 0"), 3, f"{where} <inertial diaginertia>"))
+        check_inertia(mass, I, where)
+
+
+def parse_xml_file(path: Path) -> ET.Element:
+    """The root of an XML robot file (refusing a missing, unreadable or malformed one)."""
+    data = read_file_bytes(path, "robot file")
+    if not data.strip():
+        raise ModelError(f"robot file {path} is empty")
+    try:
+        return ET.fromstring(data)
+    except ET.ParseError as exc:
+        raise ModelError(f"{path}: invalid XML ({exc})") from None
+
+
+def _urdf_without_dynamics(path: Path, check: bool = True) -> tuple[str, dict[str, tuple[float, float]]]:
     """URDF text with ``<dynamics>`` removed, and those values per joint name.
 
     dynid identifies friction itself; pinocchio 4 refuses URDFs with negative
     ``friction`` (as in identified models), so the tags are taken out before parsing
     and kept as nominal viscous (``damping``) and Coulomb (``friction``) values.
+    ``check``: refuse links with impossible inertial data (:func:`check_urdf_inertials`).
     """
-    try:
-        tree = ET.parse(path)
-    except ET.ParseError as exc:
-        raise ModelError(f"{path}: invalid XML ({exc})") from None
+    root = parse_xml_file(path)
+    if root.tag != "robot":
+        raise ModelError(f"{path}: not a URDF file (its root element is <{root.tag}>, not <robot>)")
+    if check:
+        check_urdf_inertials(root, path)
     found: dict[str, tuple[float, float]] = {}
-    for joint in tree.getroot().iter("joint"):
+    for joint in root.iter("joint"):
         for dyn in joint.findall("dynamics"):
             try:
                 found[joint.get("name", "")] = (float(dyn.get("damping", 0.0)), float(dyn.get("friction", 0.0)))
             except ValueError:
                 raise ModelError(f"{path}: joint {joint.get('name')!r} has a non-numeric <dynamics>") from None
             joint.remove(dyn)
-    return ET.tostring(tree.getroot(), encoding="unicode"), found
+    return ET.tostring(root, encoding="unicode"), found
 
 
-def _load_pin_model(path: Path) -> tuple[pin.Model, dict[str, tuple[float, float]]]:
-    """The pinocchio model and, for URDF, the ``<dynamics>`` values per joint name."""
-    if not path.is_file():
-        raise InputError(f"robot file not found: {path}")
+def _load_pin_model(path: Path, check: bool = True) -> tuple[pin.Model, dict[str, tuple[float, float]]]:
+    """The pinocchio model and, for URDF, the ``<dynamics>`` values per joint name.
+    ``check``: refuse bodies with impossible inertial data."""
+    path = existing_file(path, "robot file")
     suffix = path.suffix.lower()
     dynamics: dict[str, tuple[float, float]] = {}
-    try:
-        if suffix == ".urdf":
-            xml, dynamics = _urdf_without_dynamics(path)
-            model = pin.buildModelFromXML(xml)
-        elif suffix in (".xml", ".mjcf"):
-            model = pin.buildModelFromMJCF(str(path))
+    if suffix == ".urdf":
+        xml, dynamics = _urdf_without_dynamics(path, check)
+    elif suffix in (".xml", ".mjcf"):
+        root = parse_xml_file(path)
+        if root.tag != "mujoco":
+            raise ModelError(f"{path}: not an MJCF file (its root element is <{root.tag}>, not <mujoco>)")
+        if check:
+            check_mjcf_inertials(root, path)
+    else:
+        raise ModelError(f"{path}: unknown robot file type {suffix!r} (use .urdf, .xml/.mjcf or a DH .toml)")
+    with native_stderr() as native:
+        try:
+            model = pin.buildModelFromXML(xml) if suffix == ".urdf" else pin.buildModelFromMJCF(str(path))
+        except (RuntimeError, ValueError, OSError) as exc:
+            failure = exc
         else:
-            raise ModelError(f"{path}: unknown robot file type {suffix!r} (use .urdf, .xml/.mjcf or a DH .toml)")
-    except ModelError:
-        raise
-    except (RuntimeError, ValueError, OSError) as exc:
-        raise ModelError(f"{path}: cannot parse robot description ({str(exc).strip().splitlines()[0]})") from None
+            failure = None
+    if failure is not None:
+        raise ModelError(f"{path}: cannot parse robot description ({parse_failure(failure, native)})")
     if model.nv == 0:
         raise ModelError(f"{path}: the model has no moving joints")
-    return _bounded_revolute(model), dynamics
+    try:
+        return _bounded_revolute(model), dynamics
+    except ModelError as exc:
+        raise ModelError(f"{path}: {exc}") from None
 
 
 def load_pin_model(path: str | Path) -> pin.Model:
-    """A pinocchio model (no geometry) from a URDF or MJCF file."""
-    return _load_pin_model(Path(path))[0]
+    """A pinocchio model (no geometry) from a URDF or MJCF file, as written (for comparing with
+    another tool's model: its inertial data are not checked, unlike :func:`load_robot`)."""
+    return _load_pin_model(Path(path), check=False)[0]
 
 
 def load_robot(
@@ -118,6 +225,7 @@ def load_robot(
     extras: Sequence[str] = JOINT_EXTRAS,
     transmission: Transmission | None = None,
     nominal_extras: Mapping[str, object] | None = None,
+    check_inertia: bool = True,
 ) -> RobotModel:
     """Load a serial robot.
 
@@ -131,6 +239,10 @@ def load_robot(
         Motor-joint map (gear ratios, couplings, drive gains, encoder offsets).
     nominal_extras : mapping, optional
         Nominal extras overriding those of the description.
+    check_inertia : bool
+        Refuse a description file with a body no rigid body can be (negative mass, inertia not
+        positive semi-definite or breaking the triangle inequality), naming it. Off only to
+        reproduce others' computations with such values (e.g. Corke's PUMA 560 link 1).
     """
     extras = tuple(extras)
     if spec.startswith("builtin:"):
@@ -142,10 +254,10 @@ def load_robot(
         if path.suffix.lower() == ".toml":
             from dynid.model.dh import read_dh_toml
 
-            model, nominal, name = read_dh_toml(path)
+            model, nominal, name = read_dh_toml(path, check_inertia=check_inertia)
             robot = RobotModel(model, name=name, extras=extras, nominal_extras=nominal, source=str(path))
         else:
-            model, dyn = _load_pin_model(path)
+            model, dyn = _load_pin_model(path, check_inertia)
             nominal: dict[str, object] = {}
             names = list(model.names)[1:]
             if any(n in dyn for n in names):
@@ -153,7 +265,10 @@ def load_robot(
                     "fv": np.array([dyn.get(n, (0.0, 0.0))[0] for n in names]),
                     "fc": np.array([dyn.get(n, (0.0, 0.0))[1] for n in names]),
                 }
-            robot = RobotModel(model, name=model.name or path.stem, extras=extras, nominal_extras=nominal, source=str(path))
+            try:
+                robot = RobotModel(model, name=model.name or path.stem, extras=extras, nominal_extras=nominal, source=str(path))
+            except ModelError as exc:
+                raise ModelError(f"{path}: {exc}") from None
     changes: dict[str, object] = {}
     if transmission is not None:
         changes["transmission"] = transmission
@@ -165,7 +280,7 @@ def load_robot(
 def _mjcf_has_closures(path: Path) -> bool:
     try:
         root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError):
+    except (ET.ParseError, OSError, ValueError):
         return False  # let the serial loader report the problem
     return any(len(eq) > 0 for eq in root.iter("equality"))
 

@@ -37,8 +37,14 @@ import pinocchio as pin
 import scipy.linalg as sla
 
 from dynid._typing import FloatArray
-from dynid.errors import InputError, ModelError
-from dynid.model.loading import _urdf_without_dynamics
+from dynid.errors import ModelError, existing_file, read_file_text
+from dynid.model.loading import (
+    _urdf_without_dynamics,
+    check_mjcf_inertials,
+    native_stderr,
+    parse_failure,
+    parse_xml_file,
+)
 from dynid.model.mechanism import JointCoordinates, JointTerm, LoopClosure, Mechanism, PointCoordinates
 
 __all__ = ["ACTUATOR_TAGS", "load_mechanism", "load_mechanism_mjcf", "load_mechanism_urdf"]
@@ -103,6 +109,9 @@ def load_mechanism_mjcf(
     """
     path = _existing(path, "robot file")
     root = _parse_xml(path)
+    if root.tag != "mujoco":
+        raise ModelError(f"{path}: not an MJCF file (its root element is <{root.tag}>, not <mujoco>)")
+    check_mjcf_inertials(root, path)
     bodies = root.findall("./worldbody/body")
     if len(bodies) > 1:
         names = [b.get("name", "?") for b in bodies]
@@ -113,10 +122,14 @@ def load_mechanism_mjcf(
     equalities = _mjcf_equalities(root, path)
     if not equalities:
         raise ModelError(f"{path}: no loop closures (<equality><connect>/<weld>) found: is it a serial robot? use load_robot")
-    try:
-        model, constraints = pin.buildModelAndLegacyConstraintsFromMJCF(str(path))
-    except (RuntimeError, ValueError, OSError) as exc:
-        raise ModelError(f"{path}: cannot parse MJCF ({_first_line(exc)})") from None
+    with native_stderr() as native:
+        try:
+            model, constraints = pin.buildModelAndLegacyConstraintsFromMJCF(str(path))
+            failure = None
+        except (RuntimeError, ValueError, OSError) as exc:
+            failure = exc
+    if failure is not None:
+        raise ModelError(f"{path}: cannot parse MJCF ({parse_failure(failure, native)})")
     _check_one_dof(model, path, "use a <connect> closure instead")
     if len(constraints) != len(equalities):
         raise ModelError(f"{path}: pinocchio read {len(constraints)} of the {len(equalities)} <equality> closures")
@@ -166,10 +179,14 @@ def load_mechanism_urdf(
     urdf_path = _existing(urdf_path, "robot file")
     yaml_path = _existing(urdf_path.parent / "robot.yaml" if yaml_path is None else yaml_path, "closure file")
     xml, dynamics = _urdf_without_dynamics(urdf_path)
-    try:
-        model = pin.buildModelFromXML(_continuous_as_revolute(xml))
-    except (RuntimeError, ValueError, OSError) as exc:
-        raise ModelError(f"{urdf_path}: cannot parse URDF ({_first_line(exc)})") from None
+    with native_stderr() as native:
+        try:
+            model = pin.buildModelFromXML(_continuous_as_revolute(xml))
+            failure = None
+        except (RuntimeError, ValueError, OSError) as exc:
+            failure = exc
+    if failure is not None:
+        raise ModelError(f"{urdf_path}: cannot parse URDF ({parse_failure(failure, native)})")
     pairs, kinds, motors = _read_closure_yaml(yaml_path, need_motors=actuated is None)
     closures = [_frame_closure(model, a, b, kind, yaml_path, urdf_path) for (a, b), kind in zip(pairs, kinds)]
     _check_one_dof(model, urdf_path, "a spherical joint at a cut is a '3d' closure")
@@ -185,16 +202,8 @@ def load_mechanism_urdf(
 
 
 # ---------------------------------------------------------------------------- file helpers
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
-
-
 def _existing(path: str | Path, what: str) -> Path:
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{what} not found: {path}")
-    return path
+    return existing_file(path, what)
 
 
 def _continuous_as_revolute(xml: str) -> str:
@@ -212,10 +221,7 @@ def _continuous_as_revolute(xml: str) -> str:
 
 
 def _parse_xml(path: Path) -> ET.Element:
-    try:
-        return ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise ModelError(f"{path}: invalid XML ({exc})") from None
+    return parse_xml_file(path)
 
 
 def _check_one_dof(model: pin.Model, path: Path, hint: str) -> None:
@@ -343,7 +349,7 @@ def _load_yaml(path: Path):
     import yaml
 
     try:
-        return yaml.safe_load(path.read_text())
+        return yaml.safe_load(read_file_text(path, "closure file"))
     except yaml.YAMLError as exc:
         raise ModelError(f"{path}: invalid YAML ({' '.join(str(exc).split())})") from None
 
@@ -384,6 +390,8 @@ def _kinematics(model: pin.Model, data: pin.Data, closures, q: FloatArray, exact
 
 
 def _assemble(model: pin.Model, closures, q0: FloatArray, name: str) -> FloatArray:
+    """The assembly nearest ``q0`` (Gauss-Newton); a closure that cannot close is named with
+    its residual [m, rad]."""
     data = model.createData()
     q = q0.copy()
     for _ in range(100):
@@ -391,7 +399,15 @@ def _assemble(model: pin.Model, closures, q0: FloatArray, name: str) -> FloatArr
         if np.linalg.norm(c, np.inf) < 1e-12:
             return q
         q = q + np.linalg.lstsq(J, -c, rcond=1e-10)[0]
-    raise ModelError(f"cannot assemble the loops of {name!r} (constraint residual {np.linalg.norm(c, np.inf):.3g})")
+    per, k = [], 0
+    for cl in closures:
+        rows = 6 if cl.kind == "6d" else 3
+        per.append(float(np.linalg.norm(c[k : k + rows], np.inf)))
+        k += rows
+    worst = int(np.argmax(per))
+    cl = closures[worst]
+    raise ModelError(f"cannot assemble the loops of {name!r}: closure {cl.name!r} ({cl.kind}) cannot close "
+                     f"(constraint residual {per[worst]:.3g} after 100 Gauss-Newton steps from the reference configuration)")
 
 
 def _null(A: FloatArray) -> FloatArray:
@@ -511,7 +527,10 @@ def _build(model, closures, actuated, independent, terms, values, *, name, sourc
     # an MJCF file written at an assembled configuration (``ref`` on each joint, as dynid's
     # export does) says so in its qpos0; start the assembly there
     start = model.referenceConfigurations["qpos0"] if "qpos0" in model.referenceConfigurations else pin.neutral(model)
-    q = _assemble(model, closures, start, name)
+    try:
+        q = _assemble(model, closures, start, name)
+    except ModelError as exc:
+        raise ModelError(f"{source}: {exc}") from None
     locked = _idle_joints(model, closures, act, q)
     if locked:
         act_names = [model.names[v + 1] for v in act]  # 1-DOF joints: joint index = velocity index + 1

@@ -157,6 +157,8 @@ def regressor(
         if p > nb:
             out[start:stop] = 0.0
         blocks = [jtr(model, data, qi, vi, ai) for qi, vi, ai in zip(q[start:stop], dq[start:stop], ddq[start:stop])]
+        if nv == 1:  # pinocchio returns a vector, not a 1-row matrix, for a single joint
+            blocks = [b.reshape(1, -1) for b in blocks]
         np.concatenate(blocks, axis=0, out=body[start * nv : stop * nv])
         if diag is not None:
             _fill_extras(robot, dq[start:stop], ddq[start:stop], out[start:stop], diag=diag[start:stop], motors=False)

@@ -40,6 +40,8 @@ __all__ = [
     "JOINT_EXTRAS",
     "ParameterLayout",
     "RobotModel",
+    "check_inertia",
+    "joint_kinds",
 ]
 
 BODY_PARAMS: tuple[str, ...] = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
@@ -125,6 +127,40 @@ def inertia_from_parameters(block: FloatArray) -> pin.Inertia:
         rot = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
         return pin.Inertia(0.0, np.zeros(3), rot)
     return pin.Inertia.FromDynamicParameters(block)
+
+
+def check_inertia(mass: float, inertia: FloatArray, where: str, rtol: float = 1e-9) -> None:
+    """Refuse a body that no physical body can be: a negative mass, or a rotational inertia
+    about the centre of mass (3 x 3) that is not positive semi-definite or whose principal
+    moments break the triangle inequality (each at most the sum of the other two), within
+    ``rtol`` of the largest moment. ``where`` names the body in the message."""
+    if not np.isfinite(mass) or mass < 0:
+        raise ModelError(f"{where}: mass {mass:g} kg is {'negative' if mass < 0 else 'not finite'}")
+    I = np.asarray(inertia, dtype=float)
+    if not np.all(np.isfinite(I)):
+        raise ModelError(f"{where}: the inertia has non-finite entries")
+    w = np.linalg.eigvalsh(0.5 * (I + I.T))
+    tol = rtol * max(float(np.abs(w).max()), 1e-300)
+    moments = ", ".join(f"{x:.6g}" for x in w)
+    if w[0] < -tol:
+        raise ModelError(f"{where}: the inertia is not positive semi-definite (principal moments {moments} kg*m^2)")
+    if w[2] > w[0] + w[1] + tol:
+        raise ModelError(f"{where}: the principal moments of inertia {moments} kg*m^2 break the triangle inequality "
+                         f"({w[2]:.6g} > {w[0]:.6g} + {w[1]:.6g}); no rigid body has them")
+
+
+def joint_kinds(model: pin.Model, velocity_indices: Sequence[int] | None = None) -> tuple[str, ...]:
+    """``"revolute"`` or ``"prismatic"`` for each 1-DOF joint of ``model`` (all, in velocity
+    order, or those at ``velocity_indices``); other joints are ``"other"``."""
+    kind: dict[int, str] = {}
+    for jm in model.joints[1:]:
+        name = jm.shortname()
+        k = ("prismatic" if "Prismatic" in name or name.startswith("JointModelP")
+             else "revolute" if "Revolute" in name or name.startswith("JointModelR") else "other")
+        for v in range(jm.idx_v, jm.idx_v + jm.nv):
+            kind[v] = k if jm.nv == 1 else "other"
+    idx = range(model.nv) if velocity_indices is None else velocity_indices
+    return tuple(kind[int(v)] for v in idx)
 
 
 def _frozen_copy(model: pin.Model) -> pin.Model:

@@ -16,6 +16,7 @@ Steps (each recorded in the returned provenance, in order):
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,12 @@ from dynid.model.robot import RobotModel
 from dynid.model.transmission import Coupling, Transmission
 from dynid.signals import central_difference, lowpass, padlen_for, resample_uniform
 
-__all__ = ["build_robot", "read_log", "check_held_out", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask"]
+__all__ = ["build_robot", "check_units", "read_log", "check_held_out", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask"]
+
+_TORQUE_UNITS = ("N*m", "Nm", "N.m", "mN*m")
+_FORCE_UNITS = ("N",)
+_ANGLE_UNITS = ("rad", "deg")
+_LENGTH_UNITS = ("m", "mm")
 
 
 def build_robot(cfg: RobotConfig):
@@ -56,6 +62,72 @@ def build_robot(cfg: RobotConfig):
     return load_robot(cfg.model, extras=cfg.extras, transmission=transmission)
 
 
+def _units(sig, n: int, label: str) -> tuple[str | None, ...]:
+    """The unit of each of the ``n`` channels of a signal (None: SI)."""
+    if isinstance(sig.unit, tuple):
+        if len(sig.unit) != n:
+            raise ConfigError(f"{label}.unit: {len(sig.unit)} units for {n} channels")
+        return sig.unit
+    return (sig.unit,) * n
+
+
+def check_units(spec: DataConfig, kinds: Sequence[str], names: Sequence[str], label: str) -> None:
+    """Refuse units that do not fit the joints the columns measure: ``kinds`` holds
+    ``"revolute"`` or ``"prismatic"`` per channel (the joints of a serial robot, the actuated
+    joints of a mechanism). Joint-side positions (and velocities, accelerations) of a revolute
+    joint are angles, of a prismatic one lengths; joint-side torques act on revolute joints,
+    forces on prismatic ones. Motor-side signals are those of a rotary motor: angles, and torques
+    or currents."""
+    mixed = len(set(kinds)) > 1
+
+    def refuse(what: str, unit: str, j: int, want: tuple[str, ...], side: str) -> None:
+        quantity = {"rad": "an angle", "deg": "an angle", "m": "a length", "mm": "a length", "N": "a force"}.get(unit, "a torque")
+        one_for_all = isinstance(getattr(spec, what).unit, str)
+        hint = (f" (joints of both kinds take one unit per column: {label}.{what}.unit = [...])"
+                if mixed and one_for_all and side == "joint" else "")
+        raise ConfigError(f"{label}.{what}.unit = {unit!r} is {quantity}, but {side} {names[j]!r} is "
+                          f"{kinds[j] if side == 'joint' else 'a rotary motor'}: use "
+                          f"{' or '.join(repr(u) for u in want)}{hint}")
+
+    n = len(kinds)
+    signals = [(w, getattr(spec, w)) for w in ("position", "velocity", "acceleration")]
+    signals += [("effort", spec.effort)] if spec.effort.kind == "torque" else []
+    for what, sig in signals:
+        if sig is None or sig.unit is None:
+            continue
+        side = "joint" if sig.side == "joint" else "the motor of joint"
+        for j, (kind, unit) in enumerate(zip(kinds, _units(sig, n, f"{label}.{what}"))):
+            if what == "effort":
+                want = _FORCE_UNITS if kind == "prismatic" and sig.side == "joint" else _TORQUE_UNITS
+            else:
+                want = _LENGTH_UNITS if kind == "prismatic" and sig.side == "joint" else _ANGLE_UNITS
+            if unit is not None and unit not in want:
+                refuse(what, unit, j, want, side)
+
+
+def _scale(table: dict[str, float], sig, n: int, label: str) -> FloatArray | float:
+    """The factor to SI of each channel (no unit: the signal is in SI units already)."""
+    if sig.unit is None:
+        return 1.0
+    return np.array([1.0 if u is None else table[u] for u in _units(sig, n, label)])
+
+
+def _constant_efforts(ds: Dataset, columns: Sequence[str], path: Path, label: str) -> None:
+    """Refuse effort channels that hold one value in every sample: they carry no information
+    (a disconnected sensor, a column of zeros)."""
+    tau = ds.tau
+    const = [j for j in range(tau.shape[1]) if np.all(tau[:, j] == tau[0, j])]
+    if not const:
+        return
+    n = ds.n_samples
+    if len(const) == tau.shape[1] and not np.any(tau):
+        raise InputError(f"{label}.effort: every column of {path.name} ({', '.join(columns)}) is 0 in all {n} samples: "
+                         "the log holds no efforts")
+    detail = ", ".join(f"{columns[j]!r} is {tau[0, j]:g}" for j in const)
+    raise InputError(f"{label}.effort: {path.name}: {detail} in all {n} samples; a constant channel carries no "
+                     "information (a disconnected sensor?)")
+
+
 def read_log(
     spec: DataConfig, n_channels: int, names: tuple[str, ...], label: str, readers: dict[Path, TableReader] | None = None
 ) -> Dataset:
@@ -78,13 +150,14 @@ def read_log(
             raise InputError(f"{label}.{what}: {arr.shape[1]} columns for a robot with {n_channels} joints")
         return arr * scale, path
 
-    q, q_file = columns(spec.position, "position", POSITION_UNITS[spec.position.unit])
-    tau, tau_file = columns(spec.effort, "effort", EFFORT_UNITS[spec.effort.kind][spec.effort.unit])
+    q, q_file = columns(spec.position, "position", _scale(POSITION_UNITS, spec.position, n_channels, f"{label}.position"))
+    tau, tau_file = columns(spec.effort, "effort",
+                            _scale(EFFORT_UNITS[spec.effort.kind], spec.effort, n_channels, f"{label}.effort"))
     extra: dict[str, FloatArray] = {}
     files = {"position": q_file, "effort": tau_file}
     for what, sig in (("velocity", spec.velocity), ("acceleration", spec.acceleration)):
         if sig is not None:
-            extra[what], files[what] = columns(sig, what, POSITION_UNITS[sig.unit])
+            extra[what], files[what] = columns(sig, what, _scale(POSITION_UNITS, sig, n_channels, f"{label}.{what}"))
     if spec.time is not None:
         tpath = spec.time.file or spec.file
         t = reader(tpath).columns([spec.time.column])[:, 0] * TIME_UNITS[spec.time.unit]
@@ -115,7 +188,7 @@ def read_log(
         "window": {"rows": list(spec.rows)} if spec.rows else ({"time": list(spec.time_window)} if spec.time_window else "all"),
     }
     try:
-        return Dataset(
+        ds = Dataset(
             t=t[sl],
             q=q[sl],
             tau=tau[sl],
@@ -126,6 +199,9 @@ def read_log(
         )
     except InputError as exc:
         raise InputError(f"{label}: {exc}") from None
+    _constant_efforts(ds, spec.effort.columns if len(spec.effort.columns) == n_channels else
+                      tuple(f"{spec.effort.columns[0]}[{j}]" for j in range(n_channels)), tau_file, label)
+    return ds
 
 
 def check_held_out(train: Dataset, held_out: Dataset) -> None:
@@ -177,9 +253,12 @@ def to_joint_space(ds: Dataset, robot: RobotModel, label: str) -> tuple[Dataset,
     return out, notes
 
 
-def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str, *,
-               filter_positions: bool = True) -> tuple[Dataset, list[dict[str, Any]]]:
+def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str, *, filter_positions: bool = True,
+               unknowns: Callable[[], tuple[int, int]] | None = None) -> tuple[Dataset, list[dict[str, Any]]]:
     """Resample, filter, differentiate, trim and decimate (see module docstring).
+
+    ``unknowns``: called only when the log is too short for the trimming, it returns the number
+    of base parameters and of equations per sample, for the message.
 
     ``filter_positions = False`` (``[processing.periodic]`` only): the positions are averaged
     over the periods but not filtered (velocities and accelerations zero), for a caller that
@@ -232,7 +311,17 @@ def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str, *,
     if n_trim is None:
         n_trim = padlen_for(lp.order, lp.cutoff_hz, fs) if lp is not None else 2
     if 2 * n_trim >= t.shape[0] - 2:
-        raise InputError(f"{label}: {t.shape[0]} samples are too few to trim {n_trim} filter-transient samples at each end")
+        n, left = t.shape[0], t.shape[0] - 2 * n_trim
+        msg = (f"{label}: {n} samples; after trimming {n_trim} filter-transient samples at each end "
+               f"{left if left > 0 else 'none'} remain")
+        if unknowns is not None:
+            n_base, per = unknowns()
+            after = n_base // per + 1
+            msg += (f"; the {n_base} base parameters need at least {after + 2 * n_trim} samples ({after} after "
+                    f"trimming, {per} equations each)")
+        else:
+            msg += f"; at least {2 * n_trim + 3} samples are needed"
+        raise InputError(msg)
     keep = slice(n_trim, t.shape[0] - n_trim)
     steps.append({"step": "trim", "samples_each_end": int(n_trim)})
     k = cfg.decimate

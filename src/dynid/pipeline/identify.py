@@ -23,12 +23,13 @@ from dynid.io.output import staged_output
 from dynid.model.base_parameters import BaseParameters, StandardMap, robot_base_parameters
 from dynid.model.regressor import regressor
 from dynid.model.mechanism import Mechanism
-from dynid.model.robot import RobotModel
+from dynid.model.robot import RobotModel, joint_kinds
 from dynid.pipeline import stribeck
 from dynid.pipeline.data import (
     build_robot,
     check_held_out,
     check_joint_motion,
+    check_units,
     configured_estimator,
     preprocess,
     read_log,
@@ -315,13 +316,21 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     if nonlinear:
         stribeck.check_config(cfg, robot)
     names = robot.joint_names
+    kinds = joint_kinds(robot.pin_model)
+    check_units(cfg.data, kinds, names, "data")
+    check_units(cfg.validation, kinds, names, "validation")
     readers: dict = {}
     raw_train = read_log(cfg.data, robot.dof, names, "data", readers)
     raw_valid = read_log(cfg.validation, robot.dof, names, "validation", readers)
     check_held_out(raw_train, raw_valid)
     train_j, notes = to_joint_space(raw_train, robot, "data")
     valid_j, _ = to_joint_space(raw_valid, robot, "validation")
-    train, steps = preprocess(train_j, cfg.processing, "data")
+    icfg = cfg.identification
+
+    def unknowns() -> tuple[int, int]:
+        return robot_base_parameters(robot, n_samples=icfg.base_samples, seed=icfg.base_seed).n_base, robot.dof
+
+    train, steps = preprocess(train_j, cfg.processing, "data", unknowns=unknowns)
     held_out, _ = preprocess(valid_j, cfg.processing, "validation")
     check_joint_motion(train, robot, cfg.identification.min_joint_motion, "data")
     progress("base parameters", 0, 1)
@@ -345,7 +354,6 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         "processing": steps,
         "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
     }
-    icfg = cfg.identification
     fj = None
     if nonlinear:
         fj = stribeck.friction_joints(robot, base)

@@ -40,7 +40,8 @@ from dynid.model.loop_kinematics import actuator_states
 from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.transmission import Transmission
 from dynid.pipeline import stribeck
-from dynid.pipeline.data import check_held_out, configured_estimator, ml_covariances, preprocess, read_log
+from dynid.model.robot import joint_kinds
+from dynid.pipeline.data import check_held_out, check_units, configured_estimator, ml_covariances, preprocess, read_log
 
 __all__ = ["identify_mechanism", "mechanism_channels"]
 
@@ -223,13 +224,23 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
         stribeck.check_config(cfg, mech)
     force_model = _force_model(cfg, mech)
     names = tuple(mech.actuated_names)
+    kinds = joint_kinds(mech.pin_model, mech.actuated)
+    check_units(cfg.data, kinds, names, "data")
+    check_units(cfg.validation, kinds, names, "validation")
     readers: dict = {}
     raw_train = read_log(cfg.data, mech.n_actuators, names, "data", readers)
     raw_valid = read_log(cfg.validation, mech.n_actuators, names, "validation", readers)
     check_held_out(raw_train, raw_valid)
     train_a, notes = _actuator_space(raw_train, mech, "data")
     valid_a, _ = _actuator_space(raw_valid, mech, "validation")
-    train, steps = preprocess(train_a, cfg.processing, "data")
+    icfg = cfg.identification
+
+    def unknowns() -> tuple[int, int]:
+        n_base = mechanism_base_parameters(mech, distribution=force_model, n_samples=icfg.base_samples,
+                                           seed=icfg.base_seed).n_base
+        return n_base, len(mechanism_channels(mech, force_model))
+
+    train, steps = preprocess(train_a, cfg.processing, "data", unknowns=unknowns)
     held_out, _ = preprocess(valid_a, cfg.processing, "validation")
     rng = np.ptp(train.q, axis=0)
     still = [f"{n} (range {r:.3g})" for n, r in zip(names, rng) if r < cfg.identification.min_joint_motion]
@@ -255,7 +266,6 @@ def identify_mechanism(cfg: Config, mech: Mechanism, progress, versions: dict[st
         "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
     }
     chunk = max(1, min(int(cfg.identification.chunk_size), 2000))
-    icfg = cfg.identification
     periodic = cfg.processing.periodic
     if icfg.method == "ml":
         result, periodic, worst = _maximum_likelihood(cfg, mech, base, train_a, channels, chunk, progress, meta)

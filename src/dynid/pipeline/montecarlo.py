@@ -395,12 +395,27 @@ def _notes(cfg: MonteCarloConfig) -> list[str]:
     return notes
 
 
+def _check_identify_robot(cfg: MonteCarloConfig) -> None:
+    """Load the robot of ``[identify.robot]`` once before anything runs: a model that cannot be
+    loaded is a configuration error, not a failure of every trial."""
+    if "robot" not in cfg.identify:
+        return
+    from dynid.pipeline.data import build_robot
+
+    robot_cfg = cfg.identify_config(cfg.base_dir / "trial.npz", ["a"], "torque", 1000).robot
+    try:
+        build_robot(robot_cfg)
+    except (ModelError, InputError, ConfigError) as exc:
+        raise type(exc)(f"identify.robot.model: {exc}") from None
+
+
 def run_montecarlo(cfg: MonteCarloConfig, progress: Progress = _no_progress) -> MonteCarloResult:
     """Run the study of ``cfg`` (nothing is written; see module docstring)."""
     from joblib import delayed
 
     from dynid.pipeline.simulate import run_simulation
 
+    _check_identify_robot(cfg)
     t_start = time.perf_counter()
     with _parallel(cfg) as (parallel, backend, workers):
         sim_s = 0.0

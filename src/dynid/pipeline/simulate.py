@@ -34,7 +34,7 @@ from dynid import __version__
 from dynid._files import TIMING_FILE, save_npz, write_timing
 from dynid.config.simulate import SimulateConfig
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError, InputError
+from dynid.errors import ConfigError, read_file_text
 from dynid.io.output import staged_output
 from dynid.model.closed_loop import mechanism_base_parameters
 from dynid.model.loading import load_model
@@ -188,20 +188,25 @@ def _design_trajectory(cfg: SimulateConfig, names: list[str]) -> FourierTrajecto
     """The Fourier series of a ``dynid design`` result (its design.json)."""
     path = Path(cfg.trajectory.values["design"])
     path = path if path.is_absolute() else cfg.base_dir / path
-    if not path.is_file():
-        raise InputError(f"design file not found: {path}")
+    text = read_file_text(path, "design file")
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(text)
         traj = doc["trajectory"]
         coords = doc["coordinates"]
-    except (ValueError, KeyError) as exc:
+        if not isinstance(traj, dict) or not isinstance(coords, list):
+            raise ValueError("'trajectory' must be an object and 'coordinates' a list")
+    except (ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{path}: not a design.json of dynid design ({exc})") from None
     if traj.get("kind") != "fourier":
         raise ConfigError(f"{path}: a {traj.get('kind')!r} design; trajectory.design takes periodic Fourier designs")
     if list(coords) != list(names):
         raise ConfigError(f"{path}: the design moves {coords}, the simulated robot's coordinates are {names} "
                           "(set trajectory.coordinates as the design did)")
-    return FourierTrajectory(traj["base_frequency_hz"], np.array(traj["a"]), np.array(traj["b"]), np.array(traj["q0"]))
+    try:
+        return FourierTrajectory(float(traj["base_frequency_hz"]), np.array(traj["a"], dtype=float),
+                                 np.array(traj["b"], dtype=float), np.array(traj["q0"], dtype=float))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"{path}: not a design.json of dynid design (its Fourier coefficients: {exc})") from None
 
 
 def _gains(value, n: int, where: str) -> np.ndarray:
@@ -291,11 +296,16 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
     ratio = c.rate_hz / log_rate
     if abs(ratio - round(ratio)) > 1e-9 or ratio < 1:
         raise ConfigError(f"sensors.log_rate_hz = {log_rate:g} must divide control.rate_hz = {c.rate_hz:g}")
+    for key in ("encoder_resolution", "position_noise_std", "torque_constants"):
+        value = getattr(s, key)
+        if isinstance(value, tuple) and len(value) != n_act:
+            raise ConfigError(f"sensors.{key} has {len(value)} entries for {n_act} actuators")
     sensors = Sensors(
         encoder_resolution=s.encoder_resolution, position_noise_std=s.position_noise_std,
         force_covariance=_force_covariance(s, n_act), torque_constants=s.torque_constants,
         decimation=int(round(ratio)), time_jitter_std=s.time_jitter_std, seed=s.seed,
     )
+    sensors.check(n_act)  # refuse a bad covariance now, not after the simulation
     if mech:
         if c.kind != "computed_torque":
             raise ConfigError(f"control.kind = {c.kind!r} is for serial robots; a mechanism uses 'computed_torque'")

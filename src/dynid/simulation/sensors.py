@@ -81,6 +81,10 @@ class Sensors:
         if self.torque_constants is not None and np.any(np.asarray(self.torque_constants) == 0):
             raise InputError("torque constants must be non-zero")
 
+    def check(self, n_a: int) -> None:
+        """Refuse settings that do not fit ``n_a`` actuators (before a long simulation)."""
+        self._covariance(n_a)
+
     def _covariance(self, n_a: int) -> FloatArray:
         c = np.asarray(self.force_covariance, dtype=float)
         if c.ndim < 2:

@@ -1,0 +1,105 @@
+"""Building blocks of the strict TOML schemas of :mod:`dynid.config`: typed readers of one value
+that raise :class:`~dynid.errors.ConfigError` naming the dotted key, and the reader of a TOML file."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from dynid.errors import ConfigError, decode_text, read_file_bytes
+
+__all__ = ["read_toml"]
+
+
+def _table(value: Any, where: str, allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where}: expected a table, got {type(value).__name__}")
+    _reject_unknown(value, where, allowed)
+    missing = sorted(required - set(value))
+    if missing:
+        raise ConfigError(f"{where}: missing required keys {missing}")
+    return value
+
+
+def _reject_unknown(value: Mapping[str, Any], where: str, allowed: set[str]) -> None:
+    unknown = sorted(set(value) - allowed)
+    if unknown:
+        dotted = [k if where == "config" else f"{where}.{k}" for k in unknown]
+        raise ConfigError(
+            f"unknown key{'s' if len(dotted) > 1 else ''} {', '.join(dotted)}; allowed keys in "
+            f"{'the top level' if where == 'config' else f'[{where}]'} are {sorted(allowed)}"
+        )
+
+
+def _str(value: Any, where: str, choices: tuple[str, ...] | None = None) -> str:
+    if not isinstance(value, str):
+        raise ConfigError(f"{where}: expected a string, got {value!r}")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"{where}: must be one of {list(choices)}, got {value!r}")
+    return value
+
+
+def _num(value: Any, where: str, positive: bool = False, *, minimum: float | None = None) -> float:
+    """A finite number (TOML's ``nan`` and ``inf`` are refused); ``positive``: > 0;
+    ``minimum``: >= that value."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{where}: expected a number, got {value!r}")
+    if not math.isfinite(value):  # TOML allows nan and inf
+        raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+    if positive and not value > 0:
+        raise ConfigError(f"{where}: must be positive, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ConfigError(f"{where}: must be >= {minimum:g}, got {value!r}")
+    return float(value)
+
+
+def _int(value: Any, where: str, minimum: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ConfigError(f"{where}: must be >= {minimum}, got {value}")
+    return int(value)
+
+
+def _bool(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where}: expected true or false, got {value!r}")
+    return value
+
+
+def _list(value: Any, where: str, item, n: int | None = None) -> tuple:
+    if not isinstance(value, list):
+        raise ConfigError(f"{where}: expected a list, got {value!r}")
+    if n is not None and len(value) != n:
+        raise ConfigError(f"{where}: expected {n} entries, got {len(value)}")
+    return tuple(item(v, f"{where}[{i}]") for i, v in enumerate(value))
+
+
+def _num_or_list(value: Any, where: str, positive: bool = False, *, minimum: float | None = None):
+    """A number, or a non-empty list of numbers (per joint / actuator / channel)."""
+    if isinstance(value, list):
+        if not value:
+            raise ConfigError(f"{where}: empty list; give a number or one per joint/actuator")
+        return _list(value, where, lambda v, w: _num(v, w, positive, minimum=minimum))
+    return _num(value, where, positive, minimum=minimum)
+
+
+def _path(value: Any, where: str, base: Path) -> Path:
+    p = Path(_str(value, where)).expanduser()
+    # canonical, so that one file named two ways is recognised as the same file
+    return (p if p.is_absolute() else (base / p)).resolve()
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    """A TOML document, or a one-line error naming the file (missing, a folder, unreadable,
+    empty, not UTF-8 text, invalid TOML)."""
+    text = decode_text(read_file_bytes(path, "config file"), path, "config file", ConfigError)
+    if not text.strip():
+        raise ConfigError(f"config file {path} is empty")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
