@@ -131,13 +131,18 @@ def _relocate(obj, stage: str, folder: str):
     return obj
 
 
-def _track(mech, true_params, model_params, path) -> tuple[np.ndarray, dict]:
+def _track(mech, true_params, model_params, path):
+    """The rectangle tracked under the augmented PD with ``model_params`` in the controller."""
     sim = ConstrainedSimulator(mech, true_params)
     ctrl = AugmentedPD(mech, model_params, np.full(2, 35000.0), np.full(2, 300.0), "min_norm_local_friction")
-    m = simulate_mechanism_control(sim, ctrl, path.sample, duration=path.duration, dt=1.0 / 500.0)
-    xy = mech.coordinates(m.q)
+    return simulate_mechanism_control(sim, ctrl, path.sample, duration=path.duration, dt=1.0 / 500.0)
+
+
+def _tracking(mech, motion, path) -> tuple[np.ndarray, dict]:
+    """End-effector path and tracking errors (paper 001 Eq. 23) of a simulated motion."""
+    xy = mech.coordinates(motion.q)
     return xy, {k: (np.asarray(v).tolist() if not isinstance(v, float) else v)
-                for k, v in tracking_errors(path.sample(m.t)[0], xy).items()}
+                for k, v in tracking_errors(path.sample(motion.t)[0], xy).items()}
 
 
 def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int = DEMO_SEED) -> DemoOutcome:
@@ -179,7 +184,10 @@ def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int =
         progress("track", 0, 3)
         paths, tracking = {}, {}
         for k, (label, params) in enumerate((("nominal", nominal), ("identified (WLS)", identified), ("true", true_std))):
-            paths[label], tracking[label] = _track(mech, true_std, params, path)
+            # the validation log is that very experiment with the nominal model (the controller
+            # never sees the sensors): its true motion is the nominal row
+            motion = sims["validation"].motion if label == "nominal" else _track(mech, true_std, params, path)
+            paths[label], tracking[label] = _tracking(mech, motion, path)
             progress("track", k + 1, 3)
         demo = DemoOutcome(wls, outcomes["ols"], true_base, tracking, out)
         (stage / "tracking.json").write_text(json.dumps(tracking, indent=2) + "\n")
