@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import snapshot
 
 
 ROBOT = """\
@@ -267,14 +268,6 @@ def case(command: str, name: str, *fragments: str, marks=()):
 def edit(command: str, name: str, old: str, new: str, *fragments: str) -> None:
     """Register a case that changes one piece of the good configuration of ``command``."""
     case(command, name, *fragments)(lambda w: w.run(command, old, new))
-
-
-def snapshot(path: Path) -> dict | None:
-    if not path.exists():
-        return None
-    if path.is_file():
-        return {"": path.read_bytes()}
-    return {str(p.relative_to(path)): p.read_bytes() if p.is_file() else None for p in sorted(path.rglob("*"))}
 
 
 def assert_refused(code: int, out: str, err: str, fragments, folder: Path, out_dir: Path, before) -> str:

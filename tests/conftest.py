@@ -71,3 +71,13 @@ def run_dynid(args: list[str], cwd: Path, timeout: float = 900) -> subprocess.Co
     """``dynid <args>`` as a real process in ``cwd``, on one BLAS thread (callers run several at once)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     return subprocess.run(dynid_command() + args, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+def snapshot(path: Path) -> dict | None:
+    """Every file under ``path`` with its bytes (``{"": bytes}`` for a file; None: absent), to
+    check that a refused command left its output folder as it was."""
+    if not path.exists():
+        return None
+    if path.is_file():
+        return {"": path.read_bytes()}
+    return {str(p.relative_to(path)): p.read_bytes() if p.is_file() else None for p in sorted(path.rglob("*"))}

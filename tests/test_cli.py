@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import dynid_command
+from conftest import dynid_command, snapshot
 
 from dynid.model import load_robot, robot_base_parameters
 from dynid.simulation import FourierTrajectory, simulate_serial
@@ -296,14 +296,6 @@ class Run:
     @property
     def out(self) -> Path:
         return self.folder / "out"
-
-
-def snapshot(path: Path) -> dict | None:
-    if not path.exists():
-        return None
-    if path.is_file():
-        return {"": path.read_bytes()}
-    return {str(p.relative_to(path)): p.read_bytes() if p.is_file() else None for p in sorted(path.rglob("*"))}
 
 
 @pytest.fixture(scope="module")
