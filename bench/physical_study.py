@@ -59,9 +59,9 @@ from dynid.config.simulate import parse_simulate_config
 from dynid.errors import DynidError
 from dynid.estimation import is_feasible
 from dynid.model.base_parameters import StandardMap, pseudo_inertia
-from dynid.model.mechanism import Mechanism
+from dynid.model.system import as_system
 from dynid.pipeline import identify
-from dynid.pipeline.identify import validate
+from dynid.pipeline.identification import validate
 from dynid.pipeline.simulate import run_simulation, write_simulation
 from dynid.stats import average_error, chi2_radius, relative_absolute_error
 
@@ -140,12 +140,8 @@ def _config(setup: dict, actuators, train: Path, valid: Path, ident: dict, proce
 
 
 def _standard_map(outcome) -> StandardMap:
-    """The map the estimator used (the mechanism's is built in the pipeline)."""
-    if isinstance(outcome.robot, Mechanism):
-        from dynid.pipeline.identify_mechanism import _standard_map as mechanism_map
-
-        return mechanism_map(outcome.robot, outcome.base)
-    return StandardMap.of(outcome.robot, outcome.base)
+    """The map the estimator used."""
+    return as_system(outcome.robot).standard_map(outcome.base)
 
 
 @dataclasses.dataclass
@@ -263,14 +259,9 @@ def _sweep(case: _Case, ident: dict, reference_increase: float, p: int, extra: i
 
 def _predict(outcome, beta: np.ndarray) -> np.ndarray:
     """Held-out efforts predicted with base parameters ``beta``, exactly as the pipeline's
-    validation does (serial: ``validate``; a mechanism: the pipeline's chunks)."""
-    if not isinstance(outcome.robot, Mechanism):
-        return validate(dataclasses.replace(outcome.result, params=beta), outcome.robot, outcome.base,
-                        outcome.held_out).predicted
-    from dynid.pipeline.identify_mechanism import _chunks
-
-    chunks = _chunks(outcome.robot, outcome.base, outcome.held_out, None, 2000, lambda *a: None, "validate")
-    return np.concatenate([W @ beta for W, _, _ in chunks])
+    validation does."""
+    return validate(dataclasses.replace(outcome.result, params=beta), outcome.robot, outcome.base,
+                    outcome.held_out).predicted
 
 
 def _inertial(B: np.ndarray, standard_names) -> np.ndarray:

@@ -37,7 +37,8 @@ from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.pipeline import identify
 from dynid.pipeline.data import preprocess, read_log
-from dynid.pipeline.identify_mechanism import _chunks
+from dynid.model.system import as_system
+from dynid.pipeline.identification import _chunks
 from dynid.pipeline.simulate import run_simulation, write_simulation
 from dynid.signals.periodic import fourier_filter, fourier_fit
 
@@ -102,8 +103,8 @@ def study(quick: bool = False) -> dict:
             # processing alone leaves in the residual, before any estimation
             cfg = parse_config(doc, d)
             true_base = trained.base.from_standard(np.asarray(truth["true_parameters"]))
-            res_true = np.concatenate([y - W @ true_base for W, y, _ in _chunks(
-                trained.robot, trained.base, trained.train, None, 2000, lambda *a: None, "train",
+            res_true = np.concatenate([c.y - c.W @ true_base for c in _chunks(
+                as_system(trained.robot), trained.base, trained.train, None, chunk_size=2000,
                 periodic=cfg.processing.periodic)])
             # validation on the circle, processed in the time domain for every model
             vdoc = {**doc, "data": {**doc["data"], "file": str(d / "circle" / "log.csv")},
@@ -112,9 +113,9 @@ def study(quick: bool = False) -> dict:
             raw = read_log(vcfg.data, 6, tuple(trained.robot.actuated_names), "circle")
             held, _ = preprocess(raw, vcfg.processing, "circle")
             meas, pred = [], []
-            for W, y, _ in _chunks(trained.robot, trained.base, held, None, 2000, lambda *a: None, "validate"):
-                meas.append(y)
-                pred.append(W @ trained.result.params)
+            for c in _chunks(as_system(trained.robot), trained.base, held, None, chunk_size=2000):
+                meas.append(c.y)
+                pred.append(c.W @ trained.result.params)
             err = np.concatenate(meas) - np.concatenate(pred)
             rows[label] = {"error_variance_N2": np.var(err, axis=0).tolist(), "mean_variance_N2": float(np.var(err, axis=0).mean()),
                            "truth_residual_variance_N2": float(np.var(res_true, axis=0).mean())}

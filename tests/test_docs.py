@@ -86,3 +86,21 @@ def test_readme_design_example_parses():
     cfg = parse_design_config(tomllib.loads(block), REPO)
     assert (cfg.criterion, cfg.harmonics, cfg.starts) == ("d_opt", 5, 2)
     assert cfg.limits["velocity"] == 2.0
+
+
+def test_readme_parallel_robot_with_a_drive_train_parses(tmp_path):
+    """The README's 3-RPS through ball screws: a mechanism with gear ratios, drive gains, offsets
+    and motor currents builds one system whose drive train maps motor signals to its legs."""
+    import numpy as np
+
+    from dynid.pipeline.data import build_system
+
+    text = (REPO / "README.md").read_text().split("### Identifying one", 1)[1]
+    block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
+    cfg = parse_config(tomllib.loads(block), tmp_path)
+    system = build_system(cfg.robot)
+    assert system.kind == "closed-loop" and system.actuator_names == ("P1", "P2", "P3")
+    tr = system.transmission
+    np.testing.assert_allclose(np.diag(tr.matrix), 2 * np.pi / 0.005, rtol=1e-6)
+    assert cfg.data.effort.kind == "current" and cfg.data.position.side == "motor"
+    assert [t.name for t in system.model.terms] == [f"{e}_P{k}" for k in (1, 2, 3) for e in ("Ia", "fv", "fc")]

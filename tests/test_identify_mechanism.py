@@ -145,20 +145,3 @@ def test_mechanism_config_errors(tmp_path, extra, message):
         robot="fivebar", q='["q_qa1", "q_qa2"]', tau='["tau_qa1", "tau_qa2"]', extra=extra))
     r = _dynid("identify", "identify.toml", "--out", "id", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
-
-
-@pytest.mark.parametrize(
-    "processing, message",
-    [
-        ('decimate = 2\ndecimate_method = "parallel"', "not available for closed-loop mechanisms yet"),
-        ("min_velocity = [0.01]", "min_velocity is not available for closed-loop mechanisms"),
-    ],
-)
-def test_mechanism_unsupported_processing_is_refused(tmp_path, processing, message):
-    (tmp_path / "train").mkdir()
-    (tmp_path / "train" / "log.csv").write_text("t,q_qa1,q_qa2,tau_qa1,tau_qa2\n0,0,0,0,0\n")
-    text = IDENTIFY.format(robot="fivebar", q='["q_qa1", "q_qa2"]', tau='["tau_qa1", "tau_qa2"]', extra="")
-    text = text.replace("[processing]\n", f"[processing]\n{processing}\n")
-    (tmp_path / "identify.toml").write_text(text)
-    r = _dynid("identify", "identify.toml", "--out", "id", cwd=tmp_path)
-    assert r.returncode == 2 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr

@@ -130,7 +130,7 @@ def test_trial_zero_is_the_simulate_experiment_and_resimulate_varies_the_robot(c
 def test_failed_trials_are_counted_and_reported(monkeypatch, tmp_path):
     import importlib
 
-    identify_module = importlib.import_module("dynid.pipeline.identify")
+    identify_module = importlib.import_module("dynid.pipeline.identification")
 
     real = identify_module.identify
     calls = []

@@ -12,7 +12,7 @@ from dynid.dataset import Dataset
 from dynid.estimation import OLS
 from dynid.model import Coupling, Transmission, load_robot, robot_base_parameters
 from dynid.pipeline import identify
-from dynid.pipeline.identify import build_problem
+from dynid.pipeline.identification import build_problem
 from dynid.simulation import FourierTrajectory, simulate_serial
 
 TR = Transmission.from_ratios(

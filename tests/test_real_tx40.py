@@ -24,7 +24,7 @@ from conftest import shared_file
 from dynid.estimation import OLS
 from dynid.model import robot_base_parameters
 from dynid.pipeline.data import build_robot, preprocess, read_log, to_joint_space
-from dynid.pipeline.identify import build_problem
+from dynid.pipeline.identification import build_problem
 
 pytestmark = pytest.mark.realdata
 

@@ -24,7 +24,7 @@ from dynid.model.closed_loop import actuator_regressor
 from dynid.model.friction import Stribeck
 from dynid.model.loop_kinematics import actuator_states
 from dynid.pipeline import identify
-from dynid.pipeline.identify import write_outputs
+from dynid.pipeline.identification import write_outputs
 from dynid.trajectories import FourierTrajectory
 
 FS = 100.0  # log rate [Hz]
@@ -293,7 +293,7 @@ def test_montecarlo_refuses_stribeck(tmp_path):
 def test_summary_warns_when_exported_masses_are_far_from_nominal(cobot, tmp_path):
     import dataclasses
 
-    from dynid.pipeline.identify import export_warnings
+    from dynid.pipeline.identification import export_warnings
 
     _, o, _ = cobot
     assert export_warnings(o) == []  # the fit's masses are near the (nominal + 0.01 kg) truth

@@ -74,6 +74,7 @@ class RobotConfig:
     couplings: tuple[CouplingConfig, ...] = ()
     drive_gains: tuple[float, ...] | None = None
     position_offset: tuple[float, ...] | None = None
+    extras_given: bool = False  # extras named in the file (a mechanism then gains them on its actuated joints)
 
     @property
     def has_transmission(self) -> bool:
@@ -273,6 +274,7 @@ def _parse_robot(t: Any, base: Path) -> RobotConfig:
         couplings=tuple(couplings),
         drive_gains=num_list("drive_gains", nonzero=True),
         position_offset=num_list("position_offset"),
+        extras_given="extras" in t,
     )
 
 

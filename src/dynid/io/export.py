@@ -54,7 +54,8 @@ from dynid.model.closures import PointCoordinates
 from dynid.model.mechanism import Mechanism
 from dynid.model.robot import RobotModel
 
-__all__ = ["RANGE_CONVENTIONS", "inertia_about_com", "write_mjcf", "write_urdf"]
+__all__ = [
+    "RANGE_CONVENTIONS", "inertia_about_com", "write_mjcf", "write_model", "write_urdf"]
 
 RANGE_CONVENTIONS = ("pinocchio", "mujoco")
 """How :func:`write_mjcf` writes joint ranges of joints with a ``ref`` (see there)."""
@@ -232,6 +233,16 @@ def _inertial_comment(m: float, I_c: FloatArray, body: str) -> ET.Element | None
 
 
 # ---------------------------------------------------------------------------- URDF
+def write_model(robot: RobotModel | Mechanism, params: FloatArray, folder: str | Path, *, name: str | None = None) -> Path:
+    """The robot with standard parameters ``params`` as a description a simulator loads:
+    ``model.urdf`` for a serial robot, ``model.mjcf`` for a closed-loop mechanism (whose loop
+    closures URDF cannot express), in ``folder``. Returns the path."""
+    folder = Path(folder)
+    if isinstance(robot, Mechanism):
+        return write_mjcf(robot, params, folder / "model.mjcf", name=name)
+    return write_urdf(robot, params, folder / "model.urdf", name=name)
+
+
 def write_urdf(robot: RobotModel, params: FloatArray, path: str | Path, *, name: str | None = None) -> Path:
     """Write a serial robot with the given standard parameters as a URDF file.
 

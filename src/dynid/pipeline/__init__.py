@@ -1,7 +1,7 @@
 """Composition: configuration -> objects -> results (identify, demo)."""
 
 from dynid.pipeline.data import build_robot, preprocess, read_log, to_joint_space
-from dynid.pipeline.identify import IdentifyOutcome, ValidationMetrics, build_problem, identify, validate, write_outputs
+from dynid.pipeline.identification import IdentifyOutcome, ValidationMetrics, build_problem, identify, validate, write_outputs
 
 __all__ = [
     "IdentifyOutcome",

@@ -11,7 +11,7 @@ Steps (each recorded in the returned provenance, in order):
 6. trim the filter transients at both ends, then keep one sample in ``decimate``
    (``decimate_method = "samples"``), or leave the data at full rate for the parallel
    decimation of regressor and efforts done while the problem is built
-   (``decimate_method = "parallel"``, Gautier; see :mod:`dynid.pipeline.identify`).
+   (``decimate_method = "parallel"``, Gautier; see :mod:`dynid.pipeline.identification`).
 """
 
 from __future__ import annotations
@@ -27,12 +27,12 @@ from dynid.config import EFFORT_UNITS, POSITION_UNITS, TIME_UNITS, DataConfig, P
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, IdentifiabilityError, InputError
 from dynid.io.readers import TableReader
-from dynid.model.loading import load_robot
-from dynid.model.robot import RobotModel
+from dynid.model.mechanism import Mechanism
+from dynid.model.system import System, as_system, with_actuator_extras
 from dynid.model.transmission import Coupling, Transmission
 from dynid.signals import central_difference, lowpass, padlen_for, resample_uniform
 
-__all__ = ["build_robot", "check_units", "read_log", "check_held_out", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask"]
+__all__ = ["build_system", "build_robot", "to_actuator_space", "check_units", "read_log", "check_held_out", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask"]
 
 _TORQUE_UNITS = ("N*m", "Nm", "N.m", "mN*m")
 _FORCE_UNITS = ("N",)
@@ -40,26 +40,37 @@ _ANGLE_UNITS = ("rad", "deg")
 _LENGTH_UNITS = ("m", "mm")
 
 
-def build_robot(cfg: RobotConfig):
-    """The robot model of ``[robot]`` with its transmission (a :class:`RobotModel`), or a
-    closed-loop :class:`~dynid.model.mechanism.Mechanism` when the model is one."""
+def build_system(cfg: RobotConfig) -> System:
+    """The robot of ``[robot]`` as a :class:`~dynid.model.system.System`: the model (serial or
+    closed-loop), the actuator extras (a mechanism gains the extras named in the file as joint
+    terms on its actuated joints) and the drive train of its actuators (gear ratios, couplings,
+    drive gains, encoder offsets), for serial and parallel robots alike."""
     from dynid.model.loading import load_model
-    from dynid.model.mechanism import Mechanism
 
-    robot0 = load_model(cfg.model, extras=cfg.extras)
-    if isinstance(robot0, Mechanism) or not cfg.has_transmission:
-        return robot0
-    n = robot0.dof
+    model = load_model(cfg.model, extras=cfg.extras)
+    if isinstance(model, Mechanism) and cfg.extras_given:
+        model = with_actuator_extras(model, cfg.extras)
+    system = as_system(model)
+    if not cfg.has_transmission:
+        return system
+    n = system.n_actuators
     for key, val in (("gear_ratios", cfg.gear_ratios), ("drive_gains", cfg.drive_gains), ("position_offset", cfg.position_offset)):
         if val is not None and len(val) != n:
-            raise ConfigError(f"robot.{key}: {len(val)} entries for a robot with {n} joints")
+            raise ConfigError(f"robot.{key}: {len(val)} entries for a robot with {n} "
+                              f"{'joints' if system.kind == 'serial' else 'actuators'} ({', '.join(system.actuator_names)})")
     transmission = Transmission.from_ratios(
         cfg.gear_ratios if cfg.gear_ratios is not None else np.ones(n),
         [Coupling(c.motor, c.joints, c.weights) for c in cfg.couplings],
         drive_gains=cfg.drive_gains if cfg.drive_gains is not None else 1.0,
         position_offset=cfg.position_offset if cfg.position_offset is not None else 0.0,
     )
-    return load_robot(cfg.model, extras=cfg.extras, transmission=transmission)
+    return as_system(model, transmission)
+
+
+def build_robot(cfg: RobotConfig):
+    """The model of :func:`build_system` (a :class:`RobotModel` with its transmission, or a
+    :class:`~dynid.model.mechanism.Mechanism`)."""
+    return build_system(cfg).model
 
 
 def _units(sig, n: int, label: str) -> tuple[str | None, ...]:
@@ -223,9 +234,11 @@ def check_held_out(train: Dataset, held_out: Dataset) -> None:
                          "on a window that training does not use")
 
 
-def to_joint_space(ds: Dataset, robot: RobotModel, label: str) -> tuple[Dataset, list[str]]:
-    """Map motor-side quantities to joint space; returns the dataset and notes."""
-    tr = robot.transmission
+def to_actuator_space(ds: Dataset, system: System, label: str) -> tuple[Dataset, list[str]]:
+    """Map motor-side quantities to the actuators (the joints of a serial robot, the actuated
+    joints of a mechanism) through the drive train: ``q_a = C^{-1}θ + q_0``, ``τ_a = C^T τ_m``,
+    ``τ_a = C^T K i``. Returns the dataset and notes."""
+    tr = system.transmission
     notes: list[str] = []
     q, dq, ddq, tau = ds.q, ds.dq, ds.ddq, ds.tau
     if ds.meta["position_side"] == "motor":
@@ -238,7 +251,7 @@ def to_joint_space(ds: Dataset, robot: RobotModel, label: str) -> tuple[Dataset,
         q = q + tr.position_offset
     if ds.meta["effort_kind"] == "current":
         if tr is None:
-            tr_eff = Transmission.identity(robot.dof)
+            tr_eff = Transmission.identity(system.n_actuators)
             notes.append("efforts are motor currents with unit drive gains: parameters absorb the unknown gains")
         else:
             tr_eff = tr
@@ -249,8 +262,14 @@ def to_joint_space(ds: Dataset, robot: RobotModel, label: str) -> tuple[Dataset,
         if tr is None:
             raise ConfigError(f"{label}.effort.side = 'motor' needs robot.gear_ratios")
         tau = tr.joint_torques(tau)
-    out = ds.replace(q=q, dq=dq, ddq=ddq, tau=tau, names=robot.joint_names, meta={"position_side": "joint", "effort_kind": "torque", "effort_side": "joint"})
+    out = ds.replace(q=q, dq=dq, ddq=ddq, tau=tau, names=system.actuator_names,
+                     meta={"position_side": "joint", "effort_kind": "torque", "effort_side": "joint"})
     return out, notes
+
+
+def to_joint_space(ds: Dataset, robot, label: str) -> tuple[Dataset, list[str]]:
+    """:func:`to_actuator_space` of a robot model (a serial robot's actuators are its joints)."""
+    return to_actuator_space(ds, as_system(robot), label)
 
 
 def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str, *, filter_positions: bool = True,
@@ -389,17 +408,16 @@ def _preprocess_periodic(ds: Dataset, t, q, tau, fs: float, pc, steps: list, lab
     return out, steps
 
 
-def check_joint_motion(ds: Dataset, robot: RobotModel, min_range: float, label: str) -> None:
-    """Refuse data in which a joint never moves: its parameters would be unidentifiable."""
+def check_joint_motion(ds: Dataset, system: System, min_range: float, label: str) -> None:
+    """Refuse data in which an actuator never moves: its parameters would be unidentifiable."""
     rng = np.ptp(ds.q, axis=0)
-    still = [j for j in range(robot.dof) if rng[j] < min_range]
+    still = [j for j in range(system.n_actuators) if rng[j] < min_range]
     if not still:
         return
-    lay = robot.layout
-    names: list[str] = []
-    for j in still:
-        names += [lay.names[idx[j]] for e, idx in lay.extra_index.items() if e != "offset"]
-    joints = ", ".join(f"{robot.joint_names[j]} (range {rng[j]:.3g} rad)" for j in still)
+    names = system.still_parameters(still)
+    kinds = system.actuator_kinds()
+    joints = ", ".join(f"{system.actuator_names[j]} (range {rng[j]:.3g} {'m' if kinds[j] == 'prismatic' else 'rad'})"
+                       for j in still)
     raise IdentifiabilityError(
         f"{label}: joint never moves: {joints}; unidentifiable parameters include {', '.join(names) or 'its inertial terms'}",
         tuple(names),

@@ -32,7 +32,7 @@ from dynid.config import load_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.io.output import staged_output
 from dynid.model.robots import build_mechanism
-from dynid.pipeline.identify import IdentifyOutcome, Progress, _no_progress, identify, write_files
+from dynid.pipeline.identification import IdentifyOutcome, Progress, _no_progress, identify, write_files
 from dynid.pipeline.simulate import run_simulation, write_simulation
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
 from dynid.trajectories import PolylinePath

@@ -128,7 +128,7 @@ def run_trial(plan: _Plan, k: int) -> TrialOutcome:
     """Trial ``k`` of ``plan``: measure (or simulate) and identify (one BLAS thread)."""
     from threadpoolctl import threadpool_limits
 
-    from dynid.pipeline.identify import identify
+    from dynid.pipeline.identification import identify
     from dynid.pipeline.simulate import measure_signals, run_simulation
 
     cfg = plan.config

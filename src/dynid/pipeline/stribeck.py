@@ -14,23 +14,22 @@ The nonlinear fit works on uncompressed rows: ``max_samples`` samples evenly spr
 processed training log (all of them when there are fewer). The held-out log is predicted in full
 with :func:`~dynid.estimation.stribeck_problem.stribeck_predict`.
 
-``processing.min_velocity`` (serial robots) leaves out, per joint equation, the samples where the
-joint is slower than the threshold: where a joint sticks at a reversal its friction is whatever
+``processing.min_velocity`` leaves out, per actuator equation (whole samples for the projected
+equations of a redundant mechanism), the samples where the actuator is slower than the threshold: where a joint sticks at a reversal its friction is whatever
 holds it, which no static friction curve describes (a simulated twin shows it: the friction a
 sticking joint needs is below the Stribeck curve's). Keep the threshold well below the Stribeck
 velocity, or the data no longer see the Stribeck term.
 
 Refused with a one-line error (never replaced by the linear model): methods other than ``ols``
 and ``wls``, regularization, per-body bounds, nominal weighting, parallel decimation (a low-pass
-of the regressor columns does not commute with the nonlinear term), the ``pose`` domain of
-periodic processing, and models without Coulomb and viscous friction terms.
+of the regressor columns does not commute with the nonlinear term), and models without Coulomb
+and viscous friction terms. In the ``pose`` domain of periodic processing the rows of the whole
+period are built first (the pose is filtered over whole periods), then thinned to ``max_samples``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
-
 import numpy as np
 
 from dynid._typing import FloatArray
@@ -40,7 +39,6 @@ from dynid.errors import ConfigError, IdentifiabilityError
 from dynid.estimation import IdentificationResult
 from dynid.estimation.nonlinear import SampleProblem, StribeckLS, stribeck_predict
 from dynid.model.base_parameters import BaseParameters, StandardMap
-from dynid.model.mechanism import Mechanism
 
 __all__ = ["FrictionJoints", "check_config", "friction_joints", "subsample", "sample_problem", "estimator", "predict",
            "describe"]
@@ -63,10 +61,9 @@ class FrictionJoints:
         return W[:, :, list(self.coulomb)] * np.sign(dq[:, list(self.velocity)])[:, None, :]
 
 
-def check_config(cfg: Config, robot) -> None:
+def check_config(cfg: Config, system) -> None:
     """The settings a Stribeck fit cannot honour and a model without friction joints (module
     docstring); before any data is read."""
-    mechanism = isinstance(robot, Mechanism)
     icfg, p = cfg.identification, cfg.processing
     w = "identification.friction_model = 'stribeck'"
     if icfg.method not in ("ols", "wls"):
@@ -78,48 +75,24 @@ def check_config(cfg: Config, robot) -> None:
     if icfg.nominal_weighting:
         raise ConfigError(f"{w} weights by the noise of each channel; remove identification.nominal_weighting")
     if p.decimate > 1 and p.decimate_method == "parallel":
-        raise ConfigError(f"{w} needs unfiltered regressor columns: use processing.decimate_method = 'samples'")
-    if mechanism and p.periodic is not None and p.periodic.domain == "pose":
-        raise ConfigError(f"{w} is not available with processing.periodic.domain = 'pose' yet")
-    _pairs(robot)
+        raise ConfigError(f"{w} needs unfiltered regressor columns (a low-pass does not commute with the Stribeck "
+                          "term): use processing.decimate_method = 'samples'")
+    _pairs(system)
 
 
-def _velocity_unit(model, v_index: int) -> str:
-    """``"m/s"`` for a prismatic joint of a pinocchio model (velocity index), else ``"rad/s"``."""
-    for jm in model.joints[1:]:
-        if jm.idx_v <= v_index < jm.idx_v + jm.nv:
-            name = jm.shortname()
-            return "m/s" if "Prismatic" in name or name.startswith("JointModelP") else "rad/s"
-    return "rad/s"
-
-
-def _pairs(robot) -> tuple[list[tuple[str, str, str, int]], list[str]]:
-    pairs: list[tuple[str, str, str, int]] = []  # (joint, coulomb name, viscous name, velocity column)
-    units: list[str] = []
-    if isinstance(robot, Mechanism):
-        single = {(t.kind, t.joints[0]): t.name for t in robot.terms if len(t.joints) == 1}
-        for i, (j, name) in enumerate(zip(robot.actuated, robot.actuated_names)):
-            if ("coulomb", j) in single and ("viscous", j) in single:
-                pairs.append((name, single[("coulomb", j)], single[("viscous", j)], i))
-                units.append(_velocity_unit(robot.pin_model, j))
-        what = "the actuated joints have no Coulomb and viscous terms of their own"
-    else:
-        ext = robot.layout.extra_index
-        if "fc" in ext and "fv" in ext:
-            pn = robot.parameter_names
-            pairs = [(j, pn[ext["fc"][k]], pn[ext["fv"][k]], k) for k, j in enumerate(robot.joint_names)]
-            units = [_velocity_unit(robot.pin_model, k) for k in range(len(pairs))]
-        what = "the robot has no fc and fv extras (robot.extras)"
+def _pairs(system) -> tuple[list[tuple[str, str, str, int]], list[str]]:
+    pairs, units = system.friction_pairs()
     if not pairs:
+        what = ("the robot has no fc and fv extras (robot.extras)" if system.kind == "serial" else
+                "the actuated joints have no Coulomb and viscous terms of their own (robot.extras = [\"fv\", \"fc\", ...] adds them)")
         raise ConfigError(f"identification.friction_model = 'stribeck' adds a Stribeck term to Coulomb and viscous "
                           f"friction, but {what}")
     return pairs, units
 
 
-def friction_joints(robot, base: BaseParameters) -> FrictionJoints:
-    """The friction joints of a serial :class:`~dynid.model.robot.RobotModel` or a
-    :class:`Mechanism` (module docstring)."""
-    pairs, units = _pairs(robot)
+def friction_joints(system, base: BaseParameters) -> FrictionJoints:
+    """The friction joints of a :class:`~dynid.model.system.System` (module docstring)."""
+    pairs, units = _pairs(system)
     grouped = [n for _, c, v, _ in pairs for n in (c, v) if n not in base.names]
     if grouped:
         raise IdentifiabilityError(f"friction coefficients {grouped} are not base parameters of their own: their Stribeck "
@@ -129,29 +102,29 @@ def friction_joints(robot, base: BaseParameters) -> FrictionJoints:
                           units=tuple(units))
 
 
+def sample_indices(n: int, max_samples: int) -> np.ndarray:
+    """At most ``max_samples`` indices evenly spread over ``n`` samples (all when fewer)."""
+    if n <= max_samples:
+        return np.arange(n)
+    return np.unique(np.round(np.linspace(0, n - 1, max_samples)).astype(int))
+
+
 def subsample(ds: Dataset, max_samples: int) -> Dataset:
     """At most ``max_samples`` samples of ``ds``, evenly spread over it (all when it has fewer)."""
     n = ds.n_samples
     if n <= max_samples:
         return ds
-    idx = np.unique(np.round(np.linspace(0, n - 1, max_samples)).astype(int))
+    idx = sample_indices(n, max_samples)
     return ds.select(idx, f"stribeck_rows[{idx.size} of {n}]")
 
 
-def sample_problem(chunks: Iterable[tuple[FloatArray, FloatArray]], ds: Dataset, fj: FrictionJoints,
-                   base: BaseParameters, channels: tuple[str, ...], standard: StandardMap, meta: dict,
-                   min_velocity: tuple[float, ...] | None = None) -> SampleProblem:
-    """The :class:`SampleProblem` of the rows ``(W_base, y)`` that ``chunks`` yields for the
-    samples of ``ds`` (in order); ``min_velocity`` [rad/s or m/s] per joint equation (serial
-    robots: channel ``j`` is joint ``j``)."""
-    from dynid.pipeline.data import velocity_mask
-
-    Ws, ys = zip(*chunks)
-    W, y = np.concatenate(Ws), np.concatenate(ys)
-    dq = np.asarray(ds.dq)[: W.shape[0]]
+def sample_problem(W: FloatArray, y: FloatArray, dq: FloatArray, mask: np.ndarray | None, fj: FrictionJoints,
+                   base: BaseParameters, channels: tuple[str, ...], standard: StandardMap, meta: dict) -> SampleProblem:
+    """The :class:`SampleProblem` of base-regressor rows ``W`` (n, n_ch, r), outputs ``y``, actuator
+    velocities ``dq`` (n, n_a) and the rows kept per channel (``mask``, None: all)."""
     return SampleProblem(names=base.names, channel_names=channels, W=W, y=y, velocity=dq[:, list(fj.velocity)],
                          friction_names=fj.names, coulomb=fj.coulomb, viscous=fj.viscous, standard=standard,
-                         projection=fj.projection(W, dq), mask=velocity_mask(dq, min_velocity), meta=meta)
+                         projection=fj.projection(W, dq), mask=mask, meta=meta)
 
 
 def estimator(cfg: Config) -> StribeckLS:

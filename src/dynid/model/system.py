@@ -1,0 +1,393 @@
+"""One protocol for every robot: a serial arm is a mechanism without closures.
+
+The pipeline (identify, simulate, design, Monte Carlo), the estimators' constraint map and the
+export see a robot only through :class:`System`: its **actuators** (the joints of a serial arm, the
+actuated joints of a parallel robot), the drive train between motors and actuators
+(:class:`~dynid.model.transmission.Transmission`: gear ratios, couplings, drive gains, encoder
+offsets), its standard parameters and the regression rows that map actuator states to model
+outputs. Two implementations:
+
+* :class:`SerialSystem` wraps a :class:`~dynid.model.robot.RobotModel`: the velocity map is
+  :math:`G = I` and the actuators are the joints, so the rows are pinocchio's joint-torque
+  regressor with the extras (the serial fast path of :func:`dynid.model.regressor.regressor`,
+  no projection, no kinematic solve);
+* :class:`ClosedLoopSystem` wraps a :class:`~dynid.model.mechanism.Mechanism`: all joint states
+  are solved from the actuator states through the loops
+  (:func:`dynid.model.loop_kinematics.actuator_states`, warm-started chunk after chunk) and the
+  rows are the virtual-power projection :math:`G_a^{-T}G^T[Y\\;F]`
+  (:func:`dynid.model.closed_loop.actuator_regressor`), or the projected equations of a
+  redundantly actuated mechanism.
+
+Both read the same configuration: the actuator extras ``Ia``, ``fv``, ``fc``, ``offset``
+(rotor inertia, viscous and Coulomb friction, offset) are per-joint columns of a serial layout and
+joint terms ``<extra>_<joint>`` on the actuated joints of a mechanism
+(:func:`with_actuator_extras`); the transmission maps motor signals to actuator signals for both
+(``q_a = C^{-1}θ + q_0``, ``τ_a = C^T K i``).
+
+What stays specific is physical: a redundantly actuated mechanism needs a force model
+(:data:`~dynid.model.closed_loop.DISTRIBUTIONS`), a serial arm has none; only a mechanism that
+reaches its platform through a chain of joints has a platform pose (``task_coordinates``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+from dynid._typing import FloatArray
+from dynid.errors import ConfigError, ModelError
+from dynid.model.base_parameters import BaseParameters, StandardMap, robot_base_parameters
+from dynid.model.closed_loop import DISTRIBUTIONS, actuator_regressor, mechanism_base_parameters
+from dynid.model.closures import JointCoordinates, JointTerm
+from dynid.model.loop_kinematics import actuator_states, platform_pose, pose_states
+from dynid.model.mechanism import Mechanism
+from dynid.model.regressor import regressor
+from dynid.model.robot import JOINT_EXTRAS, RobotModel, joint_kinds
+from dynid.model.transmission import Transmission
+
+__all__ = ["ClosedLoopSystem", "Rows", "SerialSystem", "System", "as_system", "with_actuator_extras"]
+
+EXTRA_KINDS = {"Ia": "inertia", "fv": "viscous", "fc": "coulomb", "offset": "offset"}
+"""Joint-term kind of each actuator extra."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Rows:
+    """Regression rows of a chunk of samples: ``W[i] @ params`` is the model output of sample ``i``
+    (standard parameters), ``y`` the measured outputs, ``inconsistency`` the RMS residual of
+    redundant actuator positions (zero otherwise)."""
+
+    W: FloatArray
+    y: FloatArray
+    inconsistency: FloatArray
+
+
+class System(Protocol):
+    """What the pipeline knows of a robot (module docstring)."""
+
+    kind: str  # "serial" or "closed-loop"
+    name: str
+    model: Any  # the RobotModel or Mechanism
+    transmission: Transmission | None
+    dof: int
+    n_actuators: int
+    redundant: bool
+    actuator_names: tuple[str, ...]
+    parameter_names: tuple[str, ...]
+    task_coordinates: tuple[str, ...]
+
+    def actuator_kinds(self) -> tuple[str, ...]: ...
+    def nominal_parameters(self) -> FloatArray: ...
+    def body_blocks(self) -> tuple[np.ndarray, ...]: ...
+    def force_model(self, requested: str | None) -> str | None: ...
+    def channel_names(self, force_model: str | None) -> tuple[str, ...]: ...
+    def channels_are_actuators(self, force_model: str | None) -> bool: ...
+    def base_parameters(self, force_model: str | None = None, *, n_samples: int | None = None,
+                        seed: int = 0) -> BaseParameters: ...
+    def standard_map(self, base: BaseParameters) -> StandardMap: ...
+    def rows(self, force_model: str | None) -> Any: ...
+    def friction_pairs(self) -> tuple[list[tuple[str, str, str, int]], list[str]]: ...
+    def still_parameters(self, actuators: Sequence[int]) -> list[str]: ...
+    def describe(self) -> dict[str, Any]: ...
+
+
+def _velocity_unit(kind: str) -> str:
+    return "m/s" if kind == "prismatic" else "rad/s"
+
+
+# ---------------------------------------------------------------------------------------- serial
+class _SerialRows:
+    """Rows of a serial robot: the joint-torque regressor (G = I), one buffer reused per chunk."""
+
+    def __init__(self, robot: RobotModel) -> None:
+        self.robot, self.data, self.buf = robot, robot.create_data(), None
+
+    def __call__(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, tau: FloatArray, start: int = 0) -> Rows:
+        n = q.shape[0]
+        shape = (n, self.robot.dof, self.robot.n_standard_params)
+        if self.buf is None or self.buf.shape[0] < n:
+            self.buf = np.empty(shape)
+        W = regressor(self.robot, q, dq, ddq, data=self.data, out=self.buf[:n])
+        return Rows(W=W, y=np.asarray(tau, dtype=float), inconsistency=np.zeros(n))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SerialSystem:
+    """A serial (tree) robot as a :class:`System`: actuators = joints, :math:`G = I`."""
+
+    model: RobotModel
+    kind: str = dataclasses.field(default="serial", init=False)
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+    @property
+    def transmission(self) -> Transmission | None:
+        return self.model.transmission
+
+    @property
+    def dof(self) -> int:
+        return self.model.dof
+
+    @property
+    def n_actuators(self) -> int:
+        return self.model.dof
+
+    redundant = False
+    task_coordinates: tuple[str, ...] = ()
+
+    @property
+    def actuator_names(self) -> tuple[str, ...]:
+        return self.model.joint_names
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return self.model.parameter_names
+
+    def actuator_kinds(self) -> tuple[str, ...]:
+        return joint_kinds(self.model.pin_model)
+
+    def nominal_parameters(self) -> FloatArray:
+        return self.model.nominal_parameters()
+
+    def body_blocks(self) -> tuple[np.ndarray, ...]:
+        return self.model.body_blocks()
+
+    def force_model(self, requested: str | None) -> str | None:
+        if requested is not None:
+            raise ConfigError(f"identification.force_model applies to redundantly actuated mechanisms; {self.name!r} is "
+                              "a serial robot, whose joint torques are unique")
+        return None
+
+    def channel_names(self, force_model: str | None) -> tuple[str, ...]:
+        return self.model.joint_names
+
+    def channels_are_actuators(self, force_model: str | None) -> bool:
+        return True
+
+    def base_parameters(self, force_model: str | None = None, *, n_samples: int | None = None,
+                        seed: int = 0) -> BaseParameters:
+        return robot_base_parameters(self.model, n_samples=n_samples, seed=seed)
+
+    def standard_map(self, base: BaseParameters) -> StandardMap:
+        return StandardMap.of(self.model, base)
+
+    def rows(self, force_model: str | None) -> _SerialRows:
+        return _SerialRows(self.model)
+
+    def friction_pairs(self) -> tuple[list[tuple[str, str, str, int]], list[str]]:
+        """``(joint, Coulomb name, viscous name, velocity column)`` of the joints with ``fc`` and
+        ``fv`` extras, and their velocity units."""
+        ext = self.model.layout.extra_index
+        if "fc" not in ext or "fv" not in ext:
+            return [], []
+        pn, kinds = self.parameter_names, self.actuator_kinds()
+        pairs = [(j, pn[ext["fc"][k]], pn[ext["fv"][k]], k) for k, j in enumerate(self.actuator_names)]
+        return pairs, [_velocity_unit(kinds[k]) for k in range(len(pairs))]
+
+    def still_parameters(self, actuators: Sequence[int]) -> list[str]:
+        lay = self.model.layout
+        return [lay.names[idx[j]] for j in actuators for e, idx in lay.extra_index.items() if e != "offset"]
+
+    def describe(self) -> dict[str, Any]:
+        r = self.model
+        return {"name": r.name, "kind": "serial", "dof": r.dof, "extras": list(r.extras),
+                "transmission": r.transmission.describe() if r.transmission else None}
+
+
+# ----------------------------------------------------------------------------------- closed loop
+class _MechanismRows:
+    """Rows of a mechanism: all joint states from the actuator states (warm-started from the
+    previous chunk's solution at the same or the nearest earlier sample), then the actuator-space
+    regressor."""
+
+    def __init__(self, mech: Mechanism, force_model: str | None) -> None:
+        self.mech, self.force_model = mech, force_model
+        self.data = mech.pin_model.createData()
+        self.last: tuple[int, FloatArray] | None = None  # (start sample, joint positions) of the previous chunk
+
+    def _guess(self, start: int) -> FloatArray | None:
+        if self.last is None:
+            return None
+        a, Q = self.last
+        k = start - a
+        return Q[k] if 0 <= k < Q.shape[0] else Q[-1]
+
+    def __call__(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, tau: FloatArray, start: int = 0) -> Rows:
+        state, resid = actuator_states(self.mech, q, dq, ddq, q0=self._guess(start), sample_offset=start)
+        self.last = (start, state.q)
+        reg = actuator_regressor(self.mech, state, distribution=self.force_model, data=self.data)
+        return Rows(W=reg.W, y=reg.outputs(tau), inconsistency=resid)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ClosedLoopSystem:
+    """A closed-loop :class:`~dynid.model.mechanism.Mechanism` as a :class:`System`, with the
+    drive train of its actuators."""
+
+    model: Mechanism
+    transmission: Transmission | None = None
+    kind: str = dataclasses.field(default="closed-loop", init=False)
+
+    def __post_init__(self) -> None:
+        if self.transmission is not None and self.transmission.n != self.model.n_actuators:
+            raise ModelError(f"the transmission has {self.transmission.n} motors but {self.model.name!r} has "
+                             f"{self.model.n_actuators} actuators")
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+    @property
+    def dof(self) -> int:
+        return self.model.dof
+
+    @property
+    def n_actuators(self) -> int:
+        return self.model.n_actuators
+
+    @property
+    def redundant(self) -> bool:
+        return self.model.redundant
+
+    @property
+    def task_coordinates(self) -> tuple[str, ...]:
+        return self.model.task_coordinates
+
+    @property
+    def actuator_names(self) -> tuple[str, ...]:
+        return tuple(self.model.actuated_names)
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return self.model.parameter_names
+
+    def actuator_kinds(self) -> tuple[str, ...]:
+        return joint_kinds(self.model.pin_model, self.model.actuated)
+
+    def nominal_parameters(self) -> FloatArray:
+        return self.model.nominal_parameters()
+
+    def body_blocks(self) -> tuple[np.ndarray, ...]:
+        return self.model.body_blocks()
+
+    def force_model(self, requested: str | None) -> str | None:
+        m = self.model
+        if m.redundant:
+            fm = requested or "projected"
+            if fm not in DISTRIBUTIONS:
+                raise ConfigError(f"identification.force_model = {fm!r}; choose from {list(DISTRIBUTIONS)}")
+            return fm
+        if requested is not None:
+            raise ConfigError(f"identification.force_model applies to redundantly actuated mechanisms; {m.name!r} has "
+                              f"{m.n_actuators} actuators for {m.dof} degrees of freedom")
+        return None
+
+    def channel_names(self, force_model: str | None) -> tuple[str, ...]:
+        """The actuators, or the independent coordinates for the projected equations of a
+        redundantly actuated mechanism."""
+        if force_model == "projected":
+            ind = self.model.independent
+            if isinstance(ind, JointCoordinates):
+                return tuple(f"u_{self.model.pin_model.names[j + 1]}" for j in ind.joints)
+            return tuple(f"u_{'xyz'[a]}" for a in ind.axes)
+        return self.actuator_names
+
+    def channels_are_actuators(self, force_model: str | None) -> bool:
+        return force_model != "projected"
+
+    def base_parameters(self, force_model: str | None = None, *, n_samples: int | None = None,
+                        seed: int = 0) -> BaseParameters:
+        return mechanism_base_parameters(self.model, distribution=force_model if self.redundant else None,
+                                         n_samples=n_samples, seed=seed)
+
+    def standard_map(self, base: BaseParameters) -> StandardMap:
+        m = self.model
+        return StandardMap(standard_names=m.parameter_names, B=base.B, body_blocks=m.body_blocks(),
+                           nonnegative=m.nonnegative_parameters(), reference=m.nominal_parameters(),
+                           nonpositive=m.nonpositive_parameters())
+
+    def rows(self, force_model: str | None) -> _MechanismRows:
+        return _MechanismRows(self.model, force_model)
+
+    def friction_pairs(self) -> tuple[list[tuple[str, str, str, int]], list[str]]:
+        """The actuated joints with a Coulomb and a viscous term of their own (as
+        :meth:`SerialSystem.friction_pairs`)."""
+        m = self.model
+        single = {(t.kind, t.joints[0]): t.name for t in m.terms if len(t.joints) == 1}
+        pairs, units = [], []
+        kinds = self.actuator_kinds()
+        for i, (j, name) in enumerate(zip(m.actuated, m.actuated_names)):
+            if ("coulomb", j) in single and ("viscous", j) in single:
+                pairs.append((name, single[("coulomb", j)], single[("viscous", j)], i))
+                units.append(_velocity_unit(kinds[i]))
+        return pairs, units
+
+    def platform_pose(self, qa: FloatArray) -> FloatArray:
+        """The platform pose of actuator positions (forward kinematics of every sample)."""
+        return platform_pose(self.model, qa)
+
+    def pose_rows(self, qa: FloatArray, tau: FloatArray, fs: float, cutoff_hz: float, force_model: str | None, *,
+                  pose: FloatArray | None = None, positions: bool = False):
+        """Rows of a whole averaged period through the platform pose, filtered in the frequency
+        domain (paper 004 §3.3; :func:`dynid.model.loop_kinematics.pose_states`), with the
+        actuator velocities (and, with ``positions``, the actuator positions) they imply."""
+        state, *_ = pose_states(self.model, qa, fs, cutoff_hz, pose=pose)
+        reg = actuator_regressor(self.model.in_task_space(), state, distribution=force_model if self.redundant else None)
+        act = list(self.model.actuated)
+        rows = Rows(W=reg.W, y=reg.outputs(tau), inconsistency=np.zeros(state.q.shape[0]))
+        return (rows, state.dq[:, act], state.q[:, act]) if positions else (rows, state.dq[:, act])
+
+    def still_parameters(self, actuators: Sequence[int]) -> list[str]:
+        m = self.model
+        joints = {m.actuated[a] for a in actuators}
+        return [t.name for t in m.terms if t.kind != "offset" and set(t.joints) <= joints]
+
+    def describe(self) -> dict[str, Any]:
+        m = self.model
+        return {"name": m.name, "kind": "closed-loop", "dof": m.dof, "actuators": list(self.actuator_names),
+                "transmission": self.transmission.describe() if self.transmission else None}
+
+
+def with_actuator_extras(mech: Mechanism, extras: Sequence[str]) -> Mechanism:
+    """``mech`` with a joint term ``<extra>_<joint>`` of each kind in ``extras`` (``Ia``, ``fv``,
+    ``fc``, ``offset``: rotor inertia, viscous and Coulomb friction, offset) on every actuated
+    joint that has no single-joint term of that kind yet (nominal value 0); the description's own
+    terms are kept as they are."""
+    unknown = [e for e in extras if e not in JOINT_EXTRAS]
+    if unknown:
+        raise ModelError(f"unknown joint extras {unknown}; choose from {list(JOINT_EXTRAS)}")
+    have = {(t.kind, t.joints[0]) for t in mech.terms if len(t.joints) == 1}
+    names = {t.name for t in mech.terms}
+    new = []
+    for e in JOINT_EXTRAS:
+        if e not in extras:
+            continue
+        for j in mech.actuated:
+            kind = EXTRA_KINDS[e]
+            if (kind, j) in have:
+                continue
+            name = f"{e}_{mech.pin_model.names[j + 1]}"
+            if name in names:
+                raise ModelError(f"{mech.name!r} already has a joint term named {name!r} of another kind")
+            new.append(JointTerm(name, kind, (j,)))
+    if not new:
+        return mech
+    return dataclasses.replace(mech, terms=mech.terms + tuple(new), q_guess=mech.q_ref)
+
+
+def as_system(model, transmission: Transmission | None = None) -> SerialSystem | ClosedLoopSystem:
+    """The :class:`System` of a robot model (the only place that tells the two apart); a
+    :class:`System` is returned as it is."""
+    if isinstance(model, (SerialSystem, ClosedLoopSystem)):
+        return model
+    if isinstance(model, Mechanism):
+        return ClosedLoopSystem(model, transmission)
+    if transmission is not None:
+        model = model.replace(transmission=transmission)
+    return SerialSystem(model)
+

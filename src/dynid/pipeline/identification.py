@@ -1,0 +1,619 @@
+"""``dynid identify``: configuration -> identified base parameters -> validation -> files.
+
+One code path for serial and parallel robots (:mod:`dynid.model.system`): a serial arm is the
+mechanism without closures. The log holds what a robot measures: actuator (joint) positions and
+forces, or motor positions and currents through a drive train. Steps:
+
+1. read the named columns (units to SI, windows; :mod:`dynid.pipeline.data`), map motor-side
+   signals to the actuators through the transmission (``q_a = C^{-1}θ + q_0``, ``τ_a = C^T K i``);
+2. process them: resampling, zero-phase low-pass, derivatives, trimming, decimation (or the
+   period averaging and DFT filtering of paper 004 §3);
+3. regression rows chunk by chunk (:meth:`System.rows`): for a serial robot pinocchio's
+   joint-torque regressor with the extras; for a mechanism all joint states solved through the
+   loops from the actuator states and the actuator-space regressor by virtual power (for
+   redundant actuation the force model of ``identification.force_model``, default
+   ``"projected"``: the measured forces enter as :math:`G_a^T\\tau_a`);
+4. optionally Gautier's parallel decimation (each base-regressor column and each measured output
+   low-passed by the same zero-phase filter, one sample in ``k`` kept; Gautier 1997) and the rows
+   slower than ``processing.min_velocity`` left out (per actuator equation, or whole samples when
+   the equations are not the actuators' own: a full noise covariance, projected equations);
+5. compression into the regression problem (never the full regressor), the estimator of
+   ``[identification]`` (or the Stribeck fit, or maximum likelihood with the filter cut-off,
+   paper 004 Eq. 24), validation on held-out data processed identically, the output files.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import platform
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dynid import __version__
+from dynid._files import TIMING_FILE, write_timing
+from dynid._typing import FloatArray
+from dynid.config import Config
+from dynid.dataset import Dataset
+from dynid.errors import ConfigError, InputError
+from dynid.estimation import IdentificationResult, ProblemBuilder, RegressionProblem
+from dynid.io.output import staged_output
+from dynid.model.base_parameters import BaseParameters
+from dynid.model.system import System, as_system
+from dynid.pipeline import stribeck
+from dynid.pipeline.data import (
+    build_system,
+    check_held_out,
+    check_joint_motion,
+    check_units,
+    configured_estimator,
+    ml_covariances,
+    preprocess,
+    read_log,
+    to_actuator_space,
+    velocity_mask,
+)
+from dynid.signals import decimation_filter, decimation_segments, lowpass_sos
+from dynid.stats import REPEAT_THRESHOLD, nearest_distances
+
+__all__ = ["Chunk", "Progress", "ValidationMetrics", "IdentifyOutcome", "build_problem", "row_mask", "validate", "identify", "write_outputs",
+           "write_files", "OUTPUT_FILES"]
+
+Progress = Callable[[str, int, int], None]
+"""``progress(task, done, total)``: called as long work advances (the CLI draws a bar)."""
+
+MECHANISM_CHUNK = 2000
+"""Largest chunk of a mechanism's log solved through the loops at once (the batched kinematics
+hold a few (n, n_v, n_v) arrays)."""
+
+
+def _no_progress(task: str, done: int, total: int) -> None:
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class Chunk:
+    """Base-regressor rows of a chunk: ``W`` (n, n_ch, r), measured outputs ``y`` (n, n_ch), the
+    actuator velocities ``dq`` (n, n_a) (row selection, Stribeck friction) and the inconsistency of
+    redundant actuator positions (n,)."""
+
+    W: FloatArray
+    y: FloatArray
+    dq: FloatArray
+    inconsistency: FloatArray
+
+
+def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, *, parallel_decimate: int = 1,
+            chunk_size: int = 20000, progress: Progress = _no_progress, task: str = "compress",
+            periodic=None) -> Iterator[Chunk]:
+    """Yield the rows of ``ds`` chunk by chunk, at full rate or parallel-decimated.
+
+    Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
+    regressor and each measured output are low-passed by the same zero-phase filter and one
+    sample in ``k`` is kept, so forces and model see identical filtering even where the
+    regressor is non-smooth (Coulomb ``sign`` columns). Chunks overlap by 15 filter time
+    constants, which makes the result equal to whole-signal filtering to ~1e-12 without ever
+    holding the full regressor. ``periodic`` with ``domain = "pose"``: the whole averaged period
+    at once through the platform pose (paper 004 §3.3).
+    """
+    if periodic is not None and periodic.domain == "pose":
+        r, dq = system.pose_rows(ds.q, ds.tau, 1.0 / float(np.median(np.diff(ds.t))), periodic.cutoff_hz, force_model)
+        progress(task, ds.n_samples, ds.n_samples)
+        yield Chunk(base.regressor(r.W), r.y, dq, r.inconsistency)
+        return
+    if ds.dq is None or ds.ddq is None:
+        raise InputError("the dataset has no velocities/accelerations; preprocess it first")
+    n = ds.n_samples
+    size = max(1, int(chunk_size)) if system.kind == "serial" else max(1, min(int(chunk_size), MECHANISM_CHUNK))
+    rows = system.rows(force_model)
+    if parallel_decimate <= 1:
+        for a in range(0, n, size):
+            b = min(a + size, n)
+            r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
+            yield Chunk(base.regressor(r.W), r.y, ds.dq[a:b], r.inconsistency)
+            progress(task, b, n)
+        return
+    k = parallel_decimate
+    sos, margin = decimation_filter(k, ds.fs)
+    if n <= 2 * k:
+        raise InputError(f"{n} samples are too few to decimate by {k}")
+    for a, b, keep in decimation_segments(n, k, margin, max(size, 4 * margin)):
+        r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
+        filt = lambda x: lowpass_sos(x, sos)[keep]  # noqa: E731
+        yield Chunk(filt(base.regressor(r.W)), filt(r.y), filt(ds.dq[a:b]), r.inconsistency[keep])
+        progress(task, b, n)
+
+
+def row_mask(system: System, force_model: str | None, dq: FloatArray, min_velocity: tuple[float, ...] | None,
+             whole_samples: bool = False) -> FloatArray | None:
+    """Rows kept by ``processing.min_velocity`` (None: all): per actuator equation where the
+    equations are the actuators' own, else (projected equations of a redundant mechanism, or
+    ``whole_samples`` for a full noise covariance across channels) the whole samples in which every
+    actuator is at least that fast, broadcast to the channels."""
+    mask = velocity_mask(dq, min_velocity)
+    if mask is None or (system.channels_are_actuators(force_model) and not whole_samples):
+        return mask
+    return mask.all(axis=1)
+
+
+def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str | None = None,
+                  min_velocity: tuple[float, ...] | None = None, parallel_decimate: int = 1, chunk_size: int = 20000,
+                  progress: Progress = _no_progress, meta: dict[str, Any] | None = None, cross: bool = False,
+                  periodic=None) -> RegressionProblem:
+    """Compress a processed actuator-space dataset chunk by chunk (never the full regressor).
+
+    ``robot``: a :class:`~dynid.model.system.System` or a model. ``min_velocity`` drops the rows
+    where an actuator's (filtered) velocity is below the threshold [rad/s or m/s]: Coulomb friction
+    is ill-defined there (:func:`row_mask`).
+    """
+    return _compress(as_system(robot), base, ds, force_model=force_model, min_velocity=min_velocity,
+                     parallel_decimate=parallel_decimate, chunk_size=chunk_size, progress=progress, meta=meta,
+                     cross=cross, periodic=periodic)[0]
+
+
+def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model, min_velocity, parallel_decimate,
+              chunk_size, progress, meta, cross, periodic) -> tuple[RegressionProblem, float]:
+    """:func:`build_problem` and the largest inconsistency of redundant actuator positions."""
+    builder = ProblemBuilder(base.names, system.channel_names(force_model), cross=cross)
+    worst = 0.0
+    for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
+                     progress=progress, periodic=periodic):
+        mask = row_mask(system, force_model, c.dq, min_velocity, whole_samples=cross)
+        if mask is not None and mask.ndim == 1:
+            builder.add(c.W[mask], c.y[mask])
+        else:
+            builder.add(c.W, c.y, mask)
+        worst = max(worst, float(c.inconsistency.max(initial=0.0)))
+    problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta or {})
+    return problem, worst
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ValidationMetrics:
+    """Prediction errors of an identified model on held-out data."""
+
+    channel_names: tuple[str, ...]
+    n_samples: int
+    rmse: FloatArray
+    rms_measured: FloatArray
+    max_abs_error: FloatArray
+    r2: FloatArray
+    t: FloatArray
+    measured: FloatArray
+    predicted: FloatArray
+    source: dict[str, Any]
+    overlap: dict[str, Any] | None = None  # how close the validation motion comes to the training motion
+
+    @property
+    def in_sample(self) -> bool:
+        """The validation motion repeats the training motion (see :func:`motion_overlap`): its
+        errors are in-sample errors, whatever window or file they come from."""
+        return bool(self.overlap and self.overlap["repeats_training"])
+
+    @property
+    def label(self) -> str:
+        """``"held-out"`` or ``"in-sample"`` (what the validation errors are)."""
+        return "in-sample" if self.in_sample else "held-out"
+
+    def heading(self) -> str:
+        """The title of the validation table."""
+        if not self.in_sample:
+            return f"Validation on held-out data ({self.n_samples} samples; never used for training)"
+        return (f"Validation IN-SAMPLE ({self.n_samples} samples): the validation motion repeats the training motion "
+                f"(median distance to the nearest training state {self.overlap['median_distance']:.3g} training "
+                f"standard deviations, below {self.overlap['threshold']:g}); these errors do not show how the model "
+                "predicts new motion: validate on another trajectory")
+
+    @classmethod
+    def of(cls, channel_names, t: FloatArray, measured: FloatArray, predicted: FloatArray, source) -> ValidationMetrics:
+        """Errors of ``predicted`` against ``measured`` (n, channels) per channel."""
+        err = measured - predicted
+        centred = measured - measured.mean(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r2 = 1.0 - np.sum(err**2, axis=0) / np.sum(centred**2, axis=0)
+        return cls(
+            channel_names=tuple(channel_names),
+            n_samples=int(measured.shape[0]),
+            rmse=np.sqrt(np.mean(err**2, axis=0)),
+            rms_measured=np.sqrt(np.mean(measured**2, axis=0)),
+            max_abs_error=np.max(np.abs(err), axis=0),
+            r2=r2,
+            t=t,
+            measured=measured,
+            predicted=predicted,
+            source=dict(source) if isinstance(source, dict) else {"source": str(source)},
+        )
+
+    @property
+    def rel_rmse_pct(self) -> FloatArray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return 100.0 * self.rmse / self.rms_measured
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "joints": list(self.channel_names),
+            "n_samples": self.n_samples,
+            "rmse_per_joint": self.rmse.tolist(),
+            "rel_rmse_pct_per_joint": [float(x) if np.isfinite(x) else None for x in self.rel_rmse_pct],
+            "max_abs_error_per_joint": self.max_abs_error.tolist(),
+            "r2_per_joint": self.r2.tolist(),
+            "rms_measured_per_joint": self.rms_measured.tolist(),
+            "source": self.source,
+            "kind": self.label,
+            "motion_overlap": self.overlap,
+            **({"warning": self.heading()} if self.in_sample else {}),
+        }
+
+    def table(self) -> str:
+        rows = [("joint", "RMSE", "rel RMSE %", "max |err|", "R^2")]
+        for c, r, p, m, q in zip(self.channel_names, self.rmse, self.rel_rmse_pct, self.max_abs_error, self.r2):
+            rows.append((c, f"{r:.4g}", f"{p:.3g}", f"{m:.4g}", f"{q:.4f}"))
+        w = [max(len(r[i]) for r in rows) for i in range(5)]
+        lines = ["  ".join([r[0].ljust(w[0])] + [c.rjust(x) for c, x in zip(r[1:], w[1:])]) for r in rows]
+        lines.insert(1, "-" * len(lines[0]))
+        return "\n".join(lines)
+
+
+def validate(result: IdentificationResult, robot, base: BaseParameters, ds: Dataset, *,
+             force_model: str | None = None, parallel_decimate: int = 1, chunk_size: int = 20000,
+             progress: Progress = _no_progress, friction: stribeck.FrictionJoints | None = None,
+             periodic=None) -> ValidationMetrics:
+    """Predict the held-out outputs with the identified base parameters; per-channel errors.
+
+    The held-out data go through exactly the processing of the training data (including
+    parallel decimation when used). ``robot``: a :class:`~dynid.model.system.System` or a model.
+    ``friction``: the result is a Stribeck fit (:mod:`dynid.pipeline.stribeck`) with these
+    friction joints.
+    """
+    system = as_system(robot)
+    if friction is None and tuple(result.names) != base.names:
+        raise InputError("the result's parameters are not the base parameters of this robot")
+    meas, pred = [], []
+    for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
+                     progress=progress, task="validate", periodic=periodic):
+        meas.append(c.y)
+        pred.append(c.W @ result.params if friction is None else stribeck.predict(result, friction, c.W, c.dq))
+    measured, predicted = np.concatenate(meas), np.concatenate(pred)
+    k = max(1, parallel_decimate)
+    return ValidationMetrics.of(system.channel_names(force_model), np.asarray(ds.t)[::k][: measured.shape[0]],
+                                measured, predicted, ds.meta.get("source"))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class IdentifyOutcome:
+    config: Config
+    robot: Any  # the RobotModel or Mechanism identified
+    base: BaseParameters
+    result: IdentificationResult
+    validation: ValidationMetrics
+    train: Dataset
+    held_out: Dataset
+    notes: tuple[str, ...]
+    raw_train: Dataset | None = None  # the training log before processing (for the processing plot)
+    elapsed_s: float = float("nan")  # wall-clock time of the identification (timing.json)
+
+    def summary_text(self) -> str:
+        v = self.validation
+        lines = [
+            str(self.result.summary()),
+            "",
+            v.heading(),
+            v.table(),
+        ]
+        return "\n".join(lines)
+
+
+def _versions() -> dict[str, str]:
+    import numpy
+    import pinocchio
+    import scipy
+
+    return {
+        "dynid": __version__,
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "scipy": scipy.__version__,
+        "pinocchio": pinocchio.__version__,
+    }
+
+
+def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
+    """Run the whole identification described by ``cfg`` (nothing is written)."""
+    t0 = time.perf_counter()
+    outcome = _identify(cfg, progress)
+    validation = dataclasses.replace(outcome.validation, overlap=motion_overlap(outcome.train, outcome.held_out))
+    return dataclasses.replace(outcome, validation=validation, elapsed_s=time.perf_counter() - t0)
+
+
+def motion_overlap(train: Dataset, held_out: Dataset) -> dict[str, Any]:
+    """Does the validation motion repeat the training motion?
+
+    The processed states ``(q, dq, ddq)`` of every joint (actuator) are compared: each held-out
+    state's distance to the nearest training state, in training standard deviations
+    (:func:`dynid.stats.nearest_distances`). A median below
+    :data:`dynid.stats.REPEAT_THRESHOLD` (0.05) means the validation motion retraces the training
+    motion (a tail window of a periodic excitation, a copy of the log): its errors are in-sample
+    errors. A new trajectory lies about one standard deviation away.
+    """
+    states = lambda ds: np.hstack([ds.q, ds.dq, ds.ddq])  # noqa: E731
+    d = nearest_distances(states(train), states(held_out))
+    median = float(np.median(d))
+    return {"median_distance": median, "p90_distance": float(np.quantile(d, 0.9)), "threshold": REPEAT_THRESHOLD,
+            "repeats_training": median < REPEAT_THRESHOLD, "n_compared": int(d.size),
+            "metric": "distance of held-out (q, dq, ddq) to the nearest training state, in training standard deviations"}
+
+
+def _check_config(cfg: Config, system: System) -> str | None:
+    """Settings that cannot apply to this robot, for a physical reason; returns the force model."""
+    pc, icfg = cfg.processing.periodic, cfg.identification
+    if pc is not None and pc.domain == "pose" and not system.task_coordinates:
+        raise ConfigError(f"processing.periodic.domain = 'pose' is for parallel robots with a platform pose; "
+                          f"{system.name!r} has none (a serial arm, or a mechanism that declares no task coordinates)")
+    force_model = system.force_model(icfg.force_model)
+    if icfg.friction_model == "stribeck":
+        stribeck.check_config(cfg, system)
+    return force_model
+
+
+def _maximum_likelihood(cfg: Config, system: System, base: BaseParameters, train_a: Dataset, force_model: str | None,
+                        progress: Progress, meta: dict):
+    """Maximum likelihood with the filter cut-off (paper 004 Eq. 24): the averaged period is
+    filtered at every candidate cut-off (actuator positions, or the platform pose after one
+    forward kinematics), each gives a Gauss–Markov problem and the residual of the actuator
+    positions. Returns the result, the periodic processing at the chosen cut-off and the
+    largest inconsistency."""
+    from dynid.estimation.likelihood import CutoffFamily, MaximumLikelihood, cutoff_candidates
+    from dynid.signals.periodic import fourier_filter
+
+    pc, icfg = cfg.processing.periodic, cfg.identification
+    if pc is None:
+        raise ConfigError("identification.method = 'ml' estimates the cut-off of the frequency-domain filter: "
+                          "it needs [processing.periodic] (period averaging, paper 004 §3)")
+    if pc.filter_effort:
+        raise ConfigError("identification.method = 'ml' models the efforts as measured: set "
+                          "processing.periodic.filter_effort = false (paper 004 §3.3)")
+    if not system.channels_are_actuators(force_model):
+        raise ConfigError("identification.method = 'ml' models the measured actuator forces with one noise covariance; "
+                          "the projected equations G_a^T tau_a of a redundantly actuated mechanism weight them by the "
+                          "configuration: choose identification.force_model = 'min_norm' or 'min_norm_local_friction'")
+    channels = system.channel_names(force_model)
+    avg, steps = preprocess(train_a, cfg.processing, "data", filter_positions=False)
+    meta["processing"] = steps
+    cov_e, cov_d = ml_covariances(icfg, steps, tuple(channels), tuple(system.actuator_names))
+    fs = 1.0 / float(np.median(np.diff(avg.t)))
+    low, high = icfg.cutoff_range_hz or (0.5 * pc.cutoff_hz, 2.0 * pc.cutoff_hz)
+    cutoffs = cutoff_candidates(pc.period_s, fs, low, min(high, 0.5 * fs * (1 - 1e-9)))
+    pose = system.platform_pose(avg.q) if pc.domain == "pose" else None
+    worst = [0.0]
+
+    def build(fc: float):
+        progress("cut-off search", cutoffs.index(fc), len(cutoffs))
+        builder = ProblemBuilder(base.names, tuple(channels), cross=True)
+        if pose is not None:
+            r, _, q_f = system.pose_rows(avg.q, avg.tau, fs, fc, force_model, pose=pose, positions=True)
+            builder.add(base.regressor(r.W), r.y)
+        else:
+            q_f, dq, ddq = fourier_filter(avg.q, fs, fc)
+            for c in _chunks(system, base, avg.replace(q=q_f, dq=dq, ddq=ddq), force_model, chunk_size=icfg.chunk_size):
+                builder.add(c.W, c.y)
+                worst[0] = max(worst[0], float(c.inconsistency.max(initial=0.0)))
+        problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta)
+        return problem, avg.q - q_f
+
+    result = MaximumLikelihood(noise_covariance=cov_e, position_covariance=cov_d).fit(
+        CutoffFamily(cutoffs, build, 1.0 / pc.period_s))
+    progress("cut-off search", len(cutoffs), len(cutoffs))
+    return result, dataclasses.replace(pc, cutoff_hz=result.solver["cutoff_hz"]), worst[0]
+
+
+def _stribeck_fit(cfg: Config, system: System, base: BaseParameters, train: Dataset, force_model: str | None,
+                  periodic, progress: Progress, meta: dict):
+    """The Stribeck fit on at most ``max_samples`` rows spread over the processed log (the pose
+    domain's rows come from the whole period, then are thinned)."""
+    icfg, pcfg = cfg.identification, cfg.processing
+    fj = stribeck.friction_joints(system, base)
+    pose = periodic is not None and periodic.domain == "pose"
+    rows = train if pose else stribeck.subsample(train, icfg.max_samples)
+    chunks = list(_chunks(system, base, rows, force_model, chunk_size=icfg.chunk_size, progress=progress,
+                          task="Stribeck rows", periodic=periodic))
+    W, y, dq = (np.concatenate([getattr(c, a) for c in chunks]) for a in ("W", "y", "dq"))
+    if pose:
+        idx = stribeck.sample_indices(W.shape[0], icfg.max_samples)
+        W, y, dq = W[idx], y[idx], dq[idx]
+    worst = max(float(c.inconsistency.max(initial=0.0)) for c in chunks)
+    mask = row_mask(system, force_model, dq, pcfg.min_velocity)
+    if mask is not None and mask.ndim == 1:
+        mask = np.broadcast_to(mask[:, None], y.shape)
+    sp = stribeck.sample_problem(W, y, dq, mask, fj, base, system.channel_names(force_model),
+                                 system.standard_map(base), meta)
+    progress("Stribeck fit", 0, 1)
+    result = stribeck.describe(stribeck.estimator(cfg).fit(sp), base, fj, W.shape[0], train.n_samples,
+                               pcfg.min_velocity)
+    progress("Stribeck fit", 1, 1)
+    return result, fj, worst
+
+
+def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
+    system = build_system(cfg.robot)
+    force_model = _check_config(cfg, system)
+    icfg, pcfg = cfg.identification, cfg.processing
+    names, kinds = system.actuator_names, system.actuator_kinds()
+    check_units(cfg.data, kinds, names, "data")
+    check_units(cfg.validation, kinds, names, "validation")
+    readers: dict = {}
+    raw_train = read_log(cfg.data, system.n_actuators, names, "data", readers)
+    raw_valid = read_log(cfg.validation, system.n_actuators, names, "validation", readers)
+    check_held_out(raw_train, raw_valid)
+    train_a, notes = to_actuator_space(raw_train, system, "data")
+    valid_a, _ = to_actuator_space(raw_valid, system, "validation")
+    channels = system.channel_names(force_model)
+
+    def base_parameters() -> BaseParameters:
+        return system.base_parameters(force_model, n_samples=icfg.base_samples, seed=icfg.base_seed)
+
+    train, steps = preprocess(train_a, pcfg, "data", unknowns=lambda: (base_parameters().n_base, len(channels)))
+    held_out, _ = preprocess(valid_a, pcfg, "validation")
+    check_joint_motion(train, system, icfg.min_joint_motion, "data")
+    progress("base parameters", 0, 1)
+    base = base_parameters()
+    progress("base parameters", 1, 1)
+    parallel = pcfg.decimate if pcfg.decimate_method == "parallel" else 1
+    n_eff = -(-train.n_samples // parallel)
+    if n_eff * len(channels) <= base.n_base:
+        raise InputError(f"data: {n_eff} processed samples x {len(channels)} equations are fewer than the "
+                         f"{base.n_base} base parameters")
+    meta: dict[str, Any] = {
+        "versions": _versions(),
+        "config_file": str(cfg.source) if cfg.source else None,
+        "config": cfg.raw,
+        "robot": {"model": cfg.robot.model, **system.describe(),
+                  **({"force_model": force_model or "actuator forces (non-redundant)"} if system.kind != "serial" else {})},
+        "training_data": dict(raw_train.meta),
+        "validation_data": dict(raw_valid.meta),
+        "processing": steps,
+        "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
+    }
+    periodic, fj = pcfg.periodic, None
+    if icfg.method == "ml":
+        result, periodic, worst = _maximum_likelihood(cfg, system, base, train_a, force_model, progress, meta)
+        at_fc = dataclasses.replace(pcfg, periodic=periodic)  # both logs as processed at the estimated f_c
+        train, _ = preprocess(train_a, at_fc, "data")
+        held_out, _ = preprocess(valid_a, at_fc, "validation")
+    elif icfg.friction_model == "stribeck":
+        result, fj, worst = _stribeck_fit(cfg, system, base, train, force_model, periodic, progress, meta)
+    else:
+        problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
+                                       parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
+                                       meta=meta, cross=icfg.method == "gm", periodic=periodic)
+        nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
+        result = configured_estimator(icfg, steps, tuple(channels), tuple(names), nominal).fit(problem)
+    if pcfg.min_velocity is not None:
+        whole = icfg.method == "gm" or not system.channels_are_actuators(force_model)
+        result = result.with_provenance(
+            row_selection={"min_velocity": list(pcfg.min_velocity), "rows_kept_per_joint": result.n_obs.tolist(),
+                           "rule": ("whole samples with every actuator at least that fast" if whole
+                                    else "per actuator equation")}
+        )
+    notes = list(notes)
+    if force_model == "projected":
+        notes.append("redundant actuation: projected equations G_a^T tau_a (no assumption about the force distribution)")
+    elif force_model is not None:
+        notes.append(f"redundant actuation: actuator forces assumed distributed as {force_model!r} (an assumption about the controller)")
+    if system.redundant:
+        notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
+    if notes:
+        result = result.with_notes(*notes)
+    metrics = validate(result, system, base, held_out, force_model=force_model, parallel_decimate=parallel,
+                       chunk_size=icfg.chunk_size, progress=progress, friction=fj, periodic=periodic)
+    return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a)
+
+
+OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
+                "model.urdf", "model.mjcf", TIMING_FILE)
+
+
+def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Path]:
+    """Write result.json, result.npz, params.csv, summary.txt, timing.json (+ plots, report.html).
+
+    Files are staged and moved into ``out_dir`` only when all were written; dynid
+    outputs of an earlier run that this run did not produce are removed. Returns the
+    files of this run.
+    """
+    out = Path(out_dir)
+    with staged_output(out) as stage:
+        write_files(outcome, stage)
+        produced = sorted(p.name for p in stage.iterdir())
+    # outputs of an earlier run that this run did not write (e.g. plots now switched off)
+    # would describe another identification: remove them
+    for name in OUTPUT_FILES:
+        if name not in produced and (out / name).is_file():
+            (out / name).unlink()
+    return {name: out / name for name in produced}
+
+
+def export_model(outcome: IdentifyOutcome, folder: Path) -> Path | None:
+    """The recovered standard parameters of a physically consistent fit as a robot description:
+    ``model.urdf`` for a serial robot, ``model.mjcf`` for a closed-loop mechanism (None when the
+    method recovers no standard parameters)."""
+    std = outcome.result.solver.get("standard_params")
+    if not std:
+        return None
+    from dynid.io.export import write_model
+
+    robot = outcome.robot
+    names = robot.parameter_names
+    missing = [n for n in names if n not in std]
+    if missing:
+        raise InputError(f"the result's standard parameters do not match the robot (missing {missing[:3]})")
+    params = np.array([std[n] for n in names], dtype=float)
+    return write_model(robot, params, folder, name=f"{robot.name}_identified")
+
+
+def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]:
+    """Lines for summary.txt when the exported standard parameters are far from the model's
+    nominal ones: a body mass more than ``factor`` times above or below its nominal value. The
+    base parameters fix only combinations of the standard ones; without regularization the rest
+    comes from the tie-break, and a constrained fit on weak data can push it far (e.g. legs of
+    hundreds of tonnes that give the same actuator forces)."""
+    std = outcome.result.solver.get("standard_params")
+    robot = outcome.robot
+    if not std:
+        return []
+    nominal = robot.nominal_parameters()
+    names = robot.parameter_names
+    far = []
+    for blk in robot.body_blocks():
+        i = blk[0]
+        m, m0 = float(std[names[i]]), float(nominal[i])
+        if m0 > 0 and not (m0 / factor <= m <= m0 * factor):
+            far.append(f"{names[i]} = {m:.4g} kg (nominal {m0:.4g} kg)")
+    if not far:
+        return []
+    return [f"warning: the exported model's masses are far from the nominal ones: {', '.join(far)}. The data fix "
+            "the base parameters only; regularization towards the nominal model (identification.regularization) "
+            "gives standard parameters a simulator can trust."]
+
+
+def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
+    """Write the output files into an existing folder (see :func:`write_outputs`)."""
+    res = outcome.result
+    expressions = res.expressions if res.expressions is not None else outcome.base.expressions()
+    res.save(
+        stage / "result",
+        extra={
+            "validation": outcome.validation.to_dict(),
+            "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
+            "base_parameters": {
+                "names": list(outcome.base.names),
+                "expressions": list(expressions),
+                "standard_names": list(outcome.base.standard_names),
+            },
+        },
+    )
+    with open(stage / "params.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["name", "value", "std", "rel_std_pct", "ci_low", "ci_high", "expression"])
+        if res.cov_params is not None:
+            ci, bse, rel = res.conf_int(), res.bse, res.rel_std
+            stats = [(repr(float(bse[i])), f"{rel[i]:.6g}", repr(float(ci[i, 0])), repr(float(ci[i, 1]))) for i in range(len(res.names))]
+        else:  # the method gives no covariance (see the result's notes): leave the columns empty
+            stats = [("", "", "", "")] * len(res.names)
+        for i, n in enumerate(res.names):
+            w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i]])
+    warn = export_warnings(outcome)
+    (stage / "summary.txt").write_text(outcome.summary_text() + "\n" + "".join(f"\n{w}\n" for w in warn))
+    export_model(outcome, stage)
+    write_timing(stage, {"identify_s": outcome.elapsed_s, "solver": res.timing})
+    if outcome.config.output.plots:
+        from dynid.report import plot_validation, write_html_report
+
+        plot_validation(outcome.validation, stage / "validation.png")
+        if outcome.raw_train is not None:
+            from dynid.report.plots import plot_processing
+
+            plot_processing(outcome.raw_train, outcome.train, stage / "processing.png")
+        write_html_report(res, outcome.validation, stage / "report.html", plot="validation.png")

@@ -1,0 +1,219 @@
+"""One pipeline for serial and parallel robots (:mod:`dynid.model.system`).
+
+A parallel robot driven through ball screws logs what a serial arm logs: motor angles and motor
+currents. A virtual 3-RPS (builtin:rps3, true parameters 10 % off the nominal ones, rotor and screw
+inertia of each leg in its ``Ia`` term) is simulated under computed torque; its exact actuator
+states (no filtering, no differentiation: the simulator's own positions, velocities and
+accelerations) are logged on the motor side through a ball-screw gear ratio N = 2π / lead,
+with an encoder offset, and the leg forces as motor currents i = τ / (N K) with current noise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from dynid._files import save_npz
+from dynid.config import parse_config
+from dynid.config.simulate import parse_simulate_config
+from dynid.estimation import OLS
+from dynid.model.base_parameters import BaseParameters
+from dynid.model.system import as_system, with_actuator_extras
+from dynid.pipeline import identify
+from dynid.pipeline.data import build_system
+from dynid.pipeline.identification import build_problem
+from dynid.pipeline.simulate import run_simulation
+
+LEAD = 0.005  # m per motor turn
+N = 2 * np.pi / LEAD  # motor angle per leg length [rad/m]
+K = 0.45  # drive gain [N*m/A]
+Q0 = np.array([0.61, 0.62, 0.63])  # leg length when the encoder reads zero [m]
+SIGMA_I = 0.004  # current noise [A]: N * K * SIGMA_I = 2.3 N of leg force
+LEGS = ("P1", "P2", "P3")
+
+
+@pytest.fixture(scope="module")
+def rps3_motor_logs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rps3_motor")
+    sims = {}
+    for name, seed in (("train", 3), ("valid", 4)):
+        sims[name] = run_simulation(parse_simulate_config({
+            "robot": {"model": "builtin:rps3", "perturbation": 0.1, "perturbation_seed": 3},
+            "trajectory": {"kind": "fourier", "base_frequency_hz": 0.5, "harmonics": 3, "fill": 0.4,
+                           "max_velocity": 0.1, "max_acceleration": 1.0, "periods": 2, "seed": seed},
+            "control": {"rate_hz": 500, "kp": 2500, "kd": 100, "model": "true", "substeps": 2},
+        }, d))
+    rng = np.random.default_rng(7)
+    for name, sim in sims.items():
+        m = sim.motion
+        q, dq, ddq = (x[:, [1, 3, 5]] for x in (m.q, m.dq, m.ddq))
+        noise = SIGMA_I * rng.standard_normal(m.tau_a.shape)
+        cols = {"t": m.t}
+        for k, leg in enumerate(LEGS):
+            cols[f"theta_{leg}"] = N * (q[:, k] - Q0[k])
+            cols[f"dtheta_{leg}"] = N * dq[:, k]
+            cols[f"ddtheta_{leg}"] = N * ddq[:, k]
+            cols[f"i_{leg}"] = m.tau_a[:, k] / (N * K) + noise[:, k]
+            # the same experiment seen at the legs: positions [m], forces [N] with the same noise
+            cols[f"q_{leg}"], cols[f"dq_{leg}"], cols[f"ddq_{leg}"] = q[:, k], dq[:, k], ddq[:, k]
+            cols[f"tau_{leg}"] = N * K * cols[f"i_{leg}"]
+        save_npz(d / f"{name}.npz", cols)
+    return d, sims["train"].truth
+
+
+def _motor_doc(d, **identification) -> dict:
+    sig = lambda p, unit, **kw: {"columns": [f"{p}_{leg}" for leg in LEGS], "unit": unit, **kw}  # noqa: E731
+    data = {"time": {"column": "t"}, "position": sig("theta", "rad", side="motor"),
+            "velocity": sig("dtheta", "rad", side="motor"), "acceleration": sig("ddtheta", "rad", side="motor"),
+            "effort": sig("i", "A", kind="current")}
+    return {
+        "robot": {"model": "builtin:rps3", "gear_ratios": [N] * 3, "drive_gains": [K] * 3, "position_offset": Q0.tolist()},
+        "data": {"file": str(d / "train.npz"), **data},
+        "validation": {"file": str(d / "valid.npz")},
+        "processing": {"derivatives": "measured", "trim_samples": 0},
+        "identification": {"method": "ols", **identification},
+        "output": {"plots": False},
+    }
+
+
+def _leg_doc(d, **identification) -> dict:
+    sig = lambda p, unit, **kw: {"columns": [f"{p}_{leg}" for leg in LEGS], "unit": unit, **kw}  # noqa: E731
+    data = {"time": {"column": "t"}, "position": sig("q", "m"), "velocity": sig("dq", "m"),
+            "acceleration": sig("ddq", "m"), "effort": sig("tau", "N", kind="torque")}
+    doc = _motor_doc(d, **identification)
+    doc["robot"] = {"model": "builtin:rps3"}
+    doc["data"] = {"file": str(d / "train.npz"), **data}
+    return doc
+
+
+def test_rps3_from_motor_currents_through_ball_screws_covers_the_truth(rps3_motor_logs):
+    d, truth = rps3_motor_logs
+    out = identify(parse_config(_motor_doc(d), d))
+    res = out.result
+    names = truth["base_parameters"]["names"]
+    assert tuple(names) == tuple(res.names)
+    beta = np.asarray(truth["base_parameters"]["true_values"])
+    z = (res.params - beta) / res.bse
+    # exact states and white current noise: OLS z-scores are standard normal; the family of
+    # intervals at 99 % (Bonferroni) holds every true base parameter
+    bound = stats.norm.ppf(1 - 0.005 / len(beta))
+    assert np.max(np.abs(z)) < bound, dict(zip(names, np.round(z, 2)))
+    # rotor (reflected screw) inertias are identified: Ia_P* are base parameters of their own
+    ia = [names.index(f"Ia_{leg}") for leg in LEGS]
+    assert np.all(res.rel_std[ia] < 5.0), res.rel_std[ia]
+    # the residual is the current noise seen at the legs
+    np.testing.assert_allclose(np.sqrt(res.rss_per_channel / res.n_obs), N * K * SIGMA_I, rtol=0.1)
+
+
+def test_the_drive_train_route_equals_the_leg_route(rps3_motor_logs):
+    d, _ = rps3_motor_logs
+    motor = identify(parse_config(_motor_doc(d), d)).result
+    legs = identify(parse_config(_leg_doc(d), d)).result
+    np.testing.assert_allclose(motor.params, legs.params, rtol=1e-7, atol=1e-9 * np.abs(legs.params).max())
+    np.testing.assert_allclose(motor.bse, legs.bse, rtol=1e-6)
+
+
+def test_mechanism_parallel_decimation_and_min_velocity(rps3_motor_logs):
+    d, truth = rps3_motor_logs
+    cfg = parse_config(_leg_doc(d), d)
+    system = build_system(cfg.robot)
+    out = identify(cfg)
+    ds, base = out.train, out.base
+    whole = build_problem(system, base, ds, parallel_decimate=5, chunk_size=10**9)
+    chunked = build_problem(system, base, ds, parallel_decimate=5, chunk_size=300)
+    n_dec = -(-ds.n_samples // 5)
+    assert list(whole.n_obs) == list(chunked.n_obs) == [n_dec] * 3
+    np.testing.assert_allclose(OLS().fit(chunked).params, OLS().fit(whole).params, rtol=1e-7, atol=1e-9)
+    # the config route: parallel decimation of regressor and forces (Gautier) recovers the truth as
+    # well as the full-rate fit (the filter removes only noise above the motion's band)
+    doc = _leg_doc(d)
+    doc["processing"].update(decimate=5, decimate_method="parallel")
+    dec = identify(parse_config(doc, d)).result
+    beta = np.asarray(truth["base_parameters"]["true_values"])
+    assert dec.n_obs.tolist() == [n_dec] * 3
+    assert np.max(np.abs((dec.params - beta) / dec.bse)) < stats.norm.ppf(1 - 0.005 / beta.size)
+    # min_velocity: per actuator equation, the rows of a slower leg are left out
+    thr = 0.02
+    doc = _leg_doc(d)
+    doc["processing"]["min_velocity"] = thr
+    slow = identify(parse_config(doc, d)).result
+    expect = (np.abs(ds.dq) >= thr).sum(axis=0)
+    assert slow.n_obs.tolist() == expect.tolist() and np.all(expect < ds.n_samples)
+    assert slow.provenance["row_selection"]["rule"] == "per actuator equation"
+
+
+def test_robot_extras_become_actuator_terms_of_a_mechanism(rps3_motor_logs):
+    d, _ = rps3_motor_logs
+    system = build_system(parse_config(_leg_doc(d), d).robot)
+    assert [t.name for t in system.model.terms] == [f"{e}_{leg}" for leg in LEGS for e in ("Ia", "fv", "fc")]
+    doc = _leg_doc(d)
+    doc["robot"]["extras"] = ["Ia", "fv", "fc", "offset"]
+    more = build_system(parse_config(doc, d).robot)
+    assert [t.name for t in more.model.terms][-3:] == [f"offset_{leg}" for leg in LEGS]
+    assert [t.kind for t in more.model.terms][-3:] == ["offset"] * 3
+    # the fivebar's MJCF gives its actuators rotor inertia and friction but no offset: robot.extras
+    # adds the missing kinds only, after the description's own terms
+    from dynid.model.loading import load_model
+
+    five = load_model("builtin:fivebar")
+    plus = with_actuator_extras(five, ["Ia", "fv", "fc", "offset"])
+    assert plus.terms[: len(five.terms)] == five.terms
+    assert [(t.name, t.kind, t.joints) for t in plus.terms[len(five.terms):]] == [
+        ("offset_qa1", "offset", (0,)), ("offset_qa2", "offset", (2,))]
+
+
+def test_a_serial_robot_is_the_mechanism_without_closures():
+    from dynid.model.loading import load_model
+
+    arm = as_system(load_model("builtin:generic6r"))
+    assert arm.kind == "serial" and arm.channel_names(None) == arm.actuator_names == arm.model.joint_names
+    rows = arm.rows(None)
+    rng = np.random.default_rng(0)
+    q, dq, ddq = (rng.standard_normal((5, 6)) for _ in range(3))
+    r = rows(q, dq, ddq, np.zeros((5, 6)))
+    from dynid.model.regressor import inverse_dynamics
+
+    pi = arm.nominal_parameters()
+    np.testing.assert_allclose(r.W @ pi, inverse_dynamics(arm.model, pi, q, dq, ddq), atol=1e-9)
+    assert isinstance(arm.base_parameters(), BaseParameters)
+
+
+def test_maximum_likelihood_for_a_serial_arm(tmp_path):
+    """Paper 004's maximum likelihood with the filter cut-off (Eq. 24) on a serial arm: the same
+    code path as for a mechanism (G = I). Independent route: Gauss–Markov with the period
+    covariance at the cut-off ML chose gives the same estimate and ML's force cost."""
+    f0, h, periods, fs = 0.5, 3, 6, 250
+    n_per = int(fs / f0)
+    sim = run_simulation(parse_simulate_config({
+        "robot": {"model": "builtin:cobot6r", "perturbation": 0.1, "perturbation_seed": 2},
+        "trajectory": {"kind": "fourier", "base_frequency_hz": f0, "harmonics": h, "fill": 0.5, "max_velocity": 1.0,
+                       "max_acceleration": 5.0, "periods": periods + 1, "seed": 2},
+        "control": {"rate_hz": 500, "kp": 400, "kd": 40, "model": "true", "substeps": 2},
+        "sensors": {"position_noise_std": 1e-4, "force_noise_std": 0.05, "seed": 2, "log_rate_hz": fs},
+    }, tmp_path))
+    cols = sim.columns
+    keep = slice(n_per, n_per + periods * n_per)  # whole periods after the start-up transient
+    save_npz(tmp_path / "log.npz", {k: v[keep] - (cols["t"][n_per] if k == "t" else 0.0) for k, v in cols.items()})
+    joints = list(sim.dataset.names)
+
+    def doc(identification: dict, cutoff: float = (h + 0.5) * f0) -> dict:
+        return {
+            "robot": {"model": "builtin:cobot6r"},
+            "data": {"file": str(tmp_path / "log.npz"), "time": {"column": "t"},
+                     "position": {"columns": [f"q_{j}" for j in joints], "unit": "rad"},
+                     "effort": {"columns": [f"tau_{j}" for j in joints], "kind": "torque", "unit": "N*m"},
+                     "rows": [0, 4 * n_per]},
+            "validation": {"rows": [4 * n_per, periods * n_per]},
+            "processing": {"periodic": {"period_s": 1 / f0, "cutoff_hz": cutoff}},
+            "identification": identification,
+            "output": {"plots": False},
+        }
+
+    ml = identify(parse_config(doc({"method": "ml", "cutoff_range_hz": [1.0, 10.0]}), tmp_path)).result
+    fc = ml.solver["cutoff_hz"]
+    assert ml.method == "ML" and 1.0 < fc < 10.0
+    gm = identify(parse_config(doc({"method": "gm", "noise_covariance": "periodic"}, fc), tmp_path)).result
+    np.testing.assert_allclose(ml.params, gm.params, rtol=1e-9, atol=1e-12)
+    best = next(r for r in ml.solver["profile"] if r["cutoff_hz"] == fc)
+    assert best["force_cost"] == pytest.approx(0.5 * gm.scale * gm.dof, rel=1e-9)
