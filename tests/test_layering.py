@@ -1,15 +1,19 @@
-"""The layering of ../shared/DESIGN.md: imports point downward only; siblings do not import each other."""
+"""The layering of ../shared/DESIGN.md: imports point downward only; siblings do not import each other;
+imports form no cycle (inside a layer too); a package attribute never hides a submodule."""
 
 from __future__ import annotations
 
 import ast
+from collections.abc import Iterator
 from pathlib import Path
 
 import dynid
 
 PKG = Path(dynid.__file__).resolve().parent
 
-# rank: a module may import only modules of strictly lower rank (or its own package)
+# rank: a module may import only modules of strictly lower rank (or its own package); modules
+# inside one package (model/_xml.py, model/mechanism_files.py, ...) have no rank: there the
+# check is that they form no cycle (test_imports_form_no_cycle)
 LAYERS = {
     "cli": 9,
     "pipeline": 8,
@@ -89,3 +93,143 @@ def test_import_dynid_is_light():
     code = "import sys, dynid; heavy = [m for m in ('pinocchio', 'scipy', 'matplotlib', 'pandas', 'torch') if m in sys.modules]; print(heavy)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
+
+
+# ---------------------------------------------------------------------- import cycles
+
+
+def _module_name(path: Path, root: Path) -> str:
+    parts = list(path.relative_to(root.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def _statements(tree: ast.AST) -> Iterator[ast.AST]:
+    """Every node of ``tree``, function bodies included, except under ``if TYPE_CHECKING:``."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        yield node
+        if isinstance(node, ast.If) and _is_type_checking(node.test):
+            stack.extend(node.orelse)
+            continue
+        stack.extend(ast.iter_child_nodes(node))
+
+
+def import_graph(root: Path) -> dict[str, set[str]]:
+    """The module import graph of the package in ``root``: module name -> modules it imports.
+
+    Counted: every ``import a.b``, ``from a.b import c`` and relative import of the package,
+    anywhere in a file, imports inside functions included (a lazy import still closes a
+    cycle). ``from pkg import name`` is an edge to ``pkg.name`` when that is a module, else to
+    ``pkg`` itself. Not counted: the implicit import of parent packages, imports under
+    ``if TYPE_CHECKING:`` (never executed), and ``importlib.import_module`` calls.
+    """
+    files = {_module_name(p, root): p for p in sorted(root.rglob("*.py"))}
+    graph: dict[str, set[str]] = {name: set() for name in files}
+    for me, path in files.items():
+        package = me if path.name == "__init__.py" else me.rpartition(".")[0]
+        for node in _statements(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                    module = f"{base}.{node.module}" if node.module else base
+                else:
+                    module = node.module or ""
+                targets = [f"{module}.{a.name}" if f"{module}.{a.name}" in files else module for a in node.names]
+            else:
+                continue
+            graph[me].update(t for t in targets if t in files and t != me)
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(out)
+
+
+def _cycle_text(graph: dict[str, set[str]], component: list[str]) -> str:
+    members = set(component)
+    edges = [f"{a} -> {b}" for a in component for b in sorted(graph[a] & members)]
+    return "  " + " | ".join(component) + "\n" + "\n".join(f"    {e}" for e in edges)
+
+
+def test_imports_form_no_cycle():
+    """No strongly connected component of more than one module in :func:`import_graph` (which
+    counts lazy imports inside functions, not those under ``if TYPE_CHECKING:``); a module
+    importing itself is not a cycle."""
+    graph = import_graph(PKG)
+    cycles = import_cycles(graph)
+    assert not cycles, "import cycles:\n" + "\n".join(_cycle_text(graph, c) for c in cycles)
+
+
+def test_the_check_sees_a_cycle(tmp_path):
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from pkg.b import g\n\ndef f():\n    return g()\n")
+    (pkg / "b.py").write_text("def g():\n    from pkg import a\n    return a\n")
+    # an edge in, a self-edge, and an import for type checkers only: no cycle
+    (pkg / "c.py").write_text(
+        "from typing import TYPE_CHECKING\nfrom . import a\nimport pkg.c\n\nif TYPE_CHECKING:\n    from pkg.b import g\n"
+    )
+    graph = import_graph(pkg)
+    assert graph == {"pkg": set(), "pkg.a": {"pkg.b"}, "pkg.b": {"pkg.a"}, "pkg.c": {"pkg.a"}}
+    assert import_cycles(graph) == [["pkg.a", "pkg.b"]]
+
+
+def test_no_package_attribute_shadows_a_submodule():
+    """``pkg.name`` is the module ``pkg/name.py`` if that exists, never a function re-exported
+    under the module's name (then ``import pkg.name`` and ``pkg.name`` differ)."""
+    import importlib
+    import pkgutil
+
+    shadowed = []
+    for init in sorted(PKG.rglob("__init__.py")):
+        name = _module_name(init, PKG)
+        package = importlib.import_module(name)
+        for sub in pkgutil.iter_modules([str(init.parent)]):
+            full = f"{name}.{sub.name}"
+            value = getattr(package, sub.name, None)
+            if value is not None and value is not importlib.import_module(full):
+                shadowed.append(f"{name}.{sub.name} is a module and also {value!r}")
+    assert not shadowed, "package attributes that shadow a submodule:\n" + "\n".join(shadowed)

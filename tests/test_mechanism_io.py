@@ -12,14 +12,8 @@ import pytest
 
 from dynid.errors import DynidError, InputError, ModelError
 from dynid.model.mechanism import JointTerm
-from dynid.model.mechanism_io import (
-    _mjcf_closures,
-    _mjcf_equalities,
-    _parse_xml,
-    load_mechanism,
-    load_mechanism_mjcf,
-    load_mechanism_urdf,
-)
+from dynid.model.mechanism_files import _mjcf_closures, _mjcf_equalities, _parse_xml
+from dynid.model.mechanism_io import load_mechanism, load_mechanism_mjcf, load_mechanism_urdf
 
 FIVEBAR = Path(str(resources.files("dynid.model.robots") / "fivebar.xml"))
 CONNECT = '<connect name="P" body1="dist1" body2="dist2" anchor="0.27 0 0.36"/>'

@@ -167,8 +167,8 @@ class WLS:
         every parameter is estimated with the same *relative* accuracy. The least-squares
         estimate itself is invariant to this column scaling (exactly so in exact arithmetic);
         what the weighting changes is the condition number, i.e. the excitation criterion
-        (:func:`dynid.excitation.criteria.weighted_cond`). Parameters with a zero nominal value
-        keep unit weight (named in the notes).
+        ``weighted_cond`` of :func:`dynid.excitation.optimality.criteria`. Parameters with a
+        zero nominal value keep unit weight (named in the notes).
     """
 
     noise_std: tuple[float, ...] | None = None

@@ -17,7 +17,7 @@ actuator positions, velocities, accelerations, optional actuator forces of the n
 and for mechanisms the workspace (the design coordinates stay in their box) and the
 closed-loop condition number (a margin from singularities; an unreachable pose counts as a
 violation). The criterion is one of
-:data:`~dynid.excitation.criteria.CRITERIA`.
+:data:`~dynid.excitation.optimality.CRITERIA`.
 
 Optimizer: ``starts`` random designs made feasible by shrinking their amplitude (bisection),
 each refined by SLSQP (finite-difference gradients, evaluations cached; for the D-, A- and
@@ -43,7 +43,7 @@ from scipy.optimize import minimize
 
 from dynid._typing import FloatArray
 from dynid.errors import DynidError, InputError, ModelError
-from dynid.excitation.criteria import CRITERIA, criteria, predicted_std
+from dynid.excitation.optimality import CRITERIA, criteria, predicted_std
 from dynid.model.base_parameters import robot_base_parameters
 from dynid.model.closed_loop import actuator_regressor, mechanism_base_parameters
 from dynid.model.mechanism import JointCoordinates, Mechanism
@@ -143,7 +143,7 @@ class ExcitationProblem:
     samples : int
         Samples per period used by the optimizer.
     criterion : str
-        One of :data:`~dynid.excitation.criteria.CRITERIA`.
+        One of :data:`~dynid.excitation.optimality.CRITERIA`.
     noise_std : array, optional
         Noise standard deviation of each output channel (actuator forces, or the projected
         equations); default 1.

@@ -21,12 +21,17 @@ coordinates form the square matrix :math:`A = [J_c; J_u]`, inverted in batch:
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pinocchio as pin
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
-from dynid.model.mechanism import JointCoordinates, KinematicState, Mechanism
+from dynid.model.closures import JointCoordinates, KinematicState
+
+if TYPE_CHECKING:  # Mechanism.states and Mechanism.kinematic_state call this module
+    from dynid.model.mechanism import Mechanism
 
 __all__ = ["actuator_states", "kinematic_state", "platform_pose", "pose_states", "states"]
 

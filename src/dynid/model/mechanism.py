@@ -45,6 +45,7 @@ import scipy.linalg as sla
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
+from dynid.model import loop_kinematics
 from dynid.model.closures import (
     TERM_KINDS,
     Coordinates,
@@ -602,14 +603,10 @@ class Mechanism:
             :math:`J_u \\ddot q_0 = -\\dot J_u \\dot q` (batched over samples, see
             :mod:`dynid.model.loop_kinematics`).
         """
-        from dynid.model.loop_kinematics import states
-
-        return states(self, q, du, ddu, max_cond=max_cond)
+        return loop_kinematics.states(self, q, du, ddu, max_cond=max_cond)
 
     def kinematic_state(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, *, max_cond: float = 1e8) -> KinematicState:
         """Wrap given joint positions, velocities and accelerations (e.g. from a constrained
         simulation) with the velocity map :math:`G(q)`; nothing is recomputed but G.
         ``q`` must be assembled (:math:`c(q) \\approx 0`), as for :meth:`states`."""
-        from dynid.model.loop_kinematics import kinematic_state
-
-        return kinematic_state(self, q, dq, ddq, max_cond=max_cond)
+        return loop_kinematics.kinematic_state(self, q, dq, ddq, max_cond=max_cond)

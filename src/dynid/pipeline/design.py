@@ -19,7 +19,7 @@ import numpy as np
 from dynid._files import TIMING_FILE, write_timing
 from dynid.config.design import DesignConfig
 from dynid.errors import ConfigError
-from dynid.excitation.criteria import predicted_std
+from dynid.excitation.optimality import predicted_std
 from dynid.excitation.design import DesignLimits, ExcitationDesign, ExcitationProblem
 from dynid.io.output import staged_output
 from dynid.model.loading import load_model

@@ -60,7 +60,7 @@ def build_mechanism(name: str):
     if name not in MECHANISMS:
         raise ModelError(f"unknown built-in mechanism {name!r}; available: {', '.join(sorted(MECHANISMS))}")
     if name == "fivebar":
-        from dynid.model.mechanism_io import load_mechanism_mjcf
+        from dynid.model.mechanism_files import load_mechanism_mjcf
 
         with resources.as_file(resources.files(__package__) / "fivebar.xml") as path:
             mech = load_mechanism_mjcf(path)

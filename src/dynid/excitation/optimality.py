@@ -1,4 +1,4 @@
-"""Excitation criteria on the (base) observation matrix.
+"""Excitation criteria on the (base) observation matrix: condition numbers and D-, A-, E-optimality.
 
 With the stacked base regressor :math:`\\Psi` (rows: samples x output channels), output noise
 standard deviations :math:`\\sigma_j` per channel (:math:`\\Sigma = \\mathrm{diag}(\\sigma^2)`)

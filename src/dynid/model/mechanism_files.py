@@ -1,0 +1,537 @@
+"""Read closed-loop mechanisms from files: MJCF with ``<equality>`` loop closures, or URDF
+with a closure YAML in the format of Gepetto's *example-parallel-robots*. (The built-in
+``fivebar`` is such a file; :mod:`dynid.model.mechanism_io` re-exports these readers beside
+:func:`~dynid.model.mechanism_io.load_mechanism`, which also takes ``builtin:`` names.)
+
+* **MJCF** (:func:`load_mechanism_mjcf`): pinocchio's
+  ``buildModelAndLegacyConstraintsFromMJCF`` gives the tree and one rigid constraint per
+  ``<connect>`` (``"3d"``: point coincidence) or ``<weld>`` (``"6d"``: frame coincidence);
+  both sides are (joint, placement in the joint frame), as :class:`LoopClosure` wants.
+  Actuated joints come from ``<actuator>`` (``<motor joint=...>``, ``<position ...>``, ...).
+  Joint ``damping`` [N·m·s/rad or N·s/m], ``frictionloss`` [N·m or N] and ``armature``
+  [kg·m² or kg] become nominal values of viscous, Coulomb and inertia joint terms.
+* **URDF + YAML** (:func:`load_mechanism_urdf`): keys ``closed_loop`` (pairs of frame
+  names), ``type`` (``6d``/``3d`` per pair) and ``name_mot`` (actuated joints). URDF
+  ``<dynamics>`` damping/friction become nominal viscous/Coulomb values.
+
+Idle joints. The Gepetto examples weld the child bodies of two revolute "closedloop"
+joints with a ``6d`` closure: the welded pair can then spin about the common axis, a
+degree of freedom that no actuator determines and that carries no dynamics worth
+identifying. Such joints are found as the null space of :math:`[J_c; S_a]` at an assembled
+configuration restricted to joints carrying a closure, and one joint per closure is
+locked (``pinocchio.buildReducedModel``; its body is merged into its parent), which is
+recorded in :attr:`Mechanism.notes`. Any other free motion is left to :class:`Mechanism`,
+which refuses it.
+
+Default joint terms: a viscous term ``fv_<joint>`` on every joint (passive ones
+included), plus Coulomb ``fc_<joint>`` and rotor inertia ``Ia_<joint>`` on actuated joints
+and on any joint whose file gives a non-zero friction or armature.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import scipy.linalg as sla
+
+from dynid._typing import FloatArray
+from dynid.errors import ModelError, existing_file, read_file_text
+from dynid.model._xml import check_mjcf_inertials, native_stderr, parse_failure, parse_xml_file, urdf_without_dynamics
+from dynid.model.mechanism import JointCoordinates, JointTerm, LoopClosure, Mechanism, PointCoordinates
+
+__all__ = ["ACTUATOR_TAGS", "load_mechanism_mjcf", "load_mechanism_urdf"]
+
+ACTUATOR_TAGS = ("motor", "position", "velocity", "general", "intvelocity", "damper", "cylinder", "muscle", "adhesion")
+"""MJCF ``<actuator>`` elements whose ``joint`` attribute names an actuated joint."""
+
+_EQUALITY_KINDS = {"connect": "3d", "weld": "6d"}
+_TOL = 1e-9
+
+JointRefs = Sequence[str | int]
+Independent = JointRefs | JointCoordinates | PointCoordinates | None
+
+
+# ---------------------------------------------------------------------------- readers
+def load_mechanism_mjcf(
+    path: str | Path,
+    *,
+    actuated: JointRefs | None = None,
+    independent: Independent = None,
+    terms: Sequence[JointTerm] | None = None,
+) -> Mechanism:
+    """A closed-loop mechanism from an MJCF file with ``<equality><connect>/<weld>`` closures.
+
+    Parameters
+    ----------
+    path : str or Path
+        MJCF file; every body needs an ``<inertial>`` (pinocchio's parser), all bodies must
+        hang from one root body under ``<worldbody>``, and joints must be hinges or slides.
+    actuated : sequence of str or int, optional
+        Actuated joints (names, or velocity indices), in actuator order. Default: the
+        joints driven by the ``<actuator>`` elements, in file order.
+    independent : sequence of str or int, JointCoordinates or PointCoordinates, optional
+        Independent coordinates; default: the actuated joints.
+    terms : sequence of JointTerm, optional
+        Joint terms (velocity indices of the loaded model); default: see the module
+        docstring. Nominal values from ``damping``/``frictionloss``/``armature`` are given
+        to terms named ``fv_<joint>``/``fc_<joint>``/``Ia_<joint>``.
+
+    Returns
+    -------
+    Mechanism
+    """
+    path = _existing(path, "robot file")
+    root = _parse_xml(path)
+    if root.tag != "mujoco":
+        raise ModelError(f"{path}: not an MJCF file (its root element is <{root.tag}>, not <mujoco>)")
+    check_mjcf_inertials(root, path)
+    bodies = root.findall("./worldbody/body")
+    if len(bodies) > 1:
+        names = [b.get("name", "?") for b in bodies]
+        raise ModelError(
+            f"{path}: <worldbody> has {len(bodies)} top-level bodies {names}; pinocchio's MJCF parser reads only "
+            "the first: put the whole mechanism under one (fixed) root body"
+        )
+    equalities = _mjcf_equalities(root, path)
+    if not equalities:
+        raise ModelError(f"{path}: no loop closures (<equality><connect>/<weld>) found: is it a serial robot? use load_robot")
+    with native_stderr() as native:
+        try:
+            model, constraints = pin.buildModelAndLegacyConstraintsFromMJCF(str(path))
+            failure = None
+        except (RuntimeError, ValueError, OSError) as exc:
+            failure = exc
+    if failure is not None:
+        raise ModelError(f"{path}: cannot parse MJCF ({parse_failure(failure, native)})")
+    _check_one_dof(model, path, "use a <connect> closure instead")
+    if len(constraints) != len(equalities):
+        raise ModelError(f"{path}: pinocchio read {len(constraints)} of the {len(equalities)} <equality> closures")
+    closures = _mjcf_closures(model, constraints, equalities)
+    per_joint = {model.names[j]: model.joints[j].idx_v for j in range(1, model.njoints)}
+    damping = {n: float(model.damping[v]) for n, v in per_joint.items()}
+    coulomb = {n: float(model.friction[v]) for n, v in per_joint.items()}
+    armature = {n: float(model.armature[v]) for n, v in per_joint.items()}
+    # these live in joint terms (Mechanism refuses a tree that would add them behind the regressor)
+    model.armature = np.zeros(model.nv)
+    model.damping = np.zeros(model.nv)
+    model.friction = np.zeros(model.nv)
+    notes: list[str] = []
+    if actuated is None:
+        actuated = _mjcf_actuators(root, path, per_joint, notes)
+    return _build(
+        model, closures, actuated, independent, terms, (damping, coulomb, armature),
+        name=model.name or path.stem, source=str(path), notes=notes, origin=path,
+    )
+
+
+def load_mechanism_urdf(
+    urdf_path: str | Path,
+    yaml_path: str | Path | None = None,
+    *,
+    actuated: JointRefs | None = None,
+    independent: Independent = None,
+    terms: Sequence[JointTerm] | None = None,
+) -> Mechanism:
+    """A closed-loop mechanism from a URDF and a closure YAML (Gepetto format).
+
+    Parameters
+    ----------
+    urdf_path : str or Path
+    yaml_path : str or Path, optional
+        Closure file with ``closed_loop`` (list of pairs of frame names), ``type`` (``6d``
+        or ``3d`` per pair, case-insensitive) and ``name_mot`` (actuated joint names).
+        Default: ``robot.yaml`` next to the URDF.
+    actuated, independent, terms
+        As in :func:`load_mechanism_mjcf` (``actuated`` overrides ``name_mot``).
+
+    Returns
+    -------
+    Mechanism
+        Named after the URDF file, or after its folder when the file is ``robot.urdf``.
+    """
+    urdf_path = _existing(urdf_path, "robot file")
+    yaml_path = _existing(urdf_path.parent / "robot.yaml" if yaml_path is None else yaml_path, "closure file")
+    xml, dynamics = urdf_without_dynamics(urdf_path)
+    with native_stderr() as native:
+        try:
+            model = pin.buildModelFromXML(_continuous_as_revolute(xml))
+            failure = None
+        except (RuntimeError, ValueError, OSError) as exc:
+            failure = exc
+    if failure is not None:
+        raise ModelError(f"{urdf_path}: cannot parse URDF ({parse_failure(failure, native)})")
+    pairs, kinds, motors = _read_closure_yaml(yaml_path, need_motors=actuated is None)
+    closures = [_frame_closure(model, a, b, kind, yaml_path, urdf_path) for (a, b), kind in zip(pairs, kinds)]
+    _check_one_dof(model, urdf_path, "a spherical joint at a cut is a '3d' closure")
+    if actuated is None:
+        actuated = motors
+    damping = {n: d for n, (d, _) in dynamics.items()}
+    coulomb = {n: f for n, (_, f) in dynamics.items()}
+    name = urdf_path.parent.name if urdf_path.stem == "robot" else urdf_path.stem
+    return _build(
+        model, closures, actuated, independent, terms, (damping, coulomb, {}),
+        name=name, source=f"{urdf_path} + {yaml_path.name}", notes=[], origin=yaml_path,
+    )
+
+
+# ---------------------------------------------------------------------------- file helpers
+def _existing(path: str | Path, what: str) -> Path:
+    return existing_file(path, what)
+
+
+def _continuous_as_revolute(xml: str) -> str:
+    """URDF text with continuous joints (pinocchio: nq 2) turned into revolute joints limited
+    to ±π, as :func:`dynid.model.loading.load_robot` does, keeping all frames intact."""
+    root = ET.fromstring(xml)
+    for joint in root.iter("joint"):
+        if joint.get("type") == "continuous":
+            joint.set("type", "revolute")
+            limit = joint.find("limit")
+            limit = ET.SubElement(joint, "limit", effort="1000", velocity="100") if limit is None else limit
+            limit.set("lower", repr(-np.pi))
+            limit.set("upper", repr(np.pi))
+    return ET.tostring(root, encoding="unicode")
+
+
+def _parse_xml(path: Path) -> ET.Element:
+    return parse_xml_file(path)
+
+
+def _check_one_dof(model: pin.Model, path: Path, hint: str) -> None:
+    for j in range(1, model.njoints):
+        jm = model.joints[j]
+        if jm.nv == 1 and jm.nq == 1:
+            continue
+        short, name = jm.shortname(), model.names[j]
+        if "Composite" in short:
+            raise ModelError(
+                f"{path}: joint {name!r} combines several joints of one body; give each joint its own "
+                "body (massless intermediate bodies)"
+            )
+        if short == "JointModelFreeFlyer":
+            hint = "a floating body is not supported (chain 1-DOF joints through massless bodies)"
+        kind = "a ball joint" if short == "JointModelSpherical" else "a free joint" if short == "JointModelFreeFlyer" else short
+        raise ModelError(f"{path}: joint {name!r} is {kind} ({jm.nv} DOF); mechanisms need 1-DOF joints: {hint}")
+
+
+def _mjcf_equalities(root: ET.Element, path: Path) -> list[dict]:
+    out = []
+    for eq in root.iter("equality"):
+        for el in eq:
+            if not isinstance(el.tag, str):  # comments
+                continue
+            if el.tag not in _EQUALITY_KINDS:
+                raise ModelError(
+                    f"{path}: <equality><{el.tag}> {el.get('name', '')!r} is not supported (pinocchio ignores it); "
+                    "only <connect> and <weld> loop closures"
+                )
+            if el.get("body1") is None:
+                raise ModelError(f"{path}: <{el.tag}> {el.get('name', '')!r} needs body1 (site-based closures are not supported)")
+            body2 = el.get("body2") or "world"
+            out.append({"kind": _EQUALITY_KINDS[el.tag], "name": el.get("name") or f"{el.get('body1')}-{body2}",
+                        "body1": el.get("body1"), "body2": body2})
+    return out
+
+
+def _body_joint(model: pin.Model, body: str) -> int | None:
+    if body == "world" or not model.existFrame(body, pin.FrameType.BODY):
+        return 0 if body == "world" else None
+    return int(model.frames[model.getFrameId(body, pin.FrameType.BODY)].parentJoint)
+
+
+def _mjcf_closures(model: pin.Model, constraints, equalities: list[dict]) -> list[LoopClosure]:
+    """One :class:`LoopClosure` per pinocchio constraint, named after its XML element.
+
+    pinocchio orders the constraints by name and leaves ``cm.name`` empty, so each is
+    matched to the first unused element of the same type and joints.
+    """
+    kinds = {pin.ContactType.CONTACT_3D: "3d", pin.ContactType.CONTACT_6D: "6d"}
+    used: set[int] = set()
+    out = []
+    for k, cm in enumerate(constraints):
+        kind = kinds.get(cm.type)
+        if kind is None:  # pragma: no cover - pinocchio only builds these two
+            raise ModelError(f"unsupported constraint type {cm.type}")
+        j1, j2 = int(cm.joint1_id), int(cm.joint2_id)
+        name = cm.name or f"closure{k + 1}"
+        for i, eq in enumerate(equalities):
+            joints = (_body_joint(model, eq["body1"]), _body_joint(model, eq["body2"]))
+            if i not in used and eq["kind"] == kind and joints == (j1, j2):
+                used.add(i)
+                name = eq["name"]
+                break
+        out.append(LoopClosure(name, j1, pin.SE3(cm.joint1_placement), j2, pin.SE3(cm.joint2_placement), kind))
+    return out
+
+
+def _mjcf_actuators(root: ET.Element, path: Path, joints: dict[str, int], notes: list[str]) -> list[str]:
+    names = []
+    for act in root.iter("actuator"):
+        for el in act:
+            if not isinstance(el.tag, str) or el.tag not in ACTUATOR_TAGS:
+                continue
+            label = el.get("name") or f"<{el.tag}> #{len(names) + 1}"
+            joint = el.get("joint") or el.get("jointinparent")
+            if joint is None:
+                raise ModelError(f"{path}: actuator {label!r} drives no joint (tendon/site/body transmissions are not supported)")
+            if joint not in joints:
+                raise ModelError(f"{path}: actuator {label!r} drives {joint!r}, which is not a joint; joints: {list(joints)}")
+            gear = (el.get("gear") or "1").split()
+            if gear and float(gear[0]) != 1.0:
+                notes.append(f"actuator {label} has gear {gear[0]}: actuator forces are expressed on the joint side")
+            names.append(joint)
+    if not names:
+        raise ModelError(f"{path}: no <actuator> drives a joint; give the actuated joints explicitly")
+    return names
+
+
+# ---------------------------------------------------------------------------- closure YAML
+def _read_closure_yaml(path: Path, *, need_motors: bool) -> tuple[list[tuple[str, str]], list[str], list[str]]:
+    doc = _load_yaml(path)
+    if not isinstance(doc, dict):
+        raise ModelError(f"{path}: the closure file must be a mapping with keys closed_loop, type, name_mot")
+    required = ["closed_loop", "type"] + (["name_mot"] if need_motors else [])
+    missing = [k for k in required if k not in doc]
+    if missing:
+        raise ModelError(f"{path}: missing key(s) {missing} (Gepetto closure format: closed_loop, type, name_mot)")
+    loops, types = doc["closed_loop"], doc["type"]
+    if not isinstance(loops, list) or not loops:
+        raise ModelError(f"{path}: 'closed_loop' must be a non-empty list of [frame_a, frame_b] pairs")
+    if not isinstance(types, list):
+        raise ModelError(f"{path}: 'type' must be a list with one '6d' or '3d' per pair")
+    if len(loops) != len(types):
+        raise ModelError(f"{path}: 'closed_loop' has {len(loops)} pair(s) but 'type' has {len(types)} entries")
+    pairs = []
+    for pair in loops:
+        if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(s, str) for s in pair)):
+            raise ModelError(f"{path}: closed_loop entry {pair!r} is not a pair of frame names")
+        pairs.append((pair[0], pair[1]))
+    kinds = []
+    for pair, t in zip(pairs, types):
+        kind = str(t).strip().lower()
+        if kind not in ("3d", "6d"):
+            raise ModelError(f"{path}: closure type {t!r} of {list(pair)} is unknown; use '6d' or '3d'")
+        kinds.append(kind)
+    motors = doc.get("name_mot", [])
+    if not isinstance(motors, list) or not all(isinstance(s, str) for s in motors):
+        raise ModelError(f"{path}: 'name_mot' must be a list of joint names")
+    return pairs, kinds, motors
+
+
+def _load_yaml(path: Path):
+    import yaml
+
+    try:
+        return yaml.safe_load(read_file_text(path, "closure file"))
+    except yaml.YAMLError as exc:
+        raise ModelError(f"{path}: invalid YAML ({' '.join(str(exc).split())})") from None
+
+
+def _frame_closure(model: pin.Model, fa: str, fb: str, kind: str, yaml_path: Path, urdf_path: Path) -> LoopClosure:
+    missing = [f for f in (fa, fb) if not model.existFrame(f)]
+    if missing:
+        names = [f.name for f in model.frames if f.name != "universe"]
+        hint = [n for n in names if "loop" in n.lower()] or names
+        more = ", ..." if len(hint) > 8 else ""
+        raise ModelError(
+            f"{yaml_path}: closure frame(s) {missing} not found in {urdf_path.name}; frames include {', '.join(hint[:8])}{more}"
+        )
+    sides = [model.frames[model.getFrameId(f)] for f in (fa, fb)]
+    return LoopClosure(f"{fa}-{fb}", int(sides[0].parentJoint), pin.SE3(sides[0].placement),
+                       int(sides[1].parentJoint), pin.SE3(sides[1].placement), kind)
+
+
+# ---------------------------------------------------------------------------- assembly and idle joints
+def _kinematics(model: pin.Model, data: pin.Data, closures, q: FloatArray, exact: bool) -> tuple[FloatArray, FloatArray]:
+    """Residual c(q) and Jacobian, with the conventions of :class:`Mechanism`."""
+    pin.computeJointJacobians(model, data, q)
+    res, rows = [], []
+    for c in closures:
+        M = [data.oMi[c.joint_a] * c.placement_a, data.oMi[c.joint_b] * c.placement_b]
+        lin, ang = [], []
+        for j, Mj in zip((c.joint_a, c.joint_b), M):
+            J = pin.getJointJacobian(model, data, j, pin.ReferenceFrame.WORLD) if j else np.zeros((6, model.nv))
+            lin.append(J[:3] - pin.skew(Mj.translation) @ J[3:])
+            ang.append(J[3:])
+        res.append(M[1].translation - M[0].translation)
+        rows.append(lin[1] - lin[0])
+        if c.kind == "6d":
+            Rrel = M[0].rotation.T @ M[1].rotation
+            res.append(pin.log3(Rrel))
+            rows.append(pin.Jlog3(Rrel) @ M[1].rotation.T @ (ang[1] - ang[0]) if exact else ang[1] - ang[0])
+    return np.concatenate(res), np.vstack(rows)
+
+
+def _assemble(model: pin.Model, closures, q0: FloatArray, name: str) -> FloatArray:
+    """The assembly nearest ``q0`` (Gauss-Newton); a closure that cannot close is named with
+    its residual [m, rad]."""
+    data = model.createData()
+    q = q0.copy()
+    for _ in range(100):
+        c, J = _kinematics(model, data, closures, q, exact=True)
+        if np.linalg.norm(c, np.inf) < 1e-12:
+            return q
+        q = q + np.linalg.lstsq(J, -c, rcond=1e-10)[0]
+    per, k = [], 0
+    for cl in closures:
+        rows = 6 if cl.kind == "6d" else 3
+        per.append(float(np.linalg.norm(c[k : k + rows], np.inf)))
+        k += rows
+    worst = int(np.argmax(per))
+    cl = closures[worst]
+    raise ModelError(f"cannot assemble the loops of {name!r}: closure {cl.name!r} ({cl.kind}) cannot close "
+                     f"(constraint residual {per[worst]:.3g} after 100 Gauss-Newton steps from the reference configuration)")
+
+
+def _null(A: FloatArray) -> FloatArray:
+    return sla.null_space(A, rcond=_TOL) if A.shape[0] else np.eye(A.shape[1])
+
+
+def _idle_joints(model: pin.Model, closures, actuated: list[int], q: FloatArray) -> list[int]:
+    """pinocchio joints to lock: one per closure whose welded pair spins freely (see module docstring)."""
+    nv = model.nv
+    Jc = _kinematics(model, model.createData(), closures, q, exact=False)[1]
+    side = {model.joints[j].idx_v for c in closures for j in (c.joint_a, c.joint_b) if j > 0} - set(actuated)
+    fixed = [v for v in range(nv) if v not in side]
+    E = np.eye(nv)
+    N = _null(np.vstack([Jc, E[fixed]]))
+    locked: list[int] = []
+    for c in closures:
+        if N.shape[1] == 0:
+            break
+        for j in (c.joint_b, c.joint_a):
+            v = model.joints[j].idx_v if j > 0 else -1
+            if v in side and np.linalg.norm(N[v]) > 1e-6:
+                fixed.append(v)
+                locked.append(j)
+                N = _null(np.vstack([Jc, E[fixed]]))
+                break
+    return locked
+
+
+def _reduce(model: pin.Model, closures, locked: list[int], q: FloatArray):
+    """Reduced model, closures re-attached to the nearest moving ancestor, reduced q."""
+    data = model.createData()
+    pin.forwardKinematics(model, data, q)
+    red = pin.buildReducedModel(model, locked, q)
+    gone = set(locked)
+
+    def side(j: int, P: pin.SE3) -> tuple[int, pin.SE3]:
+        a = j
+        while a in gone:
+            a = model.parents[a]
+        if a != j:
+            P = data.oMi[a].actInv(data.oMi[j]) * P
+        return (red.getJointId(model.names[a]) if a else 0), P
+
+    new = []
+    for c in closures:
+        ja, Pa = side(c.joint_a, c.placement_a)
+        jb, Pb = side(c.joint_b, c.placement_b)
+        new.append(LoopClosure(c.name, ja, Pa, jb, Pb, c.kind))
+    qr = np.array([q[model.joints[model.getJointId(red.names[j])].idx_q] for j in range(1, red.njoints)])
+    return red, new, qr
+
+
+def _lock(model: pin.Model, closures, locked: list[int], q: FloatArray, name: str, notes: list[str]):
+    """Lock the idle joints at 0 (their pose in the file) if the loops still close so, else at
+    their assembled values; note each. Returns the reduced model, closures and assembled q."""
+    q0 = q.copy()
+    q0[[model.joints[j].idx_q for j in locked]] = 0.0
+    try:
+        red, new, qr = _reduce(model, closures, locked, q0)
+        qr, at = _assemble(red, new, qr, name), q0
+    except ModelError:
+        (red, new, qr), at = _reduce(model, closures, locked, q), q
+    for j in locked:
+        c = next(c for c in closures if j in (c.joint_a, c.joint_b))
+        notes.append(
+            f"locked idle joint {model.names[j]}: closure {c.name!r} ({c.kind}) leaves it free to spin with the joint at "
+            f"the other side, a motion no actuator determines; locked at {at[model.joints[j].idx_q]:.4g} rad, its body "
+            "merged into its parent"
+        )
+    return red, new, qr
+
+
+def _world_aligned(model: pin.Model, closures, q: FloatArray) -> list[LoopClosure]:
+    """``6d`` closures with both frames turned (by the same rotation, which leaves the
+    constraint unchanged) to be world-aligned at the assembly ``q``.
+
+    :class:`Mechanism` picks the independent rows of a planar loop on world-frame angular
+    rows but its Newton solver uses the ``log3`` rows, expressed in the closure frame:
+    the two agree only when the closure frames are world-aligned (and stay so in planar
+    motion about a world axis)."""
+    data = model.createData()
+    pin.forwardKinematics(model, data, q)
+    out = []
+    for c in closures:
+        if c.kind == "6d":
+            turn = pin.SE3((data.oMi[c.joint_a] * c.placement_a).rotation.T, np.zeros(3))
+            c = LoopClosure(c.name, c.joint_a, c.placement_a * turn, c.joint_b, c.placement_b * turn, c.kind)
+        out.append(c)
+    return out
+
+
+# ---------------------------------------------------------------------------- building the mechanism
+def _velocity_indices(model: pin.Model, refs: JointRefs, what: str, origin: Path) -> list[int]:
+    names = list(model.names)[1:]
+    out = [names.index(r) if isinstance(r, str) and r in names else r for r in refs]  # 1-DOF: index = velocity index
+    bad = [r for r, v in zip(refs, out) if not isinstance(v, (int, np.integer)) or not 0 <= v < model.nv]
+    if bad:
+        raise ModelError(f"{origin}: {what} {bad} are not joints of the model; joints: {names}")
+    return [int(v) for v in out]
+
+
+def _default_terms(model: pin.Model, actuated: list[int], values: tuple[dict, dict, dict]) -> list[JointTerm]:
+    damping, coulomb, armature = values
+    terms = []
+    for j in range(1, model.njoints):
+        n, v = model.names[j], model.joints[j].idx_v
+        if v in actuated or armature.get(n, 0.0):
+            terms.append(JointTerm(f"Ia_{n}", "inertia", (v,)))
+        terms.append(JointTerm(f"fv_{n}", "viscous", (v,)))
+        if v in actuated or coulomb.get(n, 0.0):
+            terms.append(JointTerm(f"fc_{n}", "coulomb", (v,)))
+    return terms
+
+
+def _build(model, closures, actuated, independent, terms, values, *, name, source, notes, origin) -> Mechanism:
+    act = _velocity_indices(model, actuated, "actuated joints", origin)
+    # an MJCF file written at an assembled configuration (``ref`` on each joint, as dynid's
+    # export does) says so in its qpos0; start the assembly there
+    start = model.referenceConfigurations["qpos0"] if "qpos0" in model.referenceConfigurations else pin.neutral(model)
+    try:
+        q = _assemble(model, closures, start, name)
+    except ModelError as exc:
+        raise ModelError(f"{source}: {exc}") from None
+    locked = _idle_joints(model, closures, act, q)
+    if locked:
+        act_names = [model.names[v + 1] for v in act]  # 1-DOF joints: joint index = velocity index + 1
+        model, closures, q = _lock(model, closures, locked, q, name, notes)
+        act = [model.joints[model.getJointId(n)].idx_v for n in act_names]
+    closures = _world_aligned(model, closures, q)
+    if independent is None or isinstance(independent, (JointCoordinates, PointCoordinates)):
+        indep = independent
+    else:
+        indep = JointCoordinates(tuple(_velocity_indices(model, independent, "independent coordinates", origin)))
+    if terms is None:
+        terms = _default_terms(model, act, values)
+    tnames = {t.name for t in terms}
+    in_file = {f"{p}_{n}": float(v) for p, table in zip(("fv", "fc", "Ia"), values) for n, v in table.items() if v}
+    nominal = {k: v for k, v in in_file.items() if k in tnames}
+    if len(nominal) < len(in_file):
+        notes.append(f"file values without a joint term are not used: {[k for k in in_file if k not in tnames]}")
+    massless = [j for j in range(1, model.njoints) if not np.any(model.inertias[j].toDynamicParameters())]
+    if massless:
+        notes.append(f"bodies of joints {[model.names[j] for j in massless]} have no inertia in the file: no parameters")
+    try:
+        return Mechanism(
+            model, tuple(closures), actuated=tuple(act), independent=indep, terms=tuple(terms),
+            massless=tuple(massless), nominal_terms=nominal, q_guess=q, name=name, source=source, notes=tuple(notes),
+        )
+    except ModelError as exc:
+        raise ModelError(f"{source}: {exc}") from None
