@@ -51,7 +51,7 @@ from _util import median, print_machine, rounds, table
 from dynid.model import load_robot
 from dynid.model.base_parameters import random_states
 from dynid.model.closed_loop import actuator_regressor
-from dynid.model.regressor import regressor
+from dynid.model.serial_dynamics import regressor
 from dynid.model.robots import build_mechanism
 from dynid.model.robots import hexapod
 

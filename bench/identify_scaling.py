@@ -51,7 +51,7 @@ import numpy as np
 from _util import median, print_machine, table
 
 from dynid.model import load_robot
-from dynid.model.regressor import regressor
+from dynid.model.serial_dynamics import regressor
 from dynid.simulation import FourierTrajectory
 
 FS = 1000.0

@@ -1,6 +1,6 @@
 """Regressor throughput of dynid against a bare pinocchio loop, in the same run.
 
-Target (project issue): for a 6-DOF arm, ``dynid.model.regressor`` costs at most
+Target (project issue): for a 6-DOF arm, ``dynid.model.serial_dynamics`` costs at most
 25 % more per sample than a bare Python loop over pinocchio's
 ``computeJointTorqueRegressor``.
 
@@ -49,7 +49,7 @@ from _util import median, print_machine, rounds, table
 
 from dynid.model import load_robot
 from dynid.model.base_parameters import random_states
-from dynid.model.regressor import regressor
+from dynid.model.serial_dynamics import regressor
 
 TARGET_PCT = 25.0
 

@@ -32,7 +32,7 @@ from _util import median, print_machine, table
 from dynid.estimation import WLS, PhysicalConstraints, PhysicalLS, ProblemBuilder
 from dynid.model.base_parameters import StandardMap, robot_base_parameters
 from dynid.model.loading import load_robot
-from dynid.model.regressor import regressor
+from dynid.model.serial_dynamics import regressor
 
 TARGET_S = 1.0
 URDF = Path(__file__).resolve().parents[2] / "shared" / "data" / "kuka_lwr4" / "kuka_lwr4.urdf"

@@ -172,7 +172,7 @@ def test_a_serial_robot_is_the_mechanism_without_closures():
     rng = np.random.default_rng(0)
     q, dq, ddq = (rng.standard_normal((5, 6)) for _ in range(3))
     r = rows(q, dq, ddq, np.zeros((5, 6)))
-    from dynid.model.regressor import inverse_dynamics
+    from dynid.model.serial_dynamics import inverse_dynamics
 
     pi = arm.nominal_parameters()
     np.testing.assert_allclose(r.W @ pi, inverse_dynamics(arm.model, pi, q, dq, ddq), atol=1e-9)

@@ -20,7 +20,7 @@ from dynid.estimation import logdet_divergence, make_estimator
 from dynid.model.base_parameters import StandardMap, pseudo_inertia, robot_base_parameters
 from dynid.model.closed_loop import actuator_regressor, mechanism_base_parameters, random_consistent_states
 from dynid.model.loading import load_robot
-from dynid.model.regressor import regressor
+from dynid.model.serial_dynamics import regressor
 from dynid.model.robots import build_mechanism
 
 ROBOT = load_robot("builtin:cobot6r", extras=("Ia", "fv", "fc"))

@@ -39,7 +39,7 @@ def _simulate(seed, duration, fs=200.0, noise_scale=1.0, jitter=0.0, coulomb=Tru
     sigma = np.array([0.8, 0.8, 0.4, 0.06, 0.06, 0.04]) * noise_scale
     if not jitter:
         return simulate_serial(ROBOT, truth, traj, fs=fs, duration=duration, torque_noise_std=sigma, rng=rng), truth
-    from dynid.model.regressor import inverse_dynamics
+    from dynid.model.serial_dynamics import inverse_dynamics
 
     t = np.arange(int(duration * fs)) / fs + rng.uniform(-jitter, jitter, int(duration * fs)) / fs
     q, dq, ddq = traj.sample(t)

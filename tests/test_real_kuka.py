@@ -46,7 +46,7 @@ def test_kuka_run3_better_than_flobaroid_on_every_joint(capsys):
 def _pd_share(outcome, n=1000, seed=0):
     """Share of random configurations (uniform within the joint limits) at which the mass matrix of
     the identified base parameters is positive definite. M(q) e_i = W_b(q, 0, e_i) beta - W_b(q, 0, 0) beta."""
-    from dynid.model.regressor import regressor
+    from dynid.model.serial_dynamics import regressor
 
     robot, base, beta = outcome.robot, outcome.base, outcome.result.params
     lo, hi = robot.position_limits()

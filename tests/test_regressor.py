@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dynid.model import Coupling, Transmission, load_robot, regressor
-from dynid.model.regressor import inverse_dynamics
+from dynid.model.serial_dynamics import inverse_dynamics
 
 ROBOTS = {name: load_robot(f"builtin:{name}") for name in ("puma560", "generic6r")}
 TX40_LIKE = load_robot(

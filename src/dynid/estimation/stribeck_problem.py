@@ -227,7 +227,7 @@ class SampleProblem:
         to every joint. The robot needs the ``fv`` and ``fc`` extras.
         """
         from dynid.model.base_parameters import robot_base_parameters
-        from dynid.model.regressor import regressor
+        from dynid.model.serial_dynamics import regressor
 
         joints, ext = tuple(robot.joint_names), robot.layout.extra_index
         chosen = joints if friction_joints is None else tuple(friction_joints)

@@ -47,7 +47,7 @@ from dynid.excitation.optimality import CRITERIA, criteria, predicted_std
 from dynid.model.base_parameters import robot_base_parameters
 from dynid.model.closed_loop import actuator_regressor, mechanism_base_parameters
 from dynid.model.mechanism import JointCoordinates, Mechanism
-from dynid.model.regressor import regressor
+from dynid.model.serial_dynamics import regressor
 from dynid.trajectories import FourierQuintic
 from dynid.trajectories import FourierTrajectory
 

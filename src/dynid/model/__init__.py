@@ -8,7 +8,7 @@ from dynid.model.base_parameters import (
     robot_base_parameters,
 )
 from dynid.model.loading import load_model, load_robot
-from dynid.model.regressor import extras_torque, inverse_dynamics, regressor
+from dynid.model.serial_dynamics import extras_torque, inverse_dynamics, regressor
 from dynid.model.robot import BODY_PARAMS, JOINT_EXTRAS, ParameterLayout, RobotModel
 from dynid.model.transmission import Coupling, Transmission
 

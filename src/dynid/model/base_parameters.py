@@ -256,7 +256,7 @@ def compute_base_parameters(
 
 def robot_base_parameters(robot, *, n_samples: int | None = None, seed: int = 0, rank_tol: float = 1e-8) -> BaseParameters:
     """Base parameters of a :class:`~dynid.model.robot.RobotModel` (random states within its limits)."""
-    from dynid.model.regressor import regressor
+    from dynid.model.serial_dynamics import regressor
 
     data = robot.create_data()
     lo, hi = robot.position_limits()

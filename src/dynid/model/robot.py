@@ -13,7 +13,7 @@ Standard parameter vector (names are generated, never hand-typed):
    ``Iam{k}``, ``fvm{k}``, ``fcm{k}`` on the motor velocity in joint units
    :math:`w_k = c_k^T \\dot q`.
 
-The joint torques are then linear in this vector (see :mod:`dynid.model.regressor`):
+The joint torques are then linear in this vector (see :mod:`dynid.model.serial_dynamics`):
 
 .. math::
 

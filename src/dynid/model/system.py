@@ -9,7 +9,7 @@ outputs. Two implementations:
 
 * :class:`SerialSystem` wraps a :class:`~dynid.model.robot.RobotModel`: the velocity map is
   :math:`G = I` and the actuators are the joints, so the rows are pinocchio's joint-torque
-  regressor with the extras (the serial fast path of :func:`dynid.model.regressor.regressor`,
+  regressor with the extras (the serial fast path of :func:`dynid.model.serial_dynamics.regressor`,
   no projection, no kinematic solve);
 * :class:`ClosedLoopSystem` wraps a :class:`~dynid.model.mechanism.Mechanism`: all joint states
   are solved from the actuator states through the loops
@@ -44,7 +44,7 @@ from dynid.model.closed_loop import DISTRIBUTIONS, actuator_regressor, mechanism
 from dynid.model.closures import JointCoordinates, JointTerm
 from dynid.model.loop_kinematics import actuator_states, platform_pose, pose_states
 from dynid.model.mechanism import Mechanism
-from dynid.model.regressor import regressor
+from dynid.model.serial_dynamics import regressor
 from dynid.model.robot import JOINT_EXTRAS, RobotModel, joint_kinds
 from dynid.model.transmission import Transmission
 

@@ -16,7 +16,7 @@ power: :math:`\\tau^T \\dot q = \\tau_m^T \\dot\\theta_m`.
 A coupled motor ``k`` (a row of :math:`C` with several non-zero entries) moves with
 the joint-space velocity :math:`w_k = c_k^T \\dot q`, :math:`c_k = C_{k,:}/C_{kk}`;
 its rotor inertia and friction add :math:`c_k\\,(I_{a,m}\\dot w_k + f_{v,m} w_k +
-f_{c,m}\\,\\mathrm{sign}(w_k))` to the joint torques (see :mod:`dynid.model.regressor`).
+f_{c,m}\\,\\mathrm{sign}(w_k))` to the joint torques (see :mod:`dynid.model.serial_dynamics`).
 """
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ import pinocchio as pin
 from dynid._typing import FloatArray
 from dynid.errors import InputError
 from dynid.model.friction import CoulombViscous, FrictionModel
-from dynid.model.regressor import inverse_dynamics
+from dynid.model.serial_dynamics import inverse_dynamics
 from dynid.model.robot import RobotModel
 from dynid.simulation._integrate import rk4_step
 

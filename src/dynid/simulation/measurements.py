@@ -6,7 +6,7 @@ import numpy as np
 
 from dynid._typing import FloatArray
 from dynid.dataset import Dataset
-from dynid.model.regressor import inverse_dynamics
+from dynid.model.serial_dynamics import inverse_dynamics
 from dynid.model.robot import RobotModel
 from dynid.trajectories import FourierTrajectory
 
