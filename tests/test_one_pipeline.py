@@ -217,3 +217,36 @@ def test_maximum_likelihood_for_a_serial_arm(tmp_path):
     np.testing.assert_allclose(ml.params, gm.params, rtol=1e-9, atol=1e-12)
     best = next(r for r in ml.solver["profile"] if r["cutoff_hz"] == fc)
     assert best["force_cost"] == pytest.approx(0.5 * gm.scale * gm.dof, rel=1e-9)
+
+
+def test_asymmetric_friction_extras_on_serial_joints_and_mechanism_actuators():
+    """Shang 2009 Eq. 2 friction (a viscous and a Coulomb coefficient per direction) is a joint
+    extra of a serial arm and an actuator term of a mechanism alike; the regressor equals the
+    term-by-term torques, and the plant simulates it."""
+    from dynid import config
+    from dynid.model.loading import load_model, load_robot
+    from dynid.model.robot import ALL_EXTRAS
+    from dynid.model.serial_dynamics import extras_torque, inverse_dynamics, regressor
+    from dynid.simulation.control import SerialPlant
+
+    assert config._ALL_EXTRAS == ALL_EXTRAS
+    arm = load_robot("builtin:cobot6r", extras=("Ia", "fv+", "fv-", "fc+", "fc-"))
+    assert arm.parameter_names[60:65] == ("Ia1", "fv+1", "fv-1", "fc+1", "fc-1")
+    rng = np.random.default_rng(1)
+    q, dq, ddq = (rng.standard_normal((40, 6)) for _ in range(3))
+    pi = arm.nominal_parameters()
+    pi[arm.layout.extra_index["fv+"]], pi[arm.layout.extra_index["fv-"]] = 2.0, 3.0
+    pi[arm.layout.extra_index["fc+"]], pi[arm.layout.extra_index["fc-"]] = 0.5, -0.7
+    # independent route: RNEA + the friction written out by hand
+    by_hand = (np.where(dq > 0, 2.0 * dq + 0.5, 0.0) + np.where(dq < 0, 3.0 * dq - 0.7, 0.0))
+    np.testing.assert_allclose(extras_torque(arm, pi, dq, ddq) - ddq * pi[arm.layout.extra_index["Ia"]], by_hand,
+                               atol=1e-12)
+    np.testing.assert_allclose(regressor(arm, q, dq, ddq) @ pi, inverse_dynamics(arm, pi, q, dq, ddq), atol=1e-9)
+    plant = SerialPlant(arm, pi)
+    np.testing.assert_allclose(plant.friction.force(dq), by_hand, atol=1e-12)
+    smap = as_system(arm).standard_map(as_system(arm).base_parameters())
+    assert [arm.parameter_names[i] for i in smap.nonpositive] == [f"fc-{j}" for j in range(1, 7)]
+    # a mechanism's actuators take the same extras as joint terms
+    five = with_actuator_extras(load_model("builtin:fivebar"), ["fv+", "fc-"])
+    assert [(t.name, t.kind) for t in five.terms[-4:]] == [("fv+_qa1", "viscous+"), ("fv+_qa2", "viscous+"),
+                                                          ("fc-_qa1", "coulomb-"), ("fc-_qa2", "coulomb-")]

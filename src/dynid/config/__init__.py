@@ -54,6 +54,7 @@ EFFORT_UNITS = {
 _METHODS = ("ols", "wls", "gm", "irls", "tls", "ml")
 _FORCE_MODELS = ("projected", "min_norm", "min_norm_local_friction")
 _EXTRAS = ("Ia", "fv", "fc", "offset")
+_ALL_EXTRAS = _EXTRAS + ("fv+", "fv-", "fc+", "fc-")  # dynid.model.robot.ALL_EXTRAS (config sits above model)
 
 
 # ---------------------------------------------------------------------- schema
@@ -242,7 +243,7 @@ def _parse_robot(t: Any, base: Path) -> RobotConfig:
     model = _str(t["model"], f"{where}.model")
     if not model.startswith("builtin:"):
         model = str(_path(model, f"{where}.model", base))
-    extras = _list(t.get("extras", list(_EXTRAS)), f"{where}.extras", lambda v, w: _str(v, w, _EXTRAS))
+    extras = _list(t.get("extras", list(_EXTRAS)), f"{where}.extras", lambda v, w: _str(v, w, _ALL_EXTRAS))
     if "couplings" in t and not isinstance(t["couplings"], list):
         raise ConfigError(f"{where}.couplings: expected a list of tables")
     couplings = []

@@ -327,8 +327,12 @@ def write_urdf(robot: RobotModel, params: FloatArray, path: str | Path, *, name:
 
         joint = ET.SubElement(root, "joint", name=jname, type=kind)
         slide = kind == "prismatic"
+        force = "N" if slide else "N m"
         lost = {"Ia": ("Ia", f"rotor inertia [{'kg' if slide else 'kg m^2'}]"),
-                "offset": ("off", f"offset [{'N' if slide else 'N m'}]")}
+                "offset": ("off", f"offset [{force}]"),
+                **{e: (e, f"asymmetric {'viscous' if e[1] == 'v' else 'Coulomb'} friction "
+                          f"[{force}{' s/' + ('m' if slide else 'rad') if e[1] == 'v' else ''}]")
+                   for e in ("fv+", "fv-", "fc+", "fc-")}}
         lost = {e: lost[e] for e in lost if e in extras}
         if lost:
             values = " ".join(f"{p}={_num(extras[e][v])}" for e, (p, _) in lost.items())

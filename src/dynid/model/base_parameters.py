@@ -309,13 +309,15 @@ class StandardMap:
     def of(cls, robot, base: BaseParameters) -> StandardMap:
         """The map of a :class:`~dynid.model.robot.RobotModel` and its base parameters."""
         lay = robot.layout
-        nonneg = [idx for e, idx in lay.extra_index.items() if e != "offset"] + list(lay.motor_index.values())
+        nonneg = [idx for e, idx in lay.extra_index.items() if e not in ("offset", "fc-")] + list(lay.motor_index.values())
+        nonpos = lay.extra_index.get("fc-", np.zeros(0, dtype=int))
         return cls(
             standard_names=lay.names,
             B=base.B,
             body_blocks=robot.body_blocks(),
             nonnegative=np.sort(np.concatenate(nonneg)).astype(int) if nonneg else np.zeros(0, dtype=int),
             reference=robot.nominal_parameters(),
+            nonpositive=np.asarray(nonpos, dtype=int),
         )
 
 

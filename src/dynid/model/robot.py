@@ -8,7 +8,8 @@ Standard parameter vector (names are generated, never hand-typed):
    expressed in the joint frame (``pinocchio.Inertia.toDynamicParameters``);
 2. per joint DOF ``j`` the enabled extras, in this order: rotor (armature) inertia
    ``Ia{j}`` [kg·m²], viscous ``fv{j}`` [N·m·s/rad], Coulomb ``fc{j}`` [N·m],
-   torque offset ``off{j}`` [N·m] (joint-side, in joint units);
+   torque offset ``off{j}`` [N·m] (joint-side, in joint units), and the asymmetric friction
+   ``fv+{j}``, ``fv-{j}``, ``fc+{j}``, ``fc-{j}`` (:data:`ASYMMETRIC_EXTRAS`);
 3. per coupled motor ``k`` (see :mod:`dynid.model.transmission`) the motor-side terms
    ``Iam{k}``, ``fvm{k}``, ``fcm{k}`` on the motor velocity in joint units
    :math:`w_k = c_k^T \\dot q`.
@@ -36,6 +37,8 @@ from dynid.errors import ModelError
 from dynid.model.transmission import Transmission
 
 __all__ = [
+    "ALL_EXTRAS",
+    "ASYMMETRIC_EXTRAS",
     "BODY_PARAMS",
     "JOINT_EXTRAS",
     "ParameterLayout",
@@ -48,17 +51,27 @@ BODY_PARAMS: tuple[str, ...] = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Iyy", "Ixz
 """Per-body inertial parameters in pinocchio's order."""
 
 JOINT_EXTRAS: tuple[str, ...] = ("Ia", "fv", "fc", "offset")
-"""Per-joint extras in their fixed order."""
+"""Per-joint extras enabled by default, in their fixed order."""
 
-_EXTRA_PREFIX = {"Ia": "Ia", "fv": "fv", "fc": "fc", "offset": "off"}
+ASYMMETRIC_EXTRAS: tuple[str, ...] = ("fv+", "fv-", "fc+", "fc-")
+"""Asymmetric friction extras (Shang 2009, Eq. 2): viscous and Coulomb coefficients of each
+direction of motion, on :math:`\\dot q^+ = \\max(\\dot q, 0)`, :math:`\\dot q^- = \\min(\\dot q, 0)`,
+:math:`[\\dot q > 0]` and :math:`[\\dot q < 0]` (the ``fc-`` coefficient is the force at negative
+velocities: non-positive)."""
+
+ALL_EXTRAS: tuple[str, ...] = JOINT_EXTRAS + ASYMMETRIC_EXTRAS
+"""Every per-joint extra, in layout order."""
+
+_EXTRA_PREFIX = {"Ia": "Ia", "fv": "fv", "fc": "fc", "offset": "off", "fv+": "fv+", "fv-": "fv-", "fc+": "fc+",
+                 "fc-": "fc-"}
 _MOTOR_PREFIX = {"Ia": "Iam", "fv": "fvm", "fc": "fcm"}
 
 
 def _normalize_extras(extras: Sequence[str]) -> tuple[str, ...]:
-    unknown = [e for e in extras if e not in JOINT_EXTRAS]
+    unknown = [e for e in extras if e not in ALL_EXTRAS]
     if unknown:
-        raise ModelError(f"unknown joint extras {unknown}; choose from {list(JOINT_EXTRAS)}")
-    return tuple(e for e in JOINT_EXTRAS if e in extras)
+        raise ModelError(f"unknown joint extras {unknown}; choose from {list(ALL_EXTRAS)}")
+    return tuple(e for e in ALL_EXTRAS if e in extras)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -19,7 +19,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError
 from dynid.model.robot import RobotModel
 
-__all__ = ["regressor", "extras_torque", "inverse_dynamics", "check_states"]
+__all__ = ["regressor", "extra_basis", "extras_torque", "inverse_dynamics", "check_states"]
 
 
 def check_states(robot: RobotModel, q: FloatArray, dq: FloatArray, ddq: FloatArray) -> tuple[FloatArray, ...]:
@@ -42,6 +42,25 @@ _BLOCK = 128
 """Samples per block in :func:`regressor`: a block of ``out`` (about 0.5 MB for 6 joints
 and 84 columns) stays in cache while it is zeroed, filled by pinocchio and completed
 with the extras."""
+
+
+def extra_basis(extra: str, dq: FloatArray, ddq: FloatArray) -> FloatArray | float:
+    """The basis function of a joint extra (see :mod:`dynid.model.robot`) at ``dq``, ``ddq``."""
+    if extra == "Ia":
+        return ddq
+    if extra == "fv":
+        return dq
+    if extra == "fc":
+        return np.sign(dq)
+    if extra == "fv+":
+        return np.maximum(dq, 0.0)
+    if extra == "fv-":
+        return np.minimum(dq, 0.0)
+    if extra == "fc+":
+        return (dq > 0).astype(float)
+    if extra == "fc-":
+        return (dq < 0).astype(float)
+    return 1.0  # offset
 
 
 def _extras_diagonal(robot: RobotModel, out: FloatArray) -> FloatArray | None:
@@ -83,7 +102,7 @@ def _fill_extras(
     if joints:
         rows = np.arange(lay.nv)
         for k, (e, idx) in enumerate(lay.extra_index.items()):
-            value = ddq if e == "Ia" else dq if e == "fv" else np.sign(dq) if e == "fc" else 1.0
+            value = extra_basis(e, dq, ddq)
             if diag is not None:
                 diag[:, :, k] = value
             else:
@@ -178,9 +197,8 @@ def extras_torque(robot: RobotModel, params: FloatArray, dq: FloatArray, ddq: Fl
     dq = np.atleast_2d(np.asarray(dq, dtype=float))
     ddq = np.atleast_2d(np.asarray(ddq, dtype=float))
     tau = np.zeros_like(dq)
-    terms = {"Ia": ddq, "fv": dq, "fc": np.sign(dq), "offset": np.ones_like(dq)}
     for e, idx in lay.extra_index.items():
-        tau += params[idx][None, :] * terms[e]
+        tau += params[idx][None, :] * extra_basis(e, dq, ddq)
     for m_pos, k in enumerate(lay.coupled_motors):
         assert robot.transmission is not None
         c = robot.transmission.coupling_weights(k)

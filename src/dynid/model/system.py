@@ -45,12 +45,13 @@ from dynid.model.closures import JointCoordinates, JointTerm
 from dynid.model.loop_kinematics import actuator_states, platform_pose, pose_states
 from dynid.model.mechanism import Mechanism
 from dynid.model.serial_dynamics import regressor
-from dynid.model.robot import JOINT_EXTRAS, RobotModel, joint_kinds
+from dynid.model.robot import ALL_EXTRAS, RobotModel, joint_kinds
 from dynid.model.transmission import Transmission
 
 __all__ = ["ClosedLoopSystem", "Rows", "SerialSystem", "System", "as_system", "with_actuator_extras"]
 
-EXTRA_KINDS = {"Ia": "inertia", "fv": "viscous", "fc": "coulomb", "offset": "offset"}
+EXTRA_KINDS = {"Ia": "inertia", "fv": "viscous", "fc": "coulomb", "offset": "offset", "fv+": "viscous+",
+               "fv-": "viscous-", "fc+": "coulomb+", "fc-": "coulomb-"}
 """Joint-term kind of each actuator extra."""
 
 
@@ -355,16 +356,17 @@ class ClosedLoopSystem:
 
 def with_actuator_extras(mech: Mechanism, extras: Sequence[str]) -> Mechanism:
     """``mech`` with a joint term ``<extra>_<joint>`` of each kind in ``extras`` (``Ia``, ``fv``,
-    ``fc``, ``offset``: rotor inertia, viscous and Coulomb friction, offset) on every actuated
+    ``fc``, ``offset``: rotor inertia, viscous and Coulomb friction, offset; ``fv+``, ``fv-``,
+    ``fc+``, ``fc-``: asymmetric friction, Shang 2009 Eq. 2) on every actuated
     joint that has no single-joint term of that kind yet (nominal value 0); the description's own
     terms are kept as they are."""
-    unknown = [e for e in extras if e not in JOINT_EXTRAS]
+    unknown = [e for e in extras if e not in ALL_EXTRAS]
     if unknown:
-        raise ModelError(f"unknown joint extras {unknown}; choose from {list(JOINT_EXTRAS)}")
+        raise ModelError(f"unknown joint extras {unknown}; choose from {list(ALL_EXTRAS)}")
     have = {(t.kind, t.joints[0]) for t in mech.terms if len(t.joints) == 1}
     names = {t.name for t in mech.terms}
     new = []
-    for e in JOINT_EXTRAS:
+    for e in ALL_EXTRAS:
         if e not in extras:
             continue
         for j in mech.actuated:

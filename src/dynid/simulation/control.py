@@ -30,8 +30,8 @@ import pinocchio as pin
 from dynid._typing import FloatArray
 from dynid.errors import InputError
 from dynid.model.friction import CoulombViscous, FrictionModel
-from dynid.model.serial_dynamics import inverse_dynamics
-from dynid.model.robot import RobotModel
+from dynid.model.serial_dynamics import extras_torque, inverse_dynamics
+from dynid.model.robot import ASYMMETRIC_EXTRAS, RobotModel
 from dynid.simulation._integrate import rk4_step
 
 __all__ = ["ComputedTorque", "ControlledMotion", "FeedforwardPID", "JointPID", "SerialPlant", "simulate_control"]
@@ -72,7 +72,10 @@ class SerialPlant:
         if friction is None:
             lay = self.robot.layout
             get = lambda e: params[lay.extra_index[e]] if e in lay.extra_index else np.zeros(lay.nv)  # noqa: E731
-            friction = CoulombViscous(fc=get("fc"), fv=get("fv"), offset=get("offset"))
+            if any(e in lay.extra_index for e in ASYMMETRIC_EXTRAS):
+                friction = LayoutFriction(self.robot, params)
+            else:
+                friction = CoulombViscous(fc=get("fc"), fv=get("fv"), offset=get("offset"))
         object.__setattr__(self, "params", params)
         object.__setattr__(self, "friction", friction)
         object.__setattr__(self, "model", model)
@@ -137,6 +140,23 @@ class FeedforwardPID:
     def __call__(self, dt: float, q: FloatArray, dq: FloatArray, ref: tuple[FloatArray, FloatArray, FloatArray]) -> FloatArray:
         ff = np.asarray(self.inverse(ref[0][None], ref[1][None], ref[2][None]))[0]
         return ff + self.pid(dt, q, dq, ref)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class LayoutFriction(FrictionModel):
+    """The friction and offset extras of a serial layout with their values in ``params`` (the
+    asymmetric ones of Shang 2009 Eq. 2 included), as a plant's ground truth; rotor inertia is
+    not friction (the plant's ABA has it in the armature)."""
+
+    robot: RobotModel
+    params: FloatArray
+
+    def force(self, dq: FloatArray) -> FloatArray:
+        dq = np.atleast_2d(np.asarray(dq, dtype=float))
+        p = np.array(self.params, dtype=float)
+        if "Ia" in self.robot.layout.extra_index:
+            p[self.robot.layout.extra_index["Ia"]] = 0.0
+        return extras_torque(self.robot, p, dq, np.zeros_like(dq))
 
 
 def model_inverse(robot: RobotModel, params: FloatArray) -> Callable[[FloatArray, FloatArray, FloatArray], FloatArray]:
