@@ -250,3 +250,35 @@ def test_asymmetric_friction_extras_on_serial_joints_and_mechanism_actuators():
     five = with_actuator_extras(load_model("builtin:fivebar"), ["fv+", "fc-"])
     assert [(t.name, t.kind) for t in five.terms[-4:]] == [("fv+_qa1", "viscous+"), ("fv+_qa2", "viscous+"),
                                                           ("fc-_qa1", "coulomb-"), ("fc-_qa2", "coulomb-")]
+
+
+def test_coupled_motors_of_a_mechanism_act_through_their_own_velocity(tmp_path):
+    """A drive train coupling a mechanism's two actuators (motor 2 turns with N2 (q_a1 + q_a2), as
+    the TX40 wrist) adds the coupled motor's rotor inertia and friction, Iam2, fvm2, fcm2, on its
+    own velocity w = c^T qd_a, with c = C[1, :] / C[1, 1] (virtual power: force c_j * f(w) on
+    actuator j). The five-bar's actuators are its independent coordinates (G_a = I), so its
+    actuator-space columns are those forces, computed here by hand."""
+    from dynid.model.closed_loop import actuator_regressor, random_consistent_states
+
+    doc = {"robot": {"model": "builtin:fivebar", "gear_ratios": [10.0, 20.0],
+                     "couplings": [{"motor": 2, "joints": [1, 2], "weights": [0.5, 1.0]}]},
+           "data": {"file": "log.csv", "position": {"columns": ["a", "b"]}, "effort": {"columns": ["c", "d"]},
+                    "sample_rate_hz": 100.0},
+           "validation": {"rows": [0, 2]}}
+    doc["data"]["rows"] = [2, 4]
+    system = build_system(parse_config(doc, tmp_path).robot)
+    mech = system.model
+    c = np.array([0.5, 1.0])  # C[1, :] / C[1, 1] = (20 * 0.5, 20) / 20
+    np.testing.assert_allclose(system.transmission.coupling_weights(1), c)
+    terms = {t.name: t for t in mech.terms}
+    assert {"Iam2", "fvm2", "fcm2"} <= set(terms) and "Iam1" not in terms
+    assert terms["Iam2"].joints == mech.actuated and terms["Iam2"].weights == (0.5, 1.0)
+    state = random_consistent_states(mech, 30, np.random.default_rng(3))
+    W = actuator_regressor(mech, state).W
+    act = list(mech.actuated)
+    dqa, ddqa = state.dq[:, act], state.ddq[:, act]
+    w, dw = dqa @ c, ddqa @ c
+    for name, basis in (("Iam2", dw), ("fvm2", w), ("fcm2", np.sign(w))):
+        np.testing.assert_allclose(W[:, :, mech.term_index(name)], basis[:, None] * c[None, :], atol=1e-9)
+    # identifiable: the coupled motor's inertia is a base parameter of its own
+    assert "Iam2" in system.base_parameters().names

@@ -411,7 +411,11 @@ def _joint_terms(mech: Mechanism, params: FloatArray) -> tuple[dict[str, FloatAr
     for k, t in enumerate(mech.terms):
         value = params[mech.n_body_params + k]
         joints = ", ".join(names[v] for v in t.joints)
-        if t.kind in target:
+        if t.weights:
+            lost.append(f"term {t.name} ({t.kind}) = {_num(value)} acts on the combined velocity "
+                        f"{' + '.join(f'{_num(w)} {names[v]}' for v, w in zip(t.joints, t.weights))} (a coupled motor): "
+                        "no MJCF attribute, not in the model")
+        elif t.kind in target:
             attrs[target[t.kind]][list(t.joints)] += value
             if len(t.joints) > 1:
                 lost.append(f"term {t.name} ({t.kind}) = {_num(value)} is shared by joints {joints}: written on each "

@@ -81,7 +81,8 @@ def term_columns(mech: Mechanism, dq: FloatArray, ddq: FloatArray) -> FloatArray
     """Joint-term columns :math:`F`, shape (n, n_v, n_terms) (see :class:`JointTerm`).
 
     Column ``k`` holds the basis function of term ``k`` on the rows of its joints; one
-    broadcast product per kind of term."""
+    broadcast product per kind of term (a weighted term, a coupled motor: the basis of
+    :math:`w = c^T\\dot q` times :math:`c`)."""
     dq = np.atleast_2d(dq)
     ddq = np.atleast_2d(ddq)
     n, nv = dq.shape
@@ -89,6 +90,10 @@ def term_columns(mech: Mechanism, dq: FloatArray, ddq: FloatArray) -> FloatArray
     F = np.empty((n, nv, incidence.shape[1]))
     for kind, ks in mech.term_groups:
         F[:, :, ks] = term_basis(kind, dq, ddq)[:, :, None] * incidence[None, :, ks]
+    for k, t in enumerate(mech.terms):
+        if t.weights:  # a coupled motor: the basis of its own velocity w = c^T qd, distributed by c
+            c = incidence[:, k]
+            F[:, :, k] = term_basis(t.kind, dq @ c, ddq @ c)[:, None] * c[None, :]
     return F
 
 

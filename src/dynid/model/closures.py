@@ -71,18 +71,28 @@ class JointTerm:
 
     A term listing several joints is a coefficient shared by them (PaLiDA's common dry
     friction of all cardan joints, Abdellatif & Heimann).
+
+    With ``weights`` (one per joint) the term acts through the combined velocity
+    :math:`w = \\sum_j c_j \\dot q_j` instead: the force on joint ``j`` is
+    ``c_j * theta * b(w, dw/dt)``. That is a motor coupled to several joints through its
+    transmission (:class:`~dynid.model.transmission.Transmission`, :math:`c_k = C_{k,:}/C_{kk}`):
+    its rotor inertia and friction act on the motor's own velocity, by virtual power.
     """
 
     name: str
     kind: str
     joints: tuple[int, ...]
+    weights: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in TERM_KINDS:
             raise ModelError(f"joint term {self.name!r}: unknown kind {self.kind!r}; choose from {list(TERM_KINDS)}")
         object.__setattr__(self, "joints", tuple(int(j) for j in self.joints))
+        object.__setattr__(self, "weights", tuple(float(w) for w in self.weights))
         if not self.joints:
             raise ModelError(f"joint term {self.name!r} acts on no joint")
+        if self.weights and len(self.weights) != len(self.joints):
+            raise ModelError(f"joint term {self.name!r}: {len(self.weights)} weights for {len(self.joints)} joints")
 
 
 @dataclasses.dataclass(frozen=True)

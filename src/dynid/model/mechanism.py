@@ -132,7 +132,7 @@ class Mechanism:
     bodies: tuple[int, ...] = dataclasses.field(init=False)
     parameter_names: tuple[str, ...] = dataclasses.field(init=False)
     term_incidence: np.ndarray = dataclasses.field(init=False, repr=False)  # (n_v, n_terms): term k acts on joint j
-    term_groups: tuple = dataclasses.field(init=False, repr=False)  # ((kind, term indices), ...)
+    term_groups: tuple = dataclasses.field(init=False, repr=False)  # ((kind, term indices), ...) of unweighted terms
     q_ref: FloatArray = dataclasses.field(init=False)
     constraint_rows: np.ndarray = dataclasses.field(init=False)
     mobility: int = dataclasses.field(init=False)
@@ -188,13 +188,14 @@ class Mechanism:
         tnames = [t.name for t in self.terms]
         if len(set(tnames)) != len(tnames):
             raise ModelError("duplicate joint-term names")
-        incidence = np.zeros((nv, len(self.terms)))  # incidence[j, k] = 1 if term k acts on joint j
+        incidence = np.zeros((nv, len(self.terms)))  # incidence[j, k] = 1 if term k acts on joint j (c_j if weighted)
         for k, t in enumerate(self.terms):
-            incidence[list(t.joints), k] = 1.0
+            incidence[list(t.joints), k] = t.weights if t.weights else 1.0
         incidence.setflags(write=False)
         set_(self, "term_incidence", incidence)
-        kinds = dict.fromkeys(t.kind for t in self.terms)
-        set_(self, "term_groups", tuple((kind, np.array([k for k, t in enumerate(self.terms) if t.kind == kind]))
+        plain = [k for k, t in enumerate(self.terms) if not t.weights]
+        kinds = dict.fromkeys(self.terms[k].kind for k in plain)
+        set_(self, "term_groups", tuple((kind, np.array([k for k in plain if self.terms[k].kind == kind]))
                                         for kind in kinds))
         unknown = sorted(set(self.nominal_terms) - set(tnames))
         if unknown:

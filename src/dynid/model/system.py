@@ -48,7 +48,7 @@ from dynid.model.serial_dynamics import regressor
 from dynid.model.robot import ALL_EXTRAS, RobotModel, joint_kinds
 from dynid.model.transmission import Transmission
 
-__all__ = ["ClosedLoopSystem", "Rows", "SerialSystem", "System", "as_system", "with_actuator_extras"]
+__all__ = ["ClosedLoopSystem", "Rows", "SerialSystem", "System", "as_system", "with_actuator_extras", "with_motor_terms"]
 
 EXTRA_KINDS = {"Ia": "inertia", "fv": "viscous", "fc": "coulomb", "offset": "offset", "fv+": "viscous+",
                "fv-": "viscous-", "fc+": "coulomb+", "fc-": "coulomb-"}
@@ -377,6 +377,26 @@ def with_actuator_extras(mech: Mechanism, extras: Sequence[str]) -> Mechanism:
             if name in names:
                 raise ModelError(f"{mech.name!r} already has a joint term named {name!r} of another kind")
             new.append(JointTerm(name, kind, (j,)))
+    if not new:
+        return mech
+    return dataclasses.replace(mech, terms=mech.terms + tuple(new), q_guess=mech.q_ref)
+
+
+def with_motor_terms(mech: Mechanism, transmission: Transmission, extras: Sequence[str]) -> Mechanism:
+    """``mech`` with the terms of its coupled motors: motor ``k`` of ``transmission`` driving
+    several actuators gets ``Iam{k}``, ``fvm{k}``, ``fcm{k}`` (those of ``Ia``, ``fv``, ``fc`` in
+    ``extras``) acting through its own velocity :math:`w_k = c_k^T\\dot q_a`, exactly the
+    motor-side terms of a serial layout (:mod:`dynid.model.robot`, item 3)."""
+    prefix = {"Ia": ("Iam", "inertia"), "fv": ("fvm", "viscous"), "fc": ("fcm", "coulomb")}
+    new = []
+    for k in transmission.coupled_motors:
+        c = transmission.coupling_weights(k)
+        nz = np.flatnonzero(c)
+        joints = tuple(mech.actuated[a] for a in nz)
+        for e in ("Ia", "fv", "fc"):
+            if e in extras:
+                name, kind = prefix[e]
+                new.append(JointTerm(f"{name}{k + 1}", kind, joints, tuple(c[nz])))
     if not new:
         return mech
     return dataclasses.replace(mech, terms=mech.terms + tuple(new), q_guess=mech.q_ref)

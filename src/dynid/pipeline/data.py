@@ -28,7 +28,7 @@ from dynid.dataset import Dataset
 from dynid.errors import ConfigError, IdentifiabilityError, InputError
 from dynid.io.readers import TableReader
 from dynid.model.mechanism import Mechanism
-from dynid.model.system import System, as_system, with_actuator_extras
+from dynid.model.system import System, as_system, with_actuator_extras, with_motor_terms
 from dynid.model.transmission import Coupling, Transmission
 from dynid.signals import central_difference, lowpass, padlen_for, resample_uniform
 
@@ -64,6 +64,8 @@ def build_system(cfg: RobotConfig) -> System:
         drive_gains=cfg.drive_gains if cfg.drive_gains is not None else 1.0,
         position_offset=cfg.position_offset if cfg.position_offset is not None else 0.0,
     )
+    if isinstance(model, Mechanism):
+        model = with_motor_terms(model, transmission, cfg.extras)
     return as_system(model, transmission)
 
 

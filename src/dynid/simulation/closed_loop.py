@@ -74,6 +74,9 @@ class ConstrainedSimulator:
         arm = np.zeros(mech.nv)
         keep = np.ones(len(mech.terms), dtype=bool)
         for k, t in enumerate(mech.terms):
+            if t.weights:
+                raise ModelError(f"joint term {t.name!r} acts through a combination of joint velocities (a coupled "
+                                 "motor); the constrained simulator takes per-joint terms")
             if t.kind == "inertia" and len(t.joints) == 1:
                 arm[t.joints[0]] += theta[k]
                 keep[k] = False
