@@ -26,7 +26,6 @@ import pytest
 
 from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
-from dynid.errors import ConfigError
 from dynid.estimation.results import IdentificationResult
 from dynid.model.robots import build_mechanism, shang2dof
 from dynid.pipeline.identify import identify, write_outputs
