@@ -325,16 +325,67 @@ def _(w):
                  'kind = "polyline"\nvertices = [[0.0, 0.2]]\nspeed = 0.1')
 
 
-@case("simulate", "payload-on-a-mechanism", "robot.payload is for serial robots")
+edit("simulate", "unknown-control-kind", 'kind = "computed_torque"', 'kind = "lqr"',
+     "control.kind: must be one of ['computed_torque', 'pid', 'feedforward_pid'], got 'lqr'")
+edit("simulate", "payload-unknown-body", "perturbation = 0.05", "perturbation = 0.05\npayload = { mass = 1.0, body = \"wrist\" }",
+     "robot.payload.body = 'wrist' is no joint of 'rp2'; one of ['shoulder', 'slide']")
+edit("simulate", "control-model-missing", "kd = 20", 'kd = 20\nmodel = "id/result.json"',
+     "control.model: identification result not found", "id/result.json", "'nominal', 'true' or the result.json")
+edit("simulate", "control-model-empty", "kd = 20", 'kd = 20\nmodel = ""', "control.model: empty")
+
+
+@case("simulate", "payload-body-required", "robot.payload.body: 'shang2dof' declares no platform",
+      "one of ['qa1', 'qb1', 'qa2', 'qb2', 'qa3', 'qb3']")
 def _(w):
-    return ["simulate", str(_shang(w)), "--out", str(w.out)]
+    return ["simulate", str(_shang(w, "payload = { mass = 1.0 }")), "--out", str(w.out)]
 
 
-def _shang(w) -> Path:
-    text = SIMULATE.replace('model = "rp2.toml"\nperturbation = 0.05', 'model = "builtin:shang2dof"\npayload = { mass = 1.0 }')
+@case("simulate", "payload-on-a-massless-body", "robot.payload.body = 'PX' is a massless (virtual) body of 'hexapod'")
+def _(w):
+    text = SIMULATE.replace('model = "rp2.toml"\nperturbation = 0.05', 'model = "builtin:hexapod"\npayload = { mass = 1.0, body = "PX" }')
+    return ["simulate", str(w.write("hexapod.toml", text)), "--out", str(w.out)]
+
+
+def _shang(w, robot: str = "", control: str = "") -> Path:
+    text = SIMULATE.replace('model = "rp2.toml"\nperturbation = 0.05', f'model = "builtin:shang2dof"\n{robot}')
     text = text.replace('kind = "fourier"\nbase_frequency_hz = 1.0\nharmonics = 2\nseed = 1',
                         'kind = "circle"\ncentre = [0.29, 0.25]\nradius = 0.04\nspeed = 0.2')
+    text = text.replace("kd = 20\n", f"kd = 20\n{control}\n")
     return w.write("shang.toml", text)
+
+
+def _rp2_result(w) -> Path:
+    """A real result.json of ``dynid identify`` (the rp2 arm of the good identify configuration)."""
+    from dynid.config import load_config
+    from dynid.pipeline.identify import identify, write_outputs
+
+    write_outputs(identify(load_config(w.config("identify", name="identify.toml"))), w.dir / "id")
+    return w.dir / "id" / "result.json"
+
+
+@case("simulate", "control-model-of-another-robot", "control.model:", "id/result.json (a result of 'rp2') does not identify "
+      "the base parameters of 'shang2dof'")
+def _(w):
+    _rp2_result(w)
+    return ["simulate", str(_shang(w, control='model = "id"')), "--out", str(w.out)]
+
+
+@case("simulate", "control-model-stribeck", "id/result.json is a Stribeck result (WLS+LMI+Stribeck)",
+      "nonlinear in the parameters")
+def _(w):
+    import json
+
+    path = _rp2_result(w)
+    doc = json.loads(path.read_text())
+    doc["method"], doc["solver"]["stribeck"] = "WLS+LMI+Stribeck", {"shoulder": {"Fc": 0.3, "Fs": 0.5, "Fv": 0.5, "vs": 0.1, "delta": 2.0}}
+    path.write_text(json.dumps(doc))
+    return w.run("simulate", 'kind = "computed_torque"', 'kind = "feedforward_pid"\nmodel = "id/result.json"')
+
+
+@case("simulate", "control-model-not-a-result", "control.model:", "truth.json is not a result.json of dynid identify")
+def _(w):
+    w.write("truth.json", '{"model": "rp2.toml"}')
+    return w.run("simulate", "kd = 20", 'kd = 20\nmodel = "truth.json"')
 
 
 case("simulate", "missing-out", "the following arguments are required: --out")(lambda w: ["simulate", str(w.config("simulate"))])

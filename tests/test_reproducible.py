@@ -140,10 +140,17 @@ def pairs(tmp_path_factory) -> dict[str, tuple[Path, Path]]:
     (root / "design.toml").write_text(DESIGN)
     (root / "mc.toml").write_text(MONTECARLO)
 
+    # the identified model as the controller's (control.model = a result.json, relative to the config)
+    (root / "sim_identified.toml").write_text(
+        SIMULATE.format(duration=1.0).replace("kp = 400\nkd = 40\nsubsteps = 1",  # joint PID gains the wrist's inertia tolerates
+                                              'kp = 20\nkd = 0.2\nsubsteps = 1\nkind = "feedforward_pid"\nmodel = "identify_a/result.json"'))
+
     def serial_chain():
         sim = _pair(root, "simulate", ["simulate", str(root / "sim.toml"), "-q"])
         (root / "sim").symlink_to(sim[0])  # the identify config reads sim/log.npz
-        return {"simulate": sim, "identify": _pair(root, "identify", ["identify", str(root / "identify.toml"), "-q"])}
+        ident = _pair(root, "identify", ["identify", str(root / "identify.toml"), "-q"])
+        return {"simulate": sim, "identify": ident,
+                "simulate-identified": _pair(root, "simulate-identified", ["simulate", str(root / "sim_identified.toml"), "-q"])}
 
     with ThreadPoolExecutor(2) as pool:
         chain = pool.submit(serial_chain)
@@ -154,6 +161,7 @@ def pairs(tmp_path_factory) -> dict[str, tuple[Path, Path]]:
 
 @pytest.mark.parametrize("command, expected", [
     ("simulate", {"log.npz", "truth.json", "metadata.json", "config.toml"}),
+    ("simulate-identified", {"log.npz", "truth.json", "metadata.json", "config.toml"}),
     ("identify", {"result.json", "result.npz", "params.csv", "summary.txt", "model.urdf", "validation.png",
                   "processing.png", "report.html"}),
     ("design", {"design.json", "trajectory.csv", "params.csv", "summary.txt", "trajectory.png", "spectrum.png"}),
@@ -174,6 +182,13 @@ def test_two_runs_write_the_same_bytes(pairs, command, expected):
             if name.endswith(".npz"):
                 with np.load(pairs[command][0] / name) as z:
                     assert not [k for k in z.files if k.endswith("_s")], (command, name, z.files)
+
+
+def test_the_identified_model_is_recorded_relative_to_the_config(pairs):
+    meta = json.loads((pairs["simulate-identified"][0] / "metadata.json").read_text())
+    used = meta["control"]["model_used"]
+    assert used["kind"] == "identified" and used["result"] == "identify_a/result.json" and used["method"] == "WLS+LMI"
+    assert meta["control"]["model"] == "identify_a/result.json"
 
 
 def _leaves(x):

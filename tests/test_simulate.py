@@ -130,7 +130,8 @@ def test_task_space_needs_a_parallel_robot(tmp_path):
         ({"robot": {"model": "builtin:shang2dof", "colour": "red"}}, "unknown key robot.colour"),
         ({"trajectory": {"kind": "circle", "radius": 0.04, "speed": 0.2}}, "a circle needs 'centre'"),
         ({"robot": {"model": "builtin:rps3"}}, "is a path of 2 coordinates but the robot has 3"),
-        ({"control": {"kind": "pid"}}, "is for serial robots"),
+        ({"control": {"kind": "pid", "kp": [100.0, 100.0]}}, "has 2 entries; the robot has 3 actuators \\(one PID per actuator\\)"),
+        ({"control": {"kind": "pid", "model": "nowhere"}}, "control.model: identification result not found"),
         ({"sensors": {"log_rate_hz": 300}}, "must divide control.rate_hz"),
         ({"sensors": {"force_covariance": [[1, 0], [0, 1]], "force_noise_std": 1}}, "not both"),
     ],
@@ -169,9 +170,17 @@ def test_ground_truth_friction_and_payload(tmp_path):
     t_arm = run_simulation(parse_simulate_config({**base, "robot": arm}, tmp_path)).columns["tau_joint_2"]
     t_heavy = run_simulation(parse_simulate_config({**base, "robot": heavy}, tmp_path)).columns["tau_joint_2"]
     assert np.abs(t_heavy - t_arm).max() > 5.0  # N*m: 5 kg on the wrist loads the shoulder
+    # payload.body: the last body by default, or another one
+    last = run_simulation(parse_simulate_config({**base, "robot": {**arm, "payload": {**heavy["payload"], "body": "joint_6"}}},
+                                                tmp_path))
+    np.testing.assert_array_equal(last.columns["tau_joint_2"], t_heavy)
+    assert last.truth["payload"]["body"] == "joint_6"
+    elbow = run_simulation(parse_simulate_config({**base, "robot": {**arm, "payload": {**heavy["payload"], "body": "joint_3"}}},
+                                                 tmp_path)).columns
+    assert np.abs(elbow["tau_joint_2"] - t_arm).max() > 5.0 and np.abs(elbow["tau_joint_2"] - t_heavy).max() > 0.1
     with pytest.raises(ConfigError, match="needs \\['fs', 'vs'\\]"):
         parse_simulate_config({**base, "robot": {"model": "builtin:fivebar", "friction": {"model": "stribeck", "fc": 1, "fv": 1}}}, tmp_path)
-    with pytest.raises(ConfigError, match="for serial robots"):
+    with pytest.raises(ConfigError, match="declares no platform; name the body"):
         run_simulation(parse_simulate_config({**base, "robot": {"model": "builtin:fivebar", "payload": {"mass": 1.0}}}, tmp_path))
 
 

@@ -15,8 +15,12 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     or ``"smooth_stribeck"`` (paper 003: ``fc``, ``fv``, ``alpha``, ``offset`` / ``fc``, ``fs``,
     ``fv``, ``vs``, ``kv``, ``alpha``).
 ``[robot.payload]``
-    Serial robots: a load on the last body, ``mass`` [kg], ``com`` [m] and principal
-    ``inertia`` about the centre of mass [kg·m²] in the last joint's frame.
+    A load rigidly attached to one body of the true robot: ``body``, the pinocchio joint name
+    whose body carries it (serial robots: default the last body; mechanisms: default the
+    platform, i.e. the joint of the last task coordinate, when the mechanism declares task
+    coordinates, otherwise required; a massless virtual body is refused), ``mass`` [kg],
+    ``com`` [m] and principal ``inertia`` about the centre of mass [kg·m²] in that joint's
+    frame. The controller's models (``control.model``) do not know the payload.
 ``[trajectory]``
     ``coordinates``: ``"independent"`` (default: the robot's independent coordinates) or
     ``"task"`` (the platform pose of a parallel robot that declares one: x, y, z and the
@@ -32,12 +36,21 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     independent coordinates of a planar mechanism (its end-effector); Fourier series run
     in the independent coordinates (the joints of a serial robot).
 ``[control]``
-    ``kind``: ``"computed_torque"`` (default; for a mechanism the model-based control of
-    :class:`~dynid.simulation.closed_loop.AugmentedPD`) or, for serial robots, ``"pid"`` and
-    ``"feedforward_pid"``; ``rate_hz`` (default 1000); ``kp``, ``kd``, ``ki`` (numbers or
-    lists); ``model``: ``"nominal"`` (default) or ``"true"``; ``distribution`` for redundant
-    actuation (default ``"min_norm_local_friction"``, Shang 2009); ``substeps`` (RK4 steps
-    per period, default 4).
+    ``kind``: ``"computed_torque"`` (default: computed torque in the independent coordinates;
+    for a mechanism the model-based control of :class:`~dynid.simulation.closed_loop.AugmentedPD`),
+    ``"pid"`` (independent joint PID; for a mechanism a decentralized PID per actuator on the
+    actuator positions that the mechanism's kinematics give for the reference, paper 002,
+    Section 5.4) or ``"feedforward_pid"`` (the model's joint or actuator forces along the
+    reference plus that PID, paper 002, Section 5.4, Figs. 10–12); ``rate_hz`` (default 1000);
+    ``kp``, ``kd``, ``ki`` (numbers or lists: one per independent coordinate for computed
+    torque, one per joint / actuator for the PIDs); ``model``: the controller's model,
+    ``"nominal"`` (default), ``"true"`` (the robot's true parameters) or the path of a
+    ``result.json`` of ``dynid identify`` (or its folder), relative to this file: its base
+    parameters mapped to the standard vector closest to the nominal one (any standard vector
+    with the same base parameters gives the same forces); a Stribeck result is refused;
+    ``distribution`` for redundant actuation (default ``"min_norm_local_friction"``, Shang
+    2009: how computed torque and the feedforward share the forces among the actuators);
+    ``substeps`` (RK4 steps per period, default 4).
 ``[sensors]``
     ``log_rate_hz`` (default: the control rate, which it must divide), ``encoder_resolution``,
     ``position_noise_std``, ``force_noise_std``, ``force_correlation`` (one correlation
@@ -168,13 +181,15 @@ _FRICTION_SIGN = {"fc": "nonnegative", "fv": "nonnegative", "fs": "nonnegative",
 
 def _parse_payload(t: Any) -> dict[str, Any]:
     where = "robot.payload"
-    t = _table(t, where, {"mass", "com", "inertia"}, {"mass"})
+    t = _table(t, where, {"body", "mass", "com", "inertia"}, {"mass"})
     inertia = _list(t.get("inertia", [0.0, 0.0, 0.0]), f"{where}.inertia", lambda v, w: _num(v, w, minimum=0.0), 3)
     big = max(inertia)
     if big > sum(inertia) - big + 1e-9 * big:
         raise ConfigError(f"{where}.inertia {list(inertia)}: principal moments must satisfy the triangle inequality "
                           "(each at most the sum of the other two); no rigid body has these")
+    body = {"body": _str(t["body"], f"{where}.body")} if "body" in t else {}
     return {
+        **body,
         "mass": _num(t["mass"], f"{where}.mass", True),
         "com": _list(t.get("com", [0.0, 0.0, 0.0]), f"{where}.com", _num, 3),
         "inertia": inertia,
@@ -242,7 +257,7 @@ def _parse_control(t: Any) -> ControlSimConfig:
         kp=_num_or_list(t.get("kp", 400.0), "control.kp", True),
         kd=_num_or_list(t.get("kd", 40.0), "control.kd", minimum=0.0),
         ki=_num_or_list(t.get("ki", 0.0), "control.ki", minimum=0.0),
-        model=_str(t.get("model", "nominal"), "control.model", ("nominal", "true")),
+        model=_control_model(t.get("model", "nominal")),
         distribution=_str(t.get("distribution", "min_norm_local_friction"), "control.distribution",
                           ("min_norm", "min_norm_local_friction")),
         substeps=_int(t.get("substeps", 4), "control.substeps", 1),
@@ -250,6 +265,15 @@ def _parse_control(t: Any) -> ControlSimConfig:
     if "ki" in t and c.kind == "computed_torque":
         raise ConfigError("control.ki applies to kind 'pid' or 'feedforward_pid', not 'computed_torque'")
     return c
+
+
+def _control_model(value: Any) -> str:
+    """``"nominal"``, ``"true"`` or the path of a ``result.json`` as written (relative to the
+    config file; resolved where it is read, so that the outputs record it as given)."""
+    model = _str(value, "control.model")
+    if not model.strip():
+        raise ConfigError("control.model: empty; give 'nominal', 'true' or the path of a result.json of dynid identify")
+    return model
 
 
 def _check_covariance(cov: tuple[tuple[float, ...], ...], where: str) -> None:

@@ -1,19 +1,25 @@
 """``dynid simulate``: a virtual experiment from a config, with the ground truth attached.
 
-The true robot (the model's nominal parameters, optionally perturbed) follows a commanded
-trajectory under digital control (zero-order hold; serial robots: pinocchio ABA;
-closed-loop mechanisms: pinocchio constraint dynamics with projection on the loop
-closures); sensors turn the true signals into a log (see
-:mod:`dynid.simulation.sensors`). Outputs, written together or not at all:
+The true robot (the model's nominal parameters, optionally perturbed, optionally carrying a
+payload) follows a commanded trajectory under digital control (zero-order hold; serial
+robots: pinocchio ABA; closed-loop mechanisms: pinocchio constraint dynamics with projection
+on the loop closures): computed torque, or a PID per joint / per actuator with or without the
+feedforward of a model (nominal, true or identified: paper 002, Section 5.4; paper 004,
+Fig. 6); sensors turn the true signals into a log (see :mod:`dynid.simulation.sensors`).
+Outputs, written together or not at all:
 
 * ``log.csv`` or ``log.npz``: ``t`` [s], ``q_<actuator>`` [rad or m], ``tau_<actuator>``
   [N·m or N] (or ``i_<actuator>`` [A] with torque constants), and the commanded independent
   coordinates ``ref_<coordinate>`` at the logged instants;
-* ``truth.json``: the true and nominal standard parameters (names and values), the true
-  base parameters with their grouping expressions;
-* ``metadata.json``: what every column means, units, seeds, control and sensor settings,
-  tracking metrics (per-axis RMS, P-RSME of Shang 2009, Eq. 23), the largest loop-closure
-  error, the versions;
+* ``truth.json``: the true and nominal standard parameters of the robot (names and values),
+  the true base parameters with their grouping expressions, the payload (body, mass, centre
+  of mass, inertia) separately;
+* ``metadata.json``: what every column means, units, seeds, control and sensor settings, the
+  model the controller used (``control.model_used``: nominal, true, or the identification
+  result's path relative to the configuration's folder), tracking metrics in the independent
+  coordinates (per-axis RMS, P-RSME of Shang 2009, Eq. 23) and, for the PIDs of a mechanism,
+  of the actuator positions (``tracking_actuators``, paper 002 Fig. 10), the largest
+  loop-closure error, the versions;
 * ``config.toml``: the configuration used;
 * ``timing.json``: the wall-clock time of the simulation.
 
@@ -40,7 +46,9 @@ from dynid.model.closed_loop import mechanism_base_parameters
 from dynid.model.loading import load_model
 from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.base_parameters import robot_base_parameters
-from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
+from dynid.pipeline.control_model import controller_parameters
+from dynid.simulation.closed_loop import (ActuatorReference, AugmentedPD, ConstrainedSimulator, DecentralizedPID,
+                                          simulate_mechanism_control)
 from dynid.simulation.control import ComputedTorque, FeedforwardPID, JointPID, SerialPlant, model_inverse, simulate_control
 from dynid.trajectories import CirclePath, Embedded, FourierQuintic, PolylinePath, Repeated, zyx_angular_velocity
 from dynid.simulation.sensors import Measurements, Sensors
@@ -72,13 +80,18 @@ class SimulationOutcome:
         lines = [
             f"robot            : {m['robot']} ({m['kind']}, {m['n_actuators']} actuators)",
             f"trajectory       : {m['trajectory']['kind']}, {m['duration_s']:.3f} s simulated",
-            f"control          : {m['control']['kind']} at {m['control']['rate_hz']:g} Hz with the {m['control']['model']} model",
+            f"control          : {m['control']['kind']} at {m['control']['rate_hz']:g} Hz with the {_model_label(m['control'])} model",
             f"log              : {m['n_samples']} samples at {m['log_rate_hz']:g} Hz, efforts as {m['effort_kind']}",
             f"tracking         : P-RSME {m['tracking']['p_rsme']:.3e}, max |error| {max(m['tracking']['max_abs_per_axis']):.3e}",
         ]
         if m.get("constraint_error_max") is not None:
             lines.append(f"loop closures    : largest constraint error {m['constraint_error_max']:.1e}")
         return "\n".join(lines)
+
+
+def _model_label(control: dict) -> str:
+    used = control.get("model_used") or {}
+    return f"identified ({used['result']})" if used.get("kind") == "identified" else str(control["model"])
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -209,11 +222,55 @@ def _design_trajectory(cfg: SimulateConfig, names: list[str]) -> FourierTrajecto
         raise ConfigError(f"{path}: not a design.json of dynid design (its Fourier coefficients: {exc})") from None
 
 
-def _gains(value, n: int, where: str) -> np.ndarray:
+def _gains(value, n: int, where: str, what: str = "independent coordinates") -> np.ndarray:
     g = np.asarray(value, dtype=float)
     if g.ndim == 1 and g.size != n:
-        raise ConfigError(f"control.{where} has {g.size} entries; the robot has {n} independent coordinates")
+        raise ConfigError(f"control.{where} has {g.size} entries; the robot has {n} {what}")
     return np.broadcast_to(g, (n,)).copy()
+
+
+def _payload(cfg: SimulateConfig, robot):
+    """``[robot.payload]``: the name and pinocchio joint index of the body that carries it, and its
+    ``pinocchio.Inertia`` in that joint's frame (None without a payload).
+
+    Serial robots: any joint's body, default the last. Mechanisms: a body with parameters (not a
+    massless virtual body), default the platform (the joint of the last task coordinate)."""
+    pl = cfg.robot.payload
+    if pl is None:
+        return None
+    import pinocchio as pin
+
+    names = list(robot.pin_model.names)
+    if isinstance(robot, Mechanism):
+        carriers = [names[j] for j in robot.bodies]
+        if "body" in pl:
+            body = pl["body"]
+        elif robot.task_coordinates:
+            body = robot.task_coordinates[-1]
+        else:
+            raise ConfigError(f"robot.payload.body: {robot.name!r} declares no platform; name the body that carries the "
+                              f"payload, one of {carriers}")
+        if body not in names[1:]:
+            raise ConfigError(f"robot.payload.body = {body!r} is no joint of {robot.name!r}; one of {carriers}")
+        if names.index(body) not in robot.bodies:
+            raise ConfigError(f"robot.payload.body = {body!r} is a massless (virtual) body of {robot.name!r}; "
+                              f"a payload goes on one of {carriers}")
+    else:
+        body = pl.get("body", names[-1])
+        if body not in names[1:]:
+            raise ConfigError(f"robot.payload.body = {body!r} is no joint of {robot.name!r}; one of {names[1:]}")
+    inertia = pin.Inertia(pl["mass"], np.asarray(pl["com"], float), np.diag(np.asarray(pl["inertia"], float)))
+    return body, names.index(body), inertia
+
+
+def _with_payload(mech: Mechanism, params: np.ndarray, joint: int, payload) -> np.ndarray:
+    """The standard parameters of ``mech`` with the payload's dynamic parameters
+    ``[m, m c, I about the joint origin]`` added to the block of body ``joint``: the true model of
+    the simulator (the robot's own true parameters stay in truth.json)."""
+    k = mech.bodies.index(joint)
+    out = np.array(params, dtype=float)
+    out[10 * k : 10 * k + 10] += np.asarray(payload.toDynamicParameters(), dtype=float)
+    return out
 
 
 def _friction_model(spec: dict | None, n: int):
@@ -277,20 +334,26 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> Sim
 def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> SimulationOutcome:
     robot = load_model(cfg.robot.model)
     mech = isinstance(robot, Mechanism)
+    as_loaded = robot  # the robot dynid identify builds (its base parameters)
     if cfg.trajectory.values["coordinates"] == "task":
         if not mech:
             raise ConfigError("trajectory.coordinates = 'task' is for parallel robots (a serial robot moves in joint space here)")
         robot = robot.in_task_space()
     nominal = robot.nominal_parameters()
     true = _true_parameters(robot, nominal, cfg)
-    model_params = true if cfg.control.model == "true" else nominal
+    payload = _payload(cfg, robot)
+    c = cfg.control
+    model_params, model_used = controller_parameters(c.model, cfg.base_dir, as_loaded, nominal, true)
     traj, coord_names = _trajectory(cfg, robot)
     duration = cfg.duration if cfg.duration is not None else float(getattr(traj, "duration", None) or traj.period)
-    c = cfg.control
     dt = 1.0 / c.rate_hz
     n_u = len(coord_names)
-    kp, kd = _gains(c.kp, n_u, "kp"), _gains(c.kd, n_u, "kd")
     n_act = robot.n_actuators if mech else robot.dof
+    if c.kind == "computed_torque":
+        kp, kd = _gains(c.kp, n_u, "kp"), _gains(c.kd, n_u, "kd")
+    else:  # a PID per joint (serial) or per actuator (mechanism: decentralized, paper 002 Section 5.4)
+        what = "actuators (one PID per actuator)" if mech else "independent coordinates"
+        kp, kd, ki = (_gains(v, n_act, k, what) for v, k in ((c.kp, "kp"), (c.kd, "kd"), (c.ki, "ki")))
     s = cfg.sensors
     log_rate = s.log_rate_hz or c.rate_hz
     ratio = c.rate_hz / log_rate
@@ -306,36 +369,39 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
         decimation=int(round(ratio)), time_jitter_std=s.time_jitter_std, seed=s.seed,
     )
     sensors.check(n_act)  # refuse a bad covariance now, not after the simulation
+    track_actuators = None
     if mech:
-        if c.kind != "computed_torque":
-            raise ConfigError(f"control.kind = {c.kind!r} is for serial robots; a mechanism uses 'computed_torque'")
-        ctrl = AugmentedPD(robot, model_params, kp, kd, c.distribution if robot.redundant else None)
-        if cfg.robot.payload is not None:
-            raise ConfigError("robot.payload is for serial robots (a parallel robot's load is part of its platform)")
+        distribution = c.distribution if robot.redundant else None
+        reference = traj.sample
+        if c.kind == "computed_torque":
+            ctrl = AugmentedPD(robot, model_params, kp, kd, distribution)
+        else:
+            reference = ActuatorReference(robot, traj.sample, model_params if c.kind == "feedforward_pid" else None,
+                                          distribution)
+            ctrl = DecentralizedPID(robot, JointPID(kp=kp, kd=kd, ki=ki))
         fmodel = _friction_model(cfg.robot.friction, robot.n_actuators)
         override = None
         if fmodel is not None:
             override = _mechanism_friction(robot, true, fmodel)
-        motion = simulate_mechanism_control(ConstrainedSimulator(robot, true, friction=override), ctrl, traj.sample,
+        plant = true if payload is None else _with_payload(robot, true, payload[1], payload[2])
+        motion = simulate_mechanism_control(ConstrainedSimulator(robot, plant, friction=override), ctrl, reference,
                                             duration=duration, dt=dt, substeps=c.substeps)
         q_act = motion.q[:, list(robot.actuated)]
+        if c.kind != "computed_torque":  # the drives' own errors (paper 002, Fig. 10; paper 004, Fig. 6)
+            track_actuators = tracking_errors(reference(motion.t)[3], q_act)
         tau = motion.tau_a
         u = robot.coordinates(motion.q)
         act_names = robot.actuated_names
         constraint = float(np.abs(robot.constraint_residual(motion.q[:: max(1, motion.t.size // 200)])).max())
     else:
-        payload = None
-        if cfg.robot.payload is not None:
-            import pinocchio as pin
-
-            pl = cfg.robot.payload
-            payload = pin.Inertia(pl["mass"], np.asarray(pl["com"], float), np.diag(np.asarray(pl["inertia"], float)))
-        plant = SerialPlant(robot, true, friction=_friction_model(cfg.robot.friction, robot.dof), payload=payload)
+        plant = SerialPlant(robot, true, friction=_friction_model(cfg.robot.friction, robot.dof),
+                            payload=None if payload is None else payload[2],
+                            payload_joint=None if payload is None else payload[1])
         inverse = model_inverse(robot, model_params)
         if c.kind == "computed_torque":
             ctrl = ComputedTorque(inverse, kp, kd)
         else:
-            pid = JointPID(kp=kp, kd=kd, ki=_gains(c.ki, n_u, "ki"))
+            pid = JointPID(kp=kp, kd=kd, ki=ki)
             ctrl = pid if c.kind == "pid" else FeedforwardPID(inverse, pid)
         motion = simulate_control(plant, ctrl, traj.sample, duration=duration, dt=dt, substeps=c.substeps)
         q_act, tau, u = motion.q, motion.tau, motion.q
@@ -362,7 +428,8 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
         "perturbation": cfg.robot.perturbation,
         "ground_truth_friction": (dict(cfg.robot.friction) if cfg.robot.friction is not None else
                                   "the joint terms of true_parameters"),
-        "payload": dict(cfg.robot.payload) if cfg.robot.payload is not None else None,
+        "payload": ({"body": payload[0], **{k: v for k, v in cfg.robot.payload.items() if k != "body"}}
+                    if payload is not None else None),
         "base_parameters": {
             "names": list(base.names),
             "true_values": base.from_standard(true).tolist(),
@@ -380,7 +447,8 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
         "trajectory": {"kind": cfg.trajectory.kind, **{k: (list(v) if isinstance(v, tuple) else v)
                                                        for k, v in cfg.trajectory.values.items()}},
         "duration_s": float(motion.t[-1]),
-        "control": {**dataclasses.asdict(c), "distribution": (c.distribution if mech and robot.redundant else None)},
+        "control": {**dataclasses.asdict(c), "distribution": (c.distribution if mech and robot.redundant else None),
+                    "model_used": model_used},
         "log_rate_hz": log_rate,
         "n_samples": int(meas.t.size),
         "effort_kind": meas.effort_kind,
@@ -393,7 +461,8 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
                       "coordinates include the z-y-x angles",
         },
         "sensors": {k: (np.asarray(v).tolist() if v is not None else None) for k, v in dataclasses.asdict(s).items()},
-        "tracking": {k: (np.asarray(v).tolist() if not isinstance(v, float) else v) for k, v in track.items()},
+        "tracking": _jsonable_metrics(track),
+        "tracking_actuators": None if track_actuators is None else _jsonable_metrics(track_actuators),
         "constraint_error_max": constraint,
     }
     dataset = Dataset(
@@ -403,6 +472,10 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
     )
     return SimulationOutcome(dataset=dataset, columns=columns, truth=truth, metadata=metadata, config=cfg, motion=motion,
                              signals=signals)
+
+
+def _jsonable_metrics(track: dict) -> dict:
+    return {k: (np.asarray(v).tolist() if not isinstance(v, float) else v) for k, v in track.items()}
 
 
 def write_simulation(outcome: SimulationOutcome, out_dir: str | Path) -> list[str]:

@@ -21,8 +21,10 @@ from dynid.errors import InputError, ModelError
 from dynid.model.closed_loop import actuator_forces, term_basis
 from dynid.model.mechanism import Mechanism
 from dynid.simulation._integrate import rk4_step
+from dynid.simulation.control import JointPID
 
-__all__ = ["AugmentedPD", "ConstrainedSimulator", "SimulatedMotion", "simulate_mechanism_control"]
+__all__ = ["ActuatorReference", "AugmentedPD", "ConstrainedSimulator", "DecentralizedPID", "SimulatedMotion",
+           "simulate_mechanism_control"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -211,6 +213,101 @@ class AugmentedPD:
                                model=self._model, data=self._data)[0]
 
 
+class ActuatorReference:
+    """The reference of a mechanism's drives along a reference of its independent coordinates.
+
+    Each drive of a decentralized controller follows its own actuator position (paper 002,
+    Section 5.4: the PaLiDA drives are position-controlled one by one): the commanded
+    :math:`u_d(t)` is turned into all joint positions by the mechanism's kinematics
+    (:meth:`Mechanism.solve_positions`, the loop closures solved), velocities and
+    accelerations by :meth:`Mechanism.states` (:math:`\\dot q = G\\dot u`,
+    :math:`\\ddot q = G\\ddot u + \\ddot q_0`), and the actuated columns are kept. With a
+    model (``params``) the feedforward is the model's actuator forces along the reference,
+    :func:`~dynid.model.closed_loop.actuator_forces` (the inverse dynamics
+    :math:`Q_a = A(x, v, a)\\,p` of paper 002, Eq. 1 with Eqs. 12–13, distributed by
+    ``distribution`` for redundant actuation); it depends on the
+    reference only, so it is computed once for all control instants.
+
+    Calling it with the control instants ``t`` (n,) gives
+    ``(u_d, du_d, ddu_d, q_a, dq_a, ddq_a, tau_ff)``: the independent coordinates (n, n_u),
+    the actuator positions, velocities, accelerations and the feedforward forces (n, n_a)
+    (zero without a model), the rows that :func:`simulate_mechanism_control` hands to
+    :class:`DecentralizedPID` one control period at a time. The last evaluation is kept, so
+    asking again for the same instants (the actuator tracking errors after a simulation)
+    costs nothing.
+
+    Parameters
+    ----------
+    mech : Mechanism
+    reference : callable ``t (n,) -> (u_d, du_d, ddu_d)``, each (n, n_u)
+    params : array, shape (n_params,), optional
+        Standard parameters of the feedforward model (nominal, true or identified).
+    distribution : str or None
+        Force distribution of a redundantly actuated mechanism (``"min_norm"`` or
+        ``"min_norm_local_friction"``); None otherwise.
+    """
+
+    def __init__(self, mech: Mechanism, reference, params: FloatArray | None = None, distribution: str | None = None) -> None:
+        if mech.redundant and params is not None and distribution not in ("min_norm", "min_norm_local_friction"):
+            raise InputError(f"a feedforward of the redundantly actuated {mech.name!r} needs a distribution of the forces "
+                             f"('min_norm' or 'min_norm_local_friction'), got {distribution!r}")
+        self.mech, self.reference = mech, reference
+        self.params = None if params is None else np.asarray(params, dtype=float)
+        self.distribution = distribution if mech.redundant else None
+        self._last: tuple[FloatArray, tuple[FloatArray, ...]] | None = None
+
+    def __call__(self, t: FloatArray) -> tuple[FloatArray, ...]:
+        t = np.asarray(t, dtype=float)
+        if self._last is not None and np.array_equal(self._last[0], t):
+            return self._last[1]
+        rows = self._evaluate(t)
+        self._last = (t.copy(), rows)
+        return rows
+
+    def _evaluate(self, t: FloatArray) -> tuple[FloatArray, ...]:
+        mech = self.mech
+        u, du, ddu = (np.atleast_2d(np.asarray(x, dtype=float)) for x in self.reference(t))
+        state = mech.states(mech.solve_positions(u), du, ddu)
+        act = list(mech.actuated)
+        if self.params is None:
+            ff = np.zeros((u.shape[0], mech.n_actuators))
+        else:
+            ff = actuator_forces(mech, self.params, state, distribution=self.distribution)
+        return u, du, ddu, state.q[:, act], state.dq[:, act], state.ddq[:, act], ff
+
+
+@dataclasses.dataclass
+class DecentralizedPID:
+    """Decentralized control of a mechanism: one PID per actuator on its own position error,
+    plus a feedforward force (paper 002, Section 5.4, Figs. 10–12: PID with the nominal or
+    the identified model's forces along the reference).
+
+    :math:`\\tau_{a,i} = \\tau_{ff,i} + K_{p,i} e_i + K_{d,i}\\dot e_i + K_{i,i}\\int e_i\\,dt`,
+    :math:`e_i = q_{a,i}^d - q_{a,i}`, for every actuator i (redundant ones included: each
+    drive has its own loop). The reference rows come from :class:`ActuatorReference`
+    (``(u_d, du_d, ddu_d, q_a^d, dq_a^d, ddq_a^d, tau_ff)``); the controller reads only the
+    actuated joints of the measured state.
+
+    Parameters
+    ----------
+    mech : Mechanism
+    pid : JointPID
+        Gains per actuator, shape (n_a,) each (the integral state lives in it).
+    """
+
+    mech: Mechanism
+    pid: JointPID
+
+    def __post_init__(self) -> None:
+        self._act = list(self.mech.actuated)
+
+    def __call__(self, dt: float, q: FloatArray, dq: FloatArray, ref: tuple[FloatArray, ...]) -> FloatArray:
+        if len(ref) != 7:
+            raise InputError("DecentralizedPID needs the reference rows of ActuatorReference (actuator positions and feedforward)")
+        _, _, _, qa, dqa, ddqa, ff = ref
+        return ff + self.pid(dt, q[self._act], dq[self._act], (qa, dqa, ddqa))
+
+
 def simulate_mechanism_control(
     sim: ConstrainedSimulator,
     controller,
@@ -223,8 +320,11 @@ def simulate_mechanism_control(
 ) -> SimulatedMotion:
     """Digital control of a mechanism with zero-order hold (see :func:`dynid.simulation.control.simulate_control`).
 
-    The controller ``(dt, q, dq, (u_d, du_d, ddu_d)) -> tau_a`` sees all joint positions and
-    velocities (true ones); ``reference(t)`` gives the independent coordinates. After every
+    The controller ``(dt, q, dq, (u_d, du_d, ddu_d, ...)) -> tau_a`` sees all joint positions and
+    velocities (true ones); ``reference(t)`` gives the independent coordinates, followed by any
+    further per-instant signals of the controller (e.g. the actuator references and the
+    feedforward of :class:`ActuatorReference`), all evaluated once on the control instants and
+    handed over row by row. After every
     control period the state is projected back on the loop closures
     (:meth:`Mechanism.project`), so the constraint error stays at the 1e-12 level instead of
     drifting. The initial state is the assembly at ``u_d(0)`` at rest unless ``q0`` is given.
@@ -237,7 +337,8 @@ def _simulate_mechanism_control(sim, controller, reference, duration, dt, subste
     mech = sim.mech
     n = int(round(duration / dt)) + 1
     t = np.arange(n) * dt
-    ur, dur, ddur = reference(t)
+    refs = tuple(reference(t))
+    ur, dur, ddur = refs[:3]
     if ur.shape != (n, mech.dof):
         raise InputError(f"the reference has {ur.shape[1]} coordinates, the mechanism {mech.dof} degrees of freedom")
     q = mech.solve_positions(ur[:1])[0] if q0 is None else np.array(q0, dtype=float)
@@ -246,7 +347,7 @@ def _simulate_mechanism_control(sim, controller, reference, duration, dt, subste
     Q, V, A, T = np.empty((n, nv)), np.empty((n, nv)), np.empty((n, nv)), np.empty((n, na))
     h = dt / substeps
     for k in range(n):
-        tau = np.asarray(controller(dt, q, v, (ur[k], dur[k], ddur[k])), dtype=float)
+        tau = np.asarray(controller(dt, q, v, tuple(r[k] for r in refs)), dtype=float)
         Q[k], V[k], T[k] = q, v, tau
         A[k] = sim.acceleration(q, v, tau)
         if k == n - 1:

@@ -3,7 +3,7 @@
 * :class:`SerialPlant`: forward dynamics by pinocchio's ABA with body inertias and rotor
   inertias (``model.armature``) from standard parameters, any friction model of
   :mod:`dynid.model.friction` as ground truth, gravity, and an optional payload rigidly
-  attached to the last body.
+  attached to a body (default the last).
 * Controllers, evaluated once per sampling period on the measured state and held
   (zero-order hold): :class:`JointPID`, :class:`ComputedTorque` (a given model: nominal or
   identified) and :class:`FeedforwardPID` (model feedforward on the reference + PID, paper
@@ -52,19 +52,24 @@ class SerialPlant:
         True joint friction; default: Coulomb + viscous + offset from ``params`` (``fc``,
         ``fv``, ``offset``; zero where the layout has none).
     payload : pinocchio.Inertia, optional
-        A load rigidly attached to the last body (in its joint frame).
+        A load rigidly attached to the body of joint ``payload_joint`` (in its joint frame).
+    payload_joint : int, optional
+        pinocchio joint index (1-based) of the body that carries the payload; default the last.
     """
 
     robot: RobotModel
     params: FloatArray
     friction: FrictionModel | None = None
     payload: pin.Inertia | None = None
+    payload_joint: int | None = None
 
     def __post_init__(self) -> None:
         params = np.asarray(self.params, dtype=float)
         model = self.robot.with_parameters(params)
         if self.payload is not None:
-            j = model.njoints - 1
+            j = model.njoints - 1 if self.payload_joint is None else int(self.payload_joint)
+            if not 1 <= j < model.njoints:
+                raise InputError(f"payload_joint {j} is not a joint of {self.robot.name!r} (1 to {model.njoints - 1})")
             model.inertias[j] = model.inertias[j] + self.payload
         if self.robot.layout.coupled_motors:
             raise InputError("SerialPlant does not simulate coupled motors yet")
