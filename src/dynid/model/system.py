@@ -87,7 +87,7 @@ class System(Protocol):
     def channel_names(self, force_model: str | None) -> tuple[str, ...]: ...
     def channels_are_actuators(self, force_model: str | None) -> bool: ...
     def base_parameters(self, force_model: str | None = None, *, n_samples: int | None = None,
-                        seed: int = 0) -> BaseParameters: ...
+                        seed: int = 0, rank_tol: float = 1e-8) -> BaseParameters: ...
     def standard_map(self, base: BaseParameters) -> StandardMap: ...
     def rows(self, force_model: str | None) -> Any: ...
     def friction_pairs(self) -> tuple[list[tuple[str, str, str, int]], list[str]]: ...
@@ -171,8 +171,8 @@ class SerialSystem:
         return True
 
     def base_parameters(self, force_model: str | None = None, *, n_samples: int | None = None,
-                        seed: int = 0) -> BaseParameters:
-        return robot_base_parameters(self.model, n_samples=n_samples, seed=seed)
+                        seed: int = 0, rank_tol: float = 1e-8) -> BaseParameters:
+        return robot_base_parameters(self.model, n_samples=n_samples, seed=seed, rank_tol=rank_tol)
 
     def standard_map(self, base: BaseParameters) -> StandardMap:
         return StandardMap.of(self.model, base)
@@ -302,9 +302,9 @@ class ClosedLoopSystem:
         return force_model != "projected"
 
     def base_parameters(self, force_model: str | None = None, *, n_samples: int | None = None,
-                        seed: int = 0) -> BaseParameters:
+                        seed: int = 0, rank_tol: float = 1e-8) -> BaseParameters:
         return mechanism_base_parameters(self.model, distribution=force_model if self.redundant else None,
-                                         n_samples=n_samples, seed=seed)
+                                         n_samples=n_samples, seed=seed, rank_tol=rank_tol)
 
     def standard_map(self, base: BaseParameters) -> StandardMap:
         m = self.model

@@ -26,9 +26,8 @@ import numpy as np
 
 from dynid.errors import ConfigError, InputError, read_file_text
 from dynid.estimation.results import _FORMAT as RESULT_FORMAT
-from dynid.model.base_parameters import robot_base_parameters
-from dynid.model.closed_loop import DISTRIBUTIONS, mechanism_base_parameters
-from dynid.model.mechanism import Mechanism
+from dynid.model.closed_loop import DISTRIBUTIONS
+from dynid.model.system import as_system
 
 __all__ = ["controller_parameters", "identified_parameters"]
 
@@ -87,14 +86,11 @@ def identified_parameters(model: str, base_dir: Path, robot, nominal: np.ndarray
     sampling = prov.get("base_parameters") if isinstance(prov.get("base_parameters"), dict) else {}
     kw = {k: sampling[k] for k in ("seed", "n_samples", "rank_tol") if isinstance(sampling.get(k), (int, float))}
     rec_robot = prov.get("robot") if isinstance(prov.get("robot"), dict) else {}
-    force_model = None
-    if isinstance(robot, Mechanism):
-        if robot.redundant:
-            recorded = rec_robot.get("force_model")
-            force_model = recorded if recorded in DISTRIBUTIONS else "projected"
-        base = mechanism_base_parameters(robot, distribution=force_model, **kw)
-    else:
-        base = robot_base_parameters(robot, **kw)
+    system = as_system(robot)
+    recorded = rec_robot.get("force_model")
+    force_model = (recorded if recorded in DISTRIBUTIONS else "projected") if system.redundant else None
+    base = system.base_parameters(force_model, n_samples=kw.get("n_samples"), seed=kw.get("seed", 0),
+                                  rank_tol=kw.get("rank_tol", 1e-8))
     if names != list(base.names):
         of = f" (a result of {rec_robot['name']!r})" if isinstance(rec_robot.get("name"), str) else ""
         missing = [n for n in base.names if n not in names]
