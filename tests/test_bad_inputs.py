@@ -357,7 +357,7 @@ def _shang(w, robot: str = "", control: str = "") -> Path:
 def _rp2_result(w) -> Path:
     """A real result.json of ``dynid identify`` (the rp2 arm of the good identify configuration)."""
     from dynid.config import load_config
-    from dynid.pipeline.identify import identify, write_outputs
+    from dynid.pipeline.identification import identify, write_outputs
 
     write_outputs(identify(load_config(w.config("identify", name="identify.toml"))), w.dir / "id")
     return w.dir / "id" / "result.json"

@@ -28,7 +28,7 @@ from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.estimation.results import IdentificationResult
 from dynid.model.robots import build_mechanism, shang2dof
-from dynid.pipeline.identify import identify, write_outputs
+from dynid.pipeline.identification import identify, write_outputs
 from dynid.pipeline.control_model import identified_parameters
 from dynid.pipeline.simulate import _trajectory, run_simulation, write_simulation
 from dynid.simulation.closed_loop import ActuatorReference

@@ -464,7 +464,8 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     parallel = pcfg.decimate if pcfg.decimate_method == "parallel" else 1
     n_eff = -(-train.n_samples // parallel)
     if n_eff * len(channels) <= base.n_base:
-        raise InputError(f"data: {n_eff} processed samples x {len(channels)} equations are fewer than the "
+        per = "joints" if system.kind == "serial" else "equations"
+        raise InputError(f"data: {n_eff} processed samples x {len(channels)} {per} are fewer than the "
                          f"{base.n_base} base parameters")
     meta: dict[str, Any] = {
         "versions": _versions(),
