@@ -60,7 +60,8 @@ from dynid.pipeline.data import (
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos
 from dynid.stats import REPEAT_THRESHOLD, nearest_distances
 
-__all__ = ["Chunk", "Progress", "ValidationMetrics", "IdentifyOutcome", "build_problem", "row_mask", "validate", "identify", "write_outputs",
+__all__ = ["Chunk", "Progress", "ValidationMetrics", "IdentifyOutcome", "build_problem", "prior_comparison", "row_mask",
+           "validate", "validate_with_prior", "identify", "write_outputs",
            "write_files", "OUTPUT_FILES"]
 
 Progress = Callable[[str, int, int], None]
@@ -269,18 +270,70 @@ def validate(result: IdentificationResult, robot, base: BaseParameters, ds: Data
     ``friction``: the result is a Stribeck fit (:mod:`dynid.pipeline.stribeck`) with these
     friction joints.
     """
+    return validate_with_prior(result, robot, base, ds, None, force_model=force_model,
+                               parallel_decimate=parallel_decimate, chunk_size=chunk_size, progress=progress,
+                               friction=friction, periodic=periodic)[0]
+
+
+def validate_with_prior(result: IdentificationResult, robot, base: BaseParameters, ds: Dataset,
+                        nominal: FloatArray | None, *, force_model: str | None = None, parallel_decimate: int = 1,
+                        chunk_size: int = 20000, progress: Progress = _no_progress,
+                        friction: stribeck.FrictionJoints | None = None,
+                        periodic=None) -> tuple[ValidationMetrics, ValidationMetrics | None]:
+    """:func:`validate`, and in the same pass over the held-out rows the errors of the nominal
+    model (base parameters ``nominal`` of the robot description's standard parameters; None:
+    not computed): the prior every identified model has to beat."""
     system = as_system(robot)
     if friction is None and tuple(result.names) != base.names:
         raise InputError("the result's parameters are not the base parameters of this robot")
-    meas, pred = [], []
+    meas, pred, prior = [], [], []
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
                      progress=progress, task="validate", periodic=periodic):
         meas.append(c.y)
         pred.append(c.W @ result.params if friction is None else stribeck.predict(result, friction, c.W, c.dq))
+        if nominal is not None:
+            prior.append(c.W @ nominal)
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
     k = max(1, parallel_decimate)
-    return ValidationMetrics.of(system.channel_names(force_model), np.asarray(ds.t)[::k][: measured.shape[0]],
-                                measured, predicted, ds.meta.get("source"))
+    t = np.asarray(ds.t)[::k][: measured.shape[0]]
+    names = system.channel_names(force_model)
+    metrics = ValidationMetrics.of(names, t, measured, predicted, ds.meta.get("source"))
+    if nominal is None:
+        return metrics, None
+    return metrics, ValidationMetrics.of(names, t, measured, np.concatenate(prior), ds.meta.get("source"))
+
+
+def prior_comparison(identified: ValidationMetrics, nominal: ValidationMetrics, comparable: bool = True) -> dict[str, Any]:
+    """Does the identified model predict the held-out data better than the nominal (CAD) model?
+
+    Per channel the RMSE of both; the headline is the mean relative RMSE over the channels
+    (unit-free, so torques and forces can be averaged). ``comparable = False`` when the efforts
+    are in units the nominal model does not predict (motor currents with unknown drive gains)."""
+    rel_i, rel_n = np.asarray(identified.rel_rmse_pct), np.asarray(nominal.rel_rmse_pct)
+    better = [bool(a < b) for a, b in zip(identified.rmse, nominal.rmse)]
+    mean_i, mean_n = float(np.nanmean(rel_i)), float(np.nanmean(rel_n))
+    out: dict[str, Any] = {
+        "comparable": comparable,
+        "metric": "mean over channels of the held-out RMSE relative to the RMS of the measured output [%]",
+        "identified_mean_rel_rmse_pct": mean_i,
+        "nominal_mean_rel_rmse_pct": mean_n,
+        "channels_better": int(sum(better)),
+        "n_channels": len(better),
+        "better_per_channel": better,
+        "beats_nominal": bool(comparable and mean_i < mean_n),
+    }
+    if not comparable:
+        out["verdict"] = ("the nominal model cannot be compared: the efforts are motor currents with unit drive gains "
+                          "(the identified parameters absorb the unknown gains, the nominal ones do not)")
+    elif mean_i < mean_n:
+        out["verdict"] = (f"the identified model beats the nominal model on held-out data: mean relative RMSE "
+                          f"{mean_i:.3g} % against {mean_n:.3g} % ({sum(better)} of {len(better)} channels better)")
+    else:
+        out["verdict"] = (f"WARNING: the identified model does NOT beat the nominal model on held-out data: mean "
+                          f"relative RMSE {mean_i:.3g} % against the nominal model's {mean_n:.3g} % ({sum(better)} "
+                          f"of {len(better)} channels better); use the nominal model, or improve the excitation, the "
+                          "processing or the model structure before trusting these parameters")
+    return out
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -295,6 +348,8 @@ class IdentifyOutcome:
     notes: tuple[str, ...]
     raw_train: Dataset | None = None  # the training log before processing (for the processing plot)
     elapsed_s: float = float("nan")  # wall-clock time of the identification (timing.json)
+    nominal_validation: ValidationMetrics | None = None  # the nominal (CAD) model on the same held-out rows
+    prior: dict[str, Any] | None = None  # prior_comparison of the two
 
     def summary_text(self) -> str:
         v = self.validation
@@ -304,6 +359,9 @@ class IdentifyOutcome:
             v.heading(),
             v.table(),
         ]
+        if self.nominal_validation is not None and self.prior is not None:
+            lines += ["", "Nominal model (the robot description's parameters: the prior) on the same data",
+                      self.nominal_validation.table(), "", self.prior["verdict"]]
         return "\n".join(lines)
 
 
@@ -508,9 +566,14 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
     if notes:
         result = result.with_notes(*notes)
-    metrics = validate(result, system, base, held_out, force_model=force_model, parallel_decimate=parallel,
-                       chunk_size=icfg.chunk_size, progress=progress, friction=fj, periodic=periodic)
-    return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a)
+    nominal = base.from_standard(system.nominal_parameters())
+    metrics, prior = validate_with_prior(result, system, base, held_out, nominal, force_model=force_model,
+                                         parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
+                                         friction=fj, periodic=periodic)
+    tr = system.transmission
+    comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
+    return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
+                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable))
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
@@ -587,6 +650,8 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
         stage / "result",
         extra={
             "validation": outcome.validation.to_dict(),
+            **({"nominal_validation": outcome.nominal_validation.to_dict(), "prior_comparison": outcome.prior}
+               if outcome.nominal_validation is not None else {}),
             "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
             "base_parameters": {
                 "names": list(outcome.base.names),
@@ -617,4 +682,5 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             from dynid.report.plots import plot_processing
 
             plot_processing(outcome.raw_train, outcome.train, stage / "processing.png")
-        write_html_report(res, outcome.validation, stage / "report.html", plot="validation.png")
+        write_html_report(res, outcome.validation, stage / "report.html", plot="validation.png",
+                          nominal=outcome.nominal_validation, prior=outcome.prior)

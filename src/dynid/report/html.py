@@ -19,8 +19,21 @@ img{max-width:100%}
 """
 
 
-def write_html_report(result: IdentificationResult, metrics: Any, path: str | Path, plot: str | None = None) -> Path:
-    """Summary, validation table and (optionally) the validation plot in one HTML file."""
+def _prior_html(metrics: Any, nominal: Any, prior: dict) -> str:
+    rows = "".join(
+        f"<tr><td>{html.escape(c)}</td><td>{a:.4g}</td><td>{b:.4g}</td><td>{'yes' if a < b else '<b>no</b>'}</td></tr>"
+        for c, a, b in zip(metrics.channel_names, metrics.rmse, nominal.rmse)
+    )
+    return ("<h2>Against the prior: the nominal model on the same data</h2>"
+            "<table><tr><th>channel</th><th>RMSE identified</th><th>RMSE nominal</th><th>identified better</th></tr>"
+            f"{rows}</table><p><b>{html.escape(prior['verdict'])}</b></p>")
+
+
+def write_html_report(result: IdentificationResult, metrics: Any, path: str | Path, plot: str | None = None,
+                      nominal: Any = None, prior: dict | None = None) -> Path:
+    """Summary, validation table and (optionally) the validation plot in one HTML file; with
+    ``nominal`` (the nominal model's validation metrics) and ``prior`` (their comparison), the
+    nominal model's errors next to the identified model's and the verdict."""
     rows = "".join(
         f"<tr><td>{html.escape(c)}</td><td>{r:.4g}</td><td>{p:.3g}</td><td>{q:.4f}</td></tr>"
         for c, r, p, q in zip(metrics.channel_names, metrics.rmse, metrics.rel_rmse_pct, metrics.r2)
@@ -31,6 +44,7 @@ def write_html_report(result: IdentificationResult, metrics: Any, path: str | Pa
            else f"<h2>In-sample validation ({metrics.n_samples} samples)</h2><p><b>{html.escape(metrics.heading())}</b></p>")
         + f"<table><tr><th>joint</th><th>RMSE [N·m]</th><th>rel RMSE %</th><th>R²</th></tr>{rows}</table>"
         + (f"<img src='{html.escape(plot)}' alt='validation plot'>" if plot else "")
+        + (_prior_html(metrics, nominal, prior) if nominal is not None and prior is not None else "")
     )
     path = Path(path)
     path.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>dynid report</title><style>{_STYLE}</style></head><body>{body}</body></html>")
