@@ -157,6 +157,7 @@ class ProcessingConfig:
     decimate_method: str = "samples"
     trim_samples: int | None = None
     min_velocity: tuple[float, ...] | None = None
+    min_velocity_passive: float | None = None  # mechanisms: samples with a slower passive friction joint left out
     periodic: PeriodicConfig | None = None
 
 
@@ -359,7 +360,8 @@ def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
 
 def _parse_processing(t: Any) -> ProcessingConfig:
     where = "processing"
-    t = _table(t, where, {"resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity", "periodic"})
+    t = _table(t, where, {"resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity",
+                          "min_velocity_passive", "periodic"})
     resample: str | float = "auto"
     if "resample" in t:
         r = t["resample"]
@@ -399,6 +401,8 @@ def _parse_processing(t: Any) -> ProcessingConfig:
         decimate_method=_str(t.get("decimate_method", "samples"), f"{where}.decimate_method", ("samples", "parallel")),
         trim_samples=_int(t["trim_samples"], f"{where}.trim_samples", 0) if "trim_samples" in t else None,
         min_velocity=mv,
+        min_velocity_passive=(_num(t["min_velocity_passive"], f"{where}.min_velocity_passive", minimum=0.0)
+                              if "min_velocity_passive" in t else None),
     )
 
 

@@ -64,6 +64,7 @@ class Rows:
     W: FloatArray
     y: FloatArray
     inconsistency: FloatArray
+    joint_dq: FloatArray | None = None  # velocities of all joints (a mechanism's passive ones included)
 
 
 class System(Protocol):
@@ -91,6 +92,7 @@ class System(Protocol):
     def standard_map(self, base: BaseParameters) -> StandardMap: ...
     def rows(self, force_model: str | None) -> Any: ...
     def friction_pairs(self) -> tuple[list[tuple[str, str, str, int]], list[str]]: ...
+    def passive_friction_joints(self) -> tuple[int, ...]: ...
     def still_parameters(self, actuators: Sequence[int]) -> list[str]: ...
     def describe(self) -> dict[str, Any]: ...
 
@@ -180,6 +182,10 @@ class SerialSystem:
     def rows(self, force_model: str | None) -> _SerialRows:
         return _SerialRows(self.model)
 
+    def passive_friction_joints(self) -> tuple[int, ...]:
+        """Velocity indices of passive joints with Coulomb friction: a serial arm has none."""
+        return ()
+
     def friction_pairs(self) -> tuple[list[tuple[str, str, str, int]], list[str]]:
         """``(joint, Coulomb name, viscous name, velocity column)`` of the joints with ``fc`` and
         ``fv`` extras, and their velocity units."""
@@ -222,7 +228,7 @@ class _MechanismRows:
         state, resid = actuator_states(self.mech, q, dq, ddq, q0=self._guess(start), sample_offset=start)
         self.last = (start, state.q)
         reg = actuator_regressor(self.mech, state, distribution=self.force_model, data=self.data)
-        return Rows(W=reg.W, y=reg.outputs(tau), inconsistency=resid)
+        return Rows(W=reg.W, y=reg.outputs(tau), inconsistency=resid, joint_dq=state.dq)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -315,6 +321,15 @@ class ClosedLoopSystem:
     def rows(self, force_model: str | None) -> _MechanismRows:
         return _MechanismRows(self.model, force_model)
 
+    def passive_friction_joints(self) -> tuple[int, ...]:
+        """Velocity indices of the passive joints that carry a Coulomb term (``coulomb``,
+        ``coulomb+``, ``coulomb-``, alone or shared): where one of them sticks or reverses, its
+        friction is whatever holds it, which the model does not describe."""
+        act = set(self.model.actuated)
+        out = sorted({j for t in self.model.terms if t.kind.startswith("coulomb") and not t.weights
+                      for j in t.joints if j not in act})
+        return tuple(out)
+
     def friction_pairs(self) -> tuple[list[tuple[str, str, str, int]], list[str]]:
         """The actuated joints with a Coulomb and a viscous term of their own (as
         :meth:`SerialSystem.friction_pairs`)."""
@@ -340,7 +355,7 @@ class ClosedLoopSystem:
         state, *_ = pose_states(self.model, qa, fs, cutoff_hz, pose=pose)
         reg = actuator_regressor(self.model.in_task_space(), state, distribution=force_model if self.redundant else None)
         act = list(self.model.actuated)
-        rows = Rows(W=reg.W, y=reg.outputs(tau), inconsistency=np.zeros(state.q.shape[0]))
+        rows = Rows(W=reg.W, y=reg.outputs(tau), inconsistency=np.zeros(state.q.shape[0]), joint_dq=state.dq)
         return (rows, state.dq[:, act], state.q[:, act]) if positions else (rows, state.dq[:, act])
 
     def still_parameters(self, actuators: Sequence[int]) -> list[str]:

@@ -86,6 +86,7 @@ class Chunk:
     y: FloatArray
     dq: FloatArray
     inconsistency: FloatArray
+    joint_dq: FloatArray | None = None  # velocities of all joints of a mechanism (passive row selection)
 
 
 def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, *, parallel_decimate: int = 1,
@@ -104,7 +105,7 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     if periodic is not None and periodic.domain == "pose":
         r, dq = system.pose_rows(ds.q, ds.tau, 1.0 / float(np.median(np.diff(ds.t))), periodic.cutoff_hz, force_model)
         progress(task, ds.n_samples, ds.n_samples)
-        yield Chunk(base.regressor(r.W), r.y, dq, r.inconsistency)
+        yield Chunk(base.regressor(r.W), r.y, dq, r.inconsistency, r.joint_dq)
         return
     if ds.dq is None or ds.ddq is None:
         raise InputError("the dataset has no velocities/accelerations; preprocess it first")
@@ -115,7 +116,7 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
         for a in range(0, n, size):
             b = min(a + size, n)
             r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
-            yield Chunk(base.regressor(r.W), r.y, ds.dq[a:b], r.inconsistency)
+            yield Chunk(base.regressor(r.W), r.y, ds.dq[a:b], r.inconsistency, r.joint_dq)
             progress(task, b, n)
         return
     k = parallel_decimate
@@ -125,26 +126,39 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     for a, b, keep in decimation_segments(n, k, margin, max(size, 4 * margin)):
         r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
         filt = lambda x: lowpass_sos(x, sos)[keep]  # noqa: E731
-        yield Chunk(filt(base.regressor(r.W)), filt(r.y), filt(ds.dq[a:b]), r.inconsistency[keep])
+        yield Chunk(filt(base.regressor(r.W)), filt(r.y), filt(ds.dq[a:b]), r.inconsistency[keep],
+                    None if r.joint_dq is None else filt(r.joint_dq))
         progress(task, b, n)
 
 
 def row_mask(system: System, force_model: str | None, dq: FloatArray, min_velocity: tuple[float, ...] | None,
-             whole_samples: bool = False) -> FloatArray | None:
+             whole_samples: bool = False, joint_dq: FloatArray | None = None,
+             min_velocity_passive: float | None = None) -> FloatArray | None:
     """Rows kept by ``processing.min_velocity`` (None: all): per actuator equation where the
     equations are the actuators' own, else (projected equations of a redundant mechanism, or
     ``whole_samples`` for a full noise covariance across channels) the whole samples in which every
-    actuator is at least that fast, broadcast to the channels."""
+    actuator is at least that fast, broadcast to the channels.
+
+    ``min_velocity_passive`` (mechanisms): the whole samples in which a passive joint with Coulomb
+    friction (:meth:`~dynid.model.system.ClosedLoopSystem.passive_friction_joints`) is slower are
+    left out too: its friction reaches every equation through the loops, and where it sticks or
+    reverses its force is whatever holds it, which no friction model describes."""
     mask = velocity_mask(dq, min_velocity)
-    if mask is None or (system.channels_are_actuators(force_model) and not whole_samples):
+    if mask is not None and (whole_samples or not system.channels_are_actuators(force_model)):
+        mask = mask.all(axis=1)
+    if min_velocity_passive is None or joint_dq is None:
         return mask
-    return mask.all(axis=1)
+    joints = list(system.passive_friction_joints())
+    moving = np.all(np.abs(joint_dq[:, joints]) >= min_velocity_passive, axis=1)
+    if mask is None:
+        return moving
+    return mask & (moving[:, None] if mask.ndim == 2 else moving)
 
 
 def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str | None = None,
                   min_velocity: tuple[float, ...] | None = None, parallel_decimate: int = 1, chunk_size: int = 20000,
                   progress: Progress = _no_progress, meta: dict[str, Any] | None = None, cross: bool = False,
-                  periodic=None) -> RegressionProblem:
+                  periodic=None, min_velocity_passive: float | None = None) -> RegressionProblem:
     """Compress a processed actuator-space dataset chunk by chunk (never the full regressor).
 
     ``robot``: a :class:`~dynid.model.system.System` or a model. ``min_velocity`` drops the rows
@@ -153,17 +167,18 @@ def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str 
     """
     return _compress(as_system(robot), base, ds, force_model=force_model, min_velocity=min_velocity,
                      parallel_decimate=parallel_decimate, chunk_size=chunk_size, progress=progress, meta=meta,
-                     cross=cross, periodic=periodic)[0]
+                     cross=cross, periodic=periodic, min_velocity_passive=min_velocity_passive)[0]
 
 
 def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model, min_velocity, parallel_decimate,
-              chunk_size, progress, meta, cross, periodic) -> tuple[RegressionProblem, float]:
+              chunk_size, progress, meta, cross, periodic, min_velocity_passive=None) -> tuple[RegressionProblem, float]:
     """:func:`build_problem` and the largest inconsistency of redundant actuator positions."""
     builder = ProblemBuilder(base.names, system.channel_names(force_model), cross=cross)
     worst = 0.0
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
                      progress=progress, periodic=periodic):
-        mask = row_mask(system, force_model, c.dq, min_velocity, whole_samples=cross)
+        mask = row_mask(system, force_model, c.dq, min_velocity, whole_samples=cross, joint_dq=c.joint_dq,
+                        min_velocity_passive=min_velocity_passive)
         if mask is not None and mask.ndim == 1:
             builder.add(c.W[mask], c.y[mask])
         else:
@@ -412,6 +427,10 @@ def _check_config(cfg: Config, system: System) -> str | None:
         raise ConfigError(f"processing.periodic.domain = 'pose' is for parallel robots with a platform pose; "
                           f"{system.name!r} has none (a serial arm, or a mechanism that declares no task coordinates)")
     force_model = system.force_model(icfg.force_model)
+    if cfg.processing.min_velocity_passive is not None and not system.passive_friction_joints():
+        raise ConfigError(f"processing.min_velocity_passive leaves out the samples where a passive joint with Coulomb "
+                          f"friction is slow; {system.name!r} has no such joint "
+                          f"({'a serial arm has no passive joint' if system.kind == 'serial' else 'no Coulomb term on a passive joint'})")
     if icfg.friction_model == "stribeck":
         stribeck.check_config(cfg, system)
     return force_model
@@ -479,11 +498,13 @@ def _stribeck_fit(cfg: Config, system: System, base: BaseParameters, train: Data
     chunks = list(_chunks(system, base, rows, force_model, chunk_size=icfg.chunk_size, progress=progress,
                           task="Stribeck rows", periodic=periodic))
     W, y, dq = (np.concatenate([getattr(c, a) for c in chunks]) for a in ("W", "y", "dq"))
+    jdq = np.concatenate([c.joint_dq for c in chunks]) if chunks[0].joint_dq is not None else None
     if pose:
         idx = stribeck.sample_indices(W.shape[0], icfg.max_samples)
-        W, y, dq = W[idx], y[idx], dq[idx]
+        W, y, dq, jdq = W[idx], y[idx], dq[idx], (None if jdq is None else jdq[idx])
     worst = max(float(c.inconsistency.max(initial=0.0)) for c in chunks)
-    mask = row_mask(system, force_model, dq, pcfg.min_velocity)
+    mask = row_mask(system, force_model, dq, pcfg.min_velocity, joint_dq=jdq,
+                    min_velocity_passive=pcfg.min_velocity_passive)
     if mask is not None and mask.ndim == 1:
         mask = np.broadcast_to(mask[:, None], y.shape)
     sp = stribeck.sample_problem(W, y, dq, mask, fj, base, system.channel_names(force_model),
@@ -547,16 +568,23 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     else:
         problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
                                        parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
-                                       meta=meta, cross=icfg.method == "gm", periodic=periodic)
+                                       meta=meta, cross=icfg.method == "gm", periodic=periodic,
+                                       min_velocity_passive=pcfg.min_velocity_passive)
         nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
         result = configured_estimator(icfg, steps, tuple(channels), tuple(names), nominal).fit(problem)
-    if pcfg.min_velocity is not None:
+    if pcfg.min_velocity is not None or pcfg.min_velocity_passive is not None:
         whole = icfg.method == "gm" or not system.channels_are_actuators(force_model)
-        result = result.with_provenance(
-            row_selection={"min_velocity": list(pcfg.min_velocity), "rows_kept_per_joint": result.n_obs.tolist(),
-                           "rule": ("whole samples with every actuator at least that fast" if whole
-                                    else "per actuator equation")}
-        )
+        selection = {"rows_kept_per_joint": result.n_obs.tolist()}
+        if pcfg.min_velocity is not None:
+            selection.update(min_velocity=list(pcfg.min_velocity),
+                             rule=("whole samples with every actuator at least that fast" if whole
+                                   else "per actuator equation"))
+        if pcfg.min_velocity_passive is not None:
+            jn = system.model.joint_names
+            selection.update(min_velocity_passive=pcfg.min_velocity_passive,
+                             passive_joints=[jn[j] for j in system.passive_friction_joints()],
+                             passive_rule="whole samples with every passive joint with Coulomb friction at least that fast")
+        result = result.with_provenance(row_selection=selection)
     notes = list(notes)
     if force_model == "projected":
         notes.append("redundant actuation: projected equations G_a^T tau_a (no assumption about the force distribution)")
