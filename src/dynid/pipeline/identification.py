@@ -318,12 +318,14 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
     return metrics, ValidationMetrics.of(names, t, measured, np.concatenate(prior), ds.meta.get("source"))
 
 
-def prior_comparison(identified: ValidationMetrics, nominal: ValidationMetrics, comparable: bool = True) -> dict[str, Any]:
+def prior_comparison(identified: ValidationMetrics, nominal: ValidationMetrics, comparable: bool = True,
+                     label: str = "held-out") -> dict[str, Any]:
     """Does the identified model predict the held-out data better than the nominal (CAD) model?
 
     Per channel the RMSE of both; the headline is the mean relative RMSE over the channels
     (unit-free, so torques and forces can be averaged). ``comparable = False`` when the efforts
-    are in units the nominal model does not predict (motor currents with unknown drive gains)."""
+    are in units the nominal model does not predict (motor currents with unknown drive gains);
+    ``label`` names the data (``"held-out"`` or ``"in-sample"``, :attr:`ValidationMetrics.label`)."""
     rel_i, rel_n = np.asarray(identified.rel_rmse_pct), np.asarray(nominal.rel_rmse_pct)
     better = [bool(a < b) for a, b in zip(identified.rmse, nominal.rmse)]
     mean_i, mean_n = float(np.nanmean(rel_i)), float(np.nanmean(rel_n))
@@ -341,10 +343,10 @@ def prior_comparison(identified: ValidationMetrics, nominal: ValidationMetrics, 
         out["verdict"] = ("the nominal model cannot be compared: the efforts are motor currents with unit drive gains "
                           "(the identified parameters absorb the unknown gains, the nominal ones do not)")
     elif mean_i < mean_n:
-        out["verdict"] = (f"the identified model beats the nominal model on held-out data: mean relative RMSE "
+        out["verdict"] = (f"the identified model beats the nominal model on {label} data: mean relative RMSE "
                           f"{mean_i:.3g} % against {mean_n:.3g} % ({sum(better)} of {len(better)} channels better)")
     else:
-        out["verdict"] = (f"WARNING: the identified model does NOT beat the nominal model on held-out data: mean "
+        out["verdict"] = (f"WARNING: the identified model does NOT beat the nominal model on {label} data: mean "
                           f"relative RMSE {mean_i:.3g} % against the nominal model's {mean_n:.3g} % ({sum(better)} "
                           f"of {len(better)} channels better); use the nominal model, or improve the excitation, the "
                           "processing or the model structure before trusting these parameters")
@@ -399,7 +401,10 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     t0 = time.perf_counter()
     outcome = _identify(cfg, progress)
     validation = dataclasses.replace(outcome.validation, overlap=motion_overlap(outcome.train, outcome.held_out))
-    return dataclasses.replace(outcome, validation=validation, elapsed_s=time.perf_counter() - t0)
+    prior = outcome.prior
+    if outcome.nominal_validation is not None and prior is not None:  # the verdict names the kind of data
+        prior = prior_comparison(validation, outcome.nominal_validation, prior["comparable"], validation.label)
+    return dataclasses.replace(outcome, validation=validation, prior=prior, elapsed_s=time.perf_counter() - t0)
 
 
 def motion_overlap(train: Dataset, held_out: Dataset) -> dict[str, Any]:
@@ -670,6 +675,13 @@ def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]
             "gives standard parameters a simulator can trust."]
 
 
+def _nominal_dict(v: ValidationMetrics) -> dict[str, Any]:
+    """The nominal model's errors for result.json (its rows, source and overlap are the validation's)."""
+    d = v.to_dict()
+    return {k: d[k] for k in ("joints", "n_samples", "rmse_per_joint", "rel_rmse_pct_per_joint", "max_abs_error_per_joint",
+                              "r2_per_joint")}
+
+
 def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     """Write the output files into an existing folder (see :func:`write_outputs`)."""
     res = outcome.result
@@ -678,7 +690,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
         stage / "result",
         extra={
             "validation": outcome.validation.to_dict(),
-            **({"nominal_validation": outcome.nominal_validation.to_dict(), "prior_comparison": outcome.prior}
+            **({"nominal_validation": _nominal_dict(outcome.nominal_validation), "prior_comparison": outcome.prior}
                if outcome.nominal_validation is not None else {}),
             "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
             "base_parameters": {
