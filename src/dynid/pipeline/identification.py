@@ -41,6 +41,7 @@ from dynid.config import Config
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, InputError
 from dynid.estimation import IdentificationResult, ProblemBuilder, RegressionProblem
+from dynid.estimation.validation import ValidationMetrics, motion_overlap, prior_comparison
 from dynid.io.output import staged_output
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System, as_system
@@ -58,7 +59,6 @@ from dynid.pipeline.data import (
     velocity_mask,
 )
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos
-from dynid.stats import REPEAT_THRESHOLD, nearest_distances
 
 __all__ = ["Chunk", "Progress", "ValidationMetrics", "IdentifyOutcome", "build_problem", "prior_comparison", "row_mask",
            "validate", "validate_with_prior", "identify", "write_outputs",
@@ -188,92 +188,6 @@ def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model,
     return problem, worst
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class ValidationMetrics:
-    """Prediction errors of an identified model on held-out data."""
-
-    channel_names: tuple[str, ...]
-    n_samples: int
-    rmse: FloatArray
-    rms_measured: FloatArray
-    max_abs_error: FloatArray
-    r2: FloatArray
-    t: FloatArray
-    measured: FloatArray
-    predicted: FloatArray
-    source: dict[str, Any]
-    overlap: dict[str, Any] | None = None  # how close the validation motion comes to the training motion
-
-    @property
-    def in_sample(self) -> bool:
-        """The validation motion repeats the training motion (see :func:`motion_overlap`): its
-        errors are in-sample errors, whatever window or file they come from."""
-        return bool(self.overlap and self.overlap["repeats_training"])
-
-    @property
-    def label(self) -> str:
-        """``"held-out"`` or ``"in-sample"`` (what the validation errors are)."""
-        return "in-sample" if self.in_sample else "held-out"
-
-    def heading(self) -> str:
-        """The title of the validation table."""
-        if not self.in_sample:
-            return f"Validation on held-out data ({self.n_samples} samples; never used for training)"
-        return (f"Validation IN-SAMPLE ({self.n_samples} samples): the validation motion repeats the training motion "
-                f"(median distance to the nearest training state {self.overlap['median_distance']:.3g} training "
-                f"standard deviations, below {self.overlap['threshold']:g}); these errors do not show how the model "
-                "predicts new motion: validate on another trajectory")
-
-    @classmethod
-    def of(cls, channel_names, t: FloatArray, measured: FloatArray, predicted: FloatArray, source) -> ValidationMetrics:
-        """Errors of ``predicted`` against ``measured`` (n, channels) per channel."""
-        err = measured - predicted
-        centred = measured - measured.mean(axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r2 = 1.0 - np.sum(err**2, axis=0) / np.sum(centred**2, axis=0)
-        return cls(
-            channel_names=tuple(channel_names),
-            n_samples=int(measured.shape[0]),
-            rmse=np.sqrt(np.mean(err**2, axis=0)),
-            rms_measured=np.sqrt(np.mean(measured**2, axis=0)),
-            max_abs_error=np.max(np.abs(err), axis=0),
-            r2=r2,
-            t=t,
-            measured=measured,
-            predicted=predicted,
-            source=dict(source) if isinstance(source, dict) else {"source": str(source)},
-        )
-
-    @property
-    def rel_rmse_pct(self) -> FloatArray:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return 100.0 * self.rmse / self.rms_measured
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "joints": list(self.channel_names),
-            "n_samples": self.n_samples,
-            "rmse_per_joint": self.rmse.tolist(),
-            "rel_rmse_pct_per_joint": [float(x) if np.isfinite(x) else None for x in self.rel_rmse_pct],
-            "max_abs_error_per_joint": self.max_abs_error.tolist(),
-            "r2_per_joint": self.r2.tolist(),
-            "rms_measured_per_joint": self.rms_measured.tolist(),
-            "source": self.source,
-            "kind": self.label,
-            "motion_overlap": self.overlap,
-            **({"warning": self.heading()} if self.in_sample else {}),
-        }
-
-    def table(self) -> str:
-        rows = [("joint", "RMSE", "rel RMSE %", "max |err|", "R^2")]
-        for c, r, p, m, q in zip(self.channel_names, self.rmse, self.rel_rmse_pct, self.max_abs_error, self.r2):
-            rows.append((c, f"{r:.4g}", f"{p:.3g}", f"{m:.4g}", f"{q:.4f}"))
-        w = [max(len(r[i]) for r in rows) for i in range(5)]
-        lines = ["  ".join([r[0].ljust(w[0])] + [c.rjust(x) for c, x in zip(r[1:], w[1:])]) for r in rows]
-        lines.insert(1, "-" * len(lines[0]))
-        return "\n".join(lines)
-
-
 def validate(result: IdentificationResult, robot, base: BaseParameters, ds: Dataset, *,
              force_model: str | None = None, parallel_decimate: int = 1, chunk_size: int = 20000,
              progress: Progress = _no_progress, friction: stribeck.FrictionJoints | None = None,
@@ -316,41 +230,6 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
     if nominal is None:
         return metrics, None
     return metrics, ValidationMetrics.of(names, t, measured, np.concatenate(prior), ds.meta.get("source"))
-
-
-def prior_comparison(identified: ValidationMetrics, nominal: ValidationMetrics, comparable: bool = True,
-                     label: str = "held-out") -> dict[str, Any]:
-    """Does the identified model predict the held-out data better than the nominal (CAD) model?
-
-    Per channel the RMSE of both; the headline is the mean relative RMSE over the channels
-    (unit-free, so torques and forces can be averaged). ``comparable = False`` when the efforts
-    are in units the nominal model does not predict (motor currents with unknown drive gains);
-    ``label`` names the data (``"held-out"`` or ``"in-sample"``, :attr:`ValidationMetrics.label`)."""
-    rel_i, rel_n = np.asarray(identified.rel_rmse_pct), np.asarray(nominal.rel_rmse_pct)
-    better = [bool(a < b) for a, b in zip(identified.rmse, nominal.rmse)]
-    mean_i, mean_n = float(np.nanmean(rel_i)), float(np.nanmean(rel_n))
-    out: dict[str, Any] = {
-        "comparable": comparable,
-        "metric": "mean over channels of the held-out RMSE relative to the RMS of the measured output [%]",
-        "identified_mean_rel_rmse_pct": mean_i,
-        "nominal_mean_rel_rmse_pct": mean_n,
-        "channels_better": int(sum(better)),
-        "n_channels": len(better),
-        "better_per_channel": better,
-        "beats_nominal": bool(comparable and mean_i < mean_n),
-    }
-    if not comparable:
-        out["verdict"] = ("the nominal model cannot be compared: the efforts are motor currents with unit drive gains "
-                          "(the identified parameters absorb the unknown gains, the nominal ones do not)")
-    elif mean_i < mean_n:
-        out["verdict"] = (f"the identified model beats the nominal model on {label} data: mean relative RMSE "
-                          f"{mean_i:.3g} % against {mean_n:.3g} % ({sum(better)} of {len(better)} channels better)")
-    else:
-        out["verdict"] = (f"WARNING: the identified model does NOT beat the nominal model on {label} data: mean "
-                          f"relative RMSE {mean_i:.3g} % against the nominal model's {mean_n:.3g} % ({sum(better)} "
-                          f"of {len(better)} channels better); use the nominal model, or improve the excitation, the "
-                          "processing or the model structure before trusting these parameters")
-    return out
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -405,24 +284,6 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     if outcome.nominal_validation is not None and prior is not None:  # the verdict names the kind of data
         prior = prior_comparison(validation, outcome.nominal_validation, prior["comparable"], validation.label)
     return dataclasses.replace(outcome, validation=validation, prior=prior, elapsed_s=time.perf_counter() - t0)
-
-
-def motion_overlap(train: Dataset, held_out: Dataset) -> dict[str, Any]:
-    """Does the validation motion repeat the training motion?
-
-    The processed states ``(q, dq, ddq)`` of every joint (actuator) are compared: each held-out
-    state's distance to the nearest training state, in training standard deviations
-    (:func:`dynid.stats.nearest_distances`). A median below
-    :data:`dynid.stats.REPEAT_THRESHOLD` (0.05) means the validation motion retraces the training
-    motion (a tail window of a periodic excitation, a copy of the log): its errors are in-sample
-    errors. A new trajectory lies about one standard deviation away.
-    """
-    states = lambda ds: np.hstack([ds.q, ds.dq, ds.ddq])  # noqa: E731
-    d = nearest_distances(states(train), states(held_out))
-    median = float(np.median(d))
-    return {"median_distance": median, "p90_distance": float(np.quantile(d, 0.9)), "threshold": REPEAT_THRESHOLD,
-            "repeats_training": median < REPEAT_THRESHOLD, "n_compared": int(d.size),
-            "metric": "distance of held-out (q, dq, ddq) to the nearest training state, in training standard deviations"}
 
 
 def _check_config(cfg: Config, system: System) -> str | None:

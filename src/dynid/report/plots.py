@@ -22,7 +22,7 @@ def plot_validation(metrics: Any, path: str | Path) -> Path:
     """Measured vs predicted torques on the validation data, one panel per joint, with errors
     (titled held-out or in-sample, as ``metrics.label`` says).
 
-    ``metrics`` is a :class:`dynid.pipeline.identification.ValidationMetrics`.
+    ``metrics`` is a :class:`dynid.estimation.validation.ValidationMetrics`.
     """
     plt = _pyplot()
     n = metrics.measured.shape[1]
