@@ -45,7 +45,7 @@ from dynid.model.closures import JointCoordinates, JointTerm
 from dynid.model.loop_kinematics import actuator_states, platform_pose, pose_states
 from dynid.model.mechanism import Mechanism
 from dynid.model.serial_dynamics import regressor
-from dynid.model.robot import ALL_EXTRAS, RobotModel, joint_kinds
+from dynid.model.robot import RobotModel, _normalize_extras, joint_kinds
 from dynid.model.transmission import Transmission
 
 __all__ = ["ClosedLoopSystem", "Rows", "SerialSystem", "System", "as_system", "with_actuator_extras", "with_motor_terms"]
@@ -80,6 +80,7 @@ class System(Protocol):
     actuator_names: tuple[str, ...]
     parameter_names: tuple[str, ...]
     task_coordinates: tuple[str, ...]
+    max_chunk: int | None  # largest chunk of samples the rows take at once (None: any)
 
     def actuator_kinds(self) -> tuple[str, ...]: ...
     def nominal_parameters(self) -> FloatArray: ...
@@ -142,6 +143,7 @@ class SerialSystem:
 
     redundant = False
     task_coordinates: tuple[str, ...] = ()
+    max_chunk = None  # the regressor of a long chunk costs no more per sample (no limit)
 
     @property
     def actuator_names(self) -> tuple[str, ...]:
@@ -239,6 +241,7 @@ class ClosedLoopSystem:
     model: Mechanism
     transmission: Transmission | None = None
     kind: str = dataclasses.field(default="closed-loop", init=False)
+    max_chunk = 2000  # samples solved through the loops at once (batched kinematics hold (n, n_v, n_v) arrays)
 
     def __post_init__(self) -> None:
         if self.transmission is not None and self.transmission.n != self.model.n_actuators:
@@ -375,15 +378,11 @@ def with_actuator_extras(mech: Mechanism, extras: Sequence[str]) -> Mechanism:
     ``fc+``, ``fc-``: asymmetric friction, Shang 2009 Eq. 2) on every actuated
     joint that has no single-joint term of that kind yet (nominal value 0); the description's own
     terms are kept as they are."""
-    unknown = [e for e in extras if e not in ALL_EXTRAS]
-    if unknown:
-        raise ModelError(f"unknown joint extras {unknown}; choose from {list(ALL_EXTRAS)}")
+    extras = _normalize_extras(extras)  # refuses unknown ones, as a serial layout does
     have = {(t.kind, t.joints[0]) for t in mech.terms if len(t.joints) == 1}
     names = {t.name for t in mech.terms}
     new = []
-    for e in ALL_EXTRAS:
-        if e not in extras:
-            continue
+    for e in extras:
         for j in mech.actuated:
             kind = EXTRA_KINDS[e]
             if (kind, j) in have:

@@ -67,11 +67,6 @@ __all__ = ["Chunk", "Progress", "ValidationMetrics", "IdentifyOutcome", "build_p
 Progress = Callable[[str, int, int], None]
 """``progress(task, done, total)``: called as long work advances (the CLI draws a bar)."""
 
-MECHANISM_CHUNK = 2000
-"""Largest chunk of a mechanism's log solved through the loops at once (the batched kinematics
-hold a few (n, n_v, n_v) arrays)."""
-
-
 def _no_progress(task: str, done: int, total: int) -> None:
     return None
 
@@ -110,7 +105,7 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     if ds.dq is None or ds.ddq is None:
         raise InputError("the dataset has no velocities/accelerations; preprocess it first")
     n = ds.n_samples
-    size = max(1, int(chunk_size)) if system.kind == "serial" else max(1, min(int(chunk_size), MECHANISM_CHUNK))
+    size = max(1, int(chunk_size) if system.max_chunk is None else min(int(chunk_size), system.max_chunk))
     rows = system.rows(force_model)
     if parallel_decimate <= 1:
         for a in range(0, n, size):
