@@ -15,9 +15,9 @@ PKG = Path(dynid.__file__).resolve().parent
 # inside one package (model/_xml.py, model/mechanism_files.py, ...) have no rank: there the
 # check is that they form no cycle (test_imports_form_no_cycle)
 LAYERS = {
-    "cli": 9,
+    "cli": 10,
+    "studies": 9,  # a study composes pipeline runs (simulate, identify) on the papers' set-ups
     "pipeline": 8,
-    "studies": 8,
     "config": 7,
     "report": 6,
     "io": 6,

@@ -164,6 +164,34 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _threshold(value: str) -> float:
+    try:
+        t = float(value)
+    except ValueError:
+        t = float("nan")
+    if not (t > 0 and t < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a positive number of percent, got {value!r}")
+    return t
+
+
+def _cmd_identifiability(args: argparse.Namespace) -> int:
+    from dynid.config import load_config
+
+    _check_out(args.out)
+    cfg = load_config(args.config)  # config errors come before the heavy imports below
+    from dynid.pipeline.identifiability import load_truth, run_identifiability, write_identifiability
+
+    truth = load_truth(args.truth) if args.truth is not None else None
+    with _progress_bar(not args.quiet) as progress:
+        outcome = run_identifiability(cfg, truth=truth, threshold_pct=args.threshold, progress=progress)
+    written = write_identifiability(outcome, args.out)
+    if not args.quiet:
+        print(outcome.summary_text())
+        print()
+    print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    return EXIT_OK
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from dynid.config.simulate import load_simulate_config
 
@@ -295,6 +323,17 @@ def build_parser() -> argparse.ArgumentParser:
     pid.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pid.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
     pid.set_defaults(func=_cmd_identify)
+
+    pf = sub.add_parser("identifiability", help="model-structure search of paper 000 on CONFIG.toml's logs: models "
+                                                "1-4, parameters identified (rel. std < 15 %% and feasible), eps_RA, eps_AV")
+    pf.add_argument("config", help="TOML configuration of dynid identify (method 'ols' or 'wls')")
+    pf.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    pf.add_argument("--truth", default=None, metavar="TRUTH.json",
+                    help="truth.json of dynid simulate: the true parameters beside the estimates, and eps_AV")
+    pf.add_argument("--threshold", type=_threshold, default=15.0, metavar="PCT",
+                    help="relative standard deviation counted as identified, %% (default 15, paper 000)")
+    pf.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no tables")
+    pf.set_defaults(func=_cmd_identifiability)
 
     ps = sub.add_parser("simulate", help="run a virtual experiment as CONFIG.toml says; write the log and the truth")
     ps.add_argument("config", help="TOML configuration (schema in the README, 'Virtual experiments')")
