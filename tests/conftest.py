@@ -40,7 +40,8 @@ def pytest_configure(config):
 # before the many short ones fill the gaps: the longest-first rule keeps the workers finishing
 # together. Only the order changes, never what runs.
 SLOW_MODULES = ("test_demo.py", "test_estimator_study.py", "test_physical_study.py", "test_processing_study.py",
-                "test_maximum_likelihood.py", "test_cli.py", "test_identify_mechanism.py", "test_reproducible.py")
+                "test_paper000.py", "test_maximum_likelihood.py", "test_cli.py", "test_identify_mechanism.py",
+                "test_reproducible.py")
 
 
 def pytest_collection_modifyitems(config, items):

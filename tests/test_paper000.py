@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -217,10 +218,12 @@ def test_cli_identifiability_round_trip_and_bad_input(study, tmp_path):
     before = snapshot(out)
     (tmp_path / "ml.toml").write_text(_toml({**doc, "identification": {"method": "ml"}}))
     (tmp_path / "bad.json").write_text("{not json")
-    for args, words in ((["ml.toml", "--out", "out"], "use 'ols' or 'wls'"),
-                        (["cfg.toml", "--out", "out", "--truth", "bad.json"], "not JSON"),
-                        (["cfg.toml", "--out", "out", "--threshold", "-5"], "positive number of percent")):
-        r = run_dynid(["identifiability", *args], tmp_path)
+    cases = ((["ml.toml", "--out", "out"], "use 'ols' or 'wls'"),
+             (["cfg.toml", "--out", "out", "--truth", "bad.json"], "not JSON"),
+             (["cfg.toml", "--out", "out", "--threshold", "-5"], "positive number of percent"))
+    with ThreadPoolExecutor(len(cases)) as pool:
+        results = list(pool.map(lambda c: run_dynid(["identifiability", *c[0]], tmp_path), cases))
+    for (_, words), r in zip(cases, results):
         assert r.returncode == 2, r.stderr
         assert "Traceback" not in r.stderr
         lines = r.stderr.splitlines()

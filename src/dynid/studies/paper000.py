@@ -8,22 +8,24 @@ is physically feasible, and compares models of 37, 24, 18 and 12 parameters (Tab
 infeasible ones marked ``*``; Table 4 scores identified models on six trajectories with
 condition numbers 563–718 and one at low velocity. Here, in kind, through the product:
 
-* the twin: ``builtin:rps3``, identified with the joint terms ``Ia, fv, fc, offset`` on the legs
-  (25 + 12 = 37 base parameters, the paper's model 1 with Jr + Js, Fv, Fc+ and Fc- of Table 5:
-  on moving legs F_C+ = fc + offset and F_C- = fc - offset, the same span; the builtin's own
-  symmetric ``fc`` cannot be replaced by ``fc+`` / ``fc-``, which would only add columns), truth 10 % away from the nominal model body by body
-  (``perturbation_seed = 3``), the twin's own linear friction (so that ``truth.json`` holds the
-  plant's friction), computed torque with the nominal model at 500 Hz, logged at 100 Hz (the
-  paper's rate), 1 µm encoders and 5 N of force noise (``dynid simulate``);
+* the twin: ``builtin:rps3``, identified with the joint terms ``Ia, fv, fc, offset`` on the
+  legs: 25 + 12 = 37 base parameters, the paper's model 1 with Jr + Js, Fv, Fc+ and Fc- of
+  Table 5 (on moving legs F_C+ = fc + offset and F_C- = fc - offset span the same forces; the
+  builtin keeps its symmetric ``fc``, so ``fc+`` / ``fc-`` would only regroup with it). The
+  truth is 10 % away from the nominal model body by body (``perturbation_seed = 3``) with the
+  twin's own linear friction (so that ``truth.json`` holds the plant's friction, offsets 0);
+  computed torque with the nominal model at 500 Hz, logged at 100 Hz (the paper's rate), 1 µm
+  encoders and 5 N of force noise (``dynid simulate``);
 * the training experiment: a 5-harmonic Fourier excitation of the leg lengths (the paper's
   optimized trajectory lasts 7.5 s; here 3 periods of 5 s, ``quick``: 1 period of 4 s);
 * six test trajectories: five other Fourier excitations (other seeds and base frequencies, the
   same limits) and one at low speed (a quarter of the velocity limit, the paper's "LowVel");
-* the analysis: ``dynid identifiability`` (:func:`dynid.pipeline.identifiability.run_identifiability`:
-  WLS, :func:`dynid.estimation.identifiability.structure_search` with the feasibility check),
-  on the rows where every leg moves faster than 5 mm/s (``processing.min_velocity``; at the
-  reversals the simulated legs chatter under discontinuous Coulomb friction, see
-  :mod:`dynid.simulation.control`; the low-speed log keeps fewer rows).
+* the analysis: ``dynid identifiability``
+  (:func:`dynid.pipeline.identifiability.run_identifiability`: WLS,
+  :func:`dynid.estimation.identifiability.structure_search`, feasibility of models 1–4), on the
+  equations of the legs moving faster than 5 mm/s (``processing.min_velocity``; at reversals
+  the simulated legs chatter under discontinuous Coulomb friction, see
+  :mod:`dynid.simulation.control`), in training and in every test log alike.
 
 Run: ``python bench/paper000_study.py [--quick]``; the figures of the last full run are in
 bench/README.md ("Paper 000, Tables 4–6").
