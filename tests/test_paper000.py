@@ -139,6 +139,9 @@ def test_table4_condition_numbers_and_eps_ra_by_another_route(study):
             assert t.scaled_condition_number[lab] == pytest.approx(np.linalg.cond(Ws), rel=1e-6)
             assert t.eps_ra[lab] == pytest.approx(_eps_ra(rows, beta), rel=1e-9)
             assert math.isfinite(t.eps_ra[lab]) and t.eps_ra[lab] > 0
+        assert t.eps_ra["true"] == pytest.approx(_eps_ra(rows, out.truth), rel=1e-9)
+        assert t.eps_ra["nominal"] == pytest.approx(_eps_ra(rows, out.base.from_standard(
+            build_system(out.config.robot).nominal_parameters())), rel=1e-9)
         # the final model against the full one: the triangle inequality on Eq. 33 bounds the change
         # by the forces the two models predict differently, |W (beta_1 - beta_4)|
         b1, b4 = betas[out.labels[0]][0], betas[out.labels[-1]][0]
@@ -211,7 +214,7 @@ def test_cli_identifiability_round_trip_and_bad_input(study, tmp_path):
     with open(out / "tests.csv") as fh:
         tests = list(csv.DictReader(fh))
     assert [t["trajectory"] for t in tests] == ["training", "validation"]
-    assert all(math.isfinite(float(t["eps_ra_model1"])) for t in tests)
+    assert all(math.isfinite(float(t["eps_ra_model1"])) and float(t["eps_ra_true"]) > 0 for t in tests)
     assert "Table 6" in (out / "tables.txt").read_text()
 
     # bad input: one line, exit 2, the output folder untouched

@@ -18,8 +18,8 @@ identify a sequence of models with fewer and fewer parameters (3-RPS: models 1�
    removed parameters at zero);
 3. every test log (the training log, in sample; the ``[validation]`` log; extra logs read like
    it) is processed identically and gives Table 4: the condition number of its base regressor
-   and the relative absolute error ε_RA (paper 000 Eq. 33) of models 1–4 and of the nominal
-   model;
+   and the relative absolute error ε_RA (paper 000 Eq. 33) of models 1–4, of the nominal
+   model and, with a truth, of the true model (what noise and processing alone leave);
 4. Table 5 lists the parameters of models 1–4 (value, relative std %, ``*`` where the value
    takes part in a violated feasibility constraint), with the truth alongside when known (the
    ``truth.json`` of ``dynid simulate``); Table 6 per model: parameters, identified by the
@@ -109,7 +109,8 @@ class TestLog:
     scaled_condition_number : dict model label -> float
         The same with every column scaled to unit norm (independent of the parameters' units).
     eps_ra : dict model label -> float
-        ε_RA [%] (paper 000 Eq. 33) of each model, and of ``"nominal"``.
+        ε_RA [%] (paper 000 Eq. 33) of each model, of ``"nominal"`` (the robot description's
+        parameters) and, when the truth is known, of ``"true"`` (the simulated plant's).
     """
 
     name: str
@@ -278,13 +279,16 @@ class IdentifiabilityOutcome:
         labels = self.labels
         head = ("trajectory", "rows", f"cond ({labels[0]})", "scaled cond", f"cond ({labels[-1]})", "scaled cond")
         head += tuple(f"eps_RA {lab}" for lab in labels) + ("eps_RA nominal",)
+        truth = self.truth is not None
+        head += ("eps_RA true",) if truth else ()
         rows = [head]
         for t in self.tests:
             name = t.name + (" (in sample)" if t.in_sample else "")
             rows.append((name, str(t.n_rows), f"{t.condition_number[labels[0]]:.4g}",
                          f"{t.scaled_condition_number[labels[0]]:.4g}", f"{t.condition_number[labels[-1]]:.4g}",
                          f"{t.scaled_condition_number[labels[-1]]:.4g}")
-                        + tuple(f"{t.eps_ra[lab]:.2f}" for lab in labels) + (f"{t.eps_ra['nominal']:.2f}",))
+                        + tuple(f"{t.eps_ra[lab]:.2f}" for lab in labels) + (f"{t.eps_ra['nominal']:.2f}",)
+                        + ((f"{t.eps_ra['true']:.2f}",) if truth else ()))
         return tuple(rows)
 
     def table5(self) -> tuple[tuple[str, ...], ...]:
@@ -459,14 +463,15 @@ def run_identifiability(cfg: Config, *, tests: Sequence[tuple[str, DataConfig]] 
         feasibility.append(is_feasible(beta, smap))  # the removed parameters at zero, as structure_search does
         marked.append(_marked(s.names, feasibility[-1], base, smap))
     betas["nominal"] = nominal
-    evaluated = [_evaluate(system, base, train, cfg, force_model, betas, columns, "training", True)]
-    for label, act, _ in logs[1:]:
-        ds, _ = preprocess(act, pcfg, label)
-        evaluated.append(_evaluate(system, base, ds, cfg, force_model, betas, columns, label, False))
     notes: list[str] = []
     true = None
     if truth is not None:
         true, notes = truth_base(truth, base)
+        betas["true"] = true
+    evaluated = [_evaluate(system, base, train, cfg, force_model, betas, columns, "training", True)]
+    for label, act, _ in logs[1:]:
+        ds, _ = preprocess(act, pcfg, label)
+        evaluated.append(_evaluate(system, base, ds, cfg, force_model, betas, columns, label, False))
     if pcfg.min_velocity is not None or pcfg.min_velocity_passive is not None:
         notes.append("every log is scored on the rows the processing keeps (processing.min_velocity)")
     return IdentifiabilityOutcome(cfg, base, sequence, models, tuple(feasibility), tuple(marked), tuple(evaluated),
@@ -495,10 +500,12 @@ def write_identifiability(outcome: IdentifiabilityOutcome, out_dir: str | Path) 
             labels = outcome.labels
             w.writerow(["trajectory", "in_sample", "rows", *[f"cond_{lab.replace(' ', '')}" for lab in labels],
                         *[f"scaled_cond_{lab.replace(' ', '')}" for lab in labels],
-                        *[f"eps_ra_{lab.replace(' ', '')}" for lab in labels], "eps_ra_nominal"])
+                        *[f"eps_ra_{lab.replace(' ', '')}" for lab in labels], "eps_ra_nominal",
+                        *(["eps_ra_true"] if outcome.truth is not None else [])])
             for t in outcome.tests:
                 w.writerow([t.name, int(t.in_sample), t.n_rows, *[repr(t.condition_number[lab]) for lab in labels],
                             *[repr(t.scaled_condition_number[lab]) for lab in labels],
-                            *[repr(t.eps_ra[lab]) for lab in labels], repr(t.eps_ra["nominal"])])
+                            *[repr(t.eps_ra[lab]) for lab in labels], repr(t.eps_ra["nominal"]),
+                        *([repr(t.eps_ra["true"])] if outcome.truth is not None else [])])
         produced = sorted(p.name for p in stage.iterdir())
     return produced
