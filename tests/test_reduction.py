@@ -12,7 +12,7 @@ from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.errors import ConfigError
 from dynid.model.base_parameters import perturb_bodies
-from dynid.model.closed_loop import actuator_forces, actuator_regressor
+from dynid.model.closed_loop import actuator_forces, actuator_regressor, random_consistent_states
 from dynid.model.loading import load_model
 from dynid.model.robots import build_mechanism, hexapod
 from dynid.model.system import as_system
@@ -86,6 +86,26 @@ def test_reduced_rows_reproduce_the_full_inverse_dynamics(hexa, paper):
     # the regressor of the full model times T is the reduced one
     full = actuator_regressor(mech, state).W
     np.testing.assert_allclose(full @ red.T, rows.W, atol=1e-12 * np.abs(full).max())
+
+
+def test_physically_consistent_fit_keeps_the_symmetric_zeros(hexa, paper):
+    """The SDP works on psi: every tied body's pseudo-inertia is PSD and the zeros stay zero."""
+    from dynid.estimation import RegressionProblem
+    from dynid.estimation.physical import PhysicalConstraints, PhysicalLS
+    from dynid.model.base_parameters import pseudo_inertia
+
+    system, base = paper
+    state = random_consistent_states(hexa.model, 40, np.random.default_rng(2))
+    W = base.regressor(actuator_regressor(hexa.model, state).W @ system.reduction.T)
+    y = W @ base.from_standard(system.nominal_parameters()) + 5.0 * np.random.default_rng(3).standard_normal(W.shape[:2])
+    smap = system.standard_map(base)
+    prob = RegressionProblem.from_arrays(W, y, base.names, list(system.actuator_names), standard=smap)
+    res = PhysicalLS(weighting="wls", constraints=PhysicalConstraints(margin=1e-6)).fit(prob)
+    pi = np.array([res.solver["standard_params"][n] for n in smap.standard_names])
+    assert len(smap.body_blocks) == 4 and smap.zero.size == 21  # platform, ring, stator, slider; 6 + 3 x 5 zeros
+    assert min(np.linalg.eigvalsh(pseudo_inertia(pi[b]))[0] for b in smap.body_blocks) >= 1e-6 * (1 - 1e-6)
+    assert np.abs(pi[smap.zero]).max() <= 1e-9 * np.abs(pi).max()
+    assert np.all(pi[smap.nonnegative] >= 0)
 
 
 def test_builtin_symmetry():
