@@ -16,7 +16,10 @@ rigid-body parameters instead of the ~88 of its 19 bodies, under two modelling a
   consistency, :class:`~dynid.model.base_parameters.StandardMap` ``zero``).
 
 Joint terms (friction, rotor inertia, offsets) are not tied: the papers identify the friction
-of each actuator. The reduced regressor is :math:`Y T` (:math:`Y\\pi = Y T\\psi`); its base
+of each actuator. The zeros are held by the SDP of physically consistent fits
+(:mod:`dynid.estimation.physical`) and by the feasibility check; the Stribeck fit's log-Cholesky
+body parametrization (:mod:`dynid.estimation.nonlinear`) does not hold them (its bodies are
+consistent, the zeros free, as any parameter outside the base combinations). The reduced regressor is :math:`Y T` (:math:`Y\\pi = Y T\\psi`); its base
 parameters are computed like any other (:func:`dynid.model.closed_loop.mechanism_base_parameters`,
 on constraint-consistent samples). :meth:`ParameterReduction.reduce` maps a full standard vector
 to :math:`\\psi` (the mean over tied bodies: :math:`T^+\\pi`, exact when :math:`\\pi` satisfies
@@ -32,7 +35,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from dynid._typing import FloatArray, IntArray
-from dynid.errors import ConfigError
+from dynid.errors import ConfigError, ModelError
 from dynid.model.mechanism import Mechanism
 from dynid.model.robot import BODY_PARAMS
 
@@ -89,14 +92,14 @@ class ParameterReduction:
         """The full standard vector :math:`T\\psi` (last axis)."""
         psi = np.asarray(psi, dtype=float)
         if psi.shape[-1] != self.n_params:
-            raise ConfigError(f"expected {self.n_params} reduced parameters, got {psi.shape[-1]}")
+            raise ModelError(f"expected {self.n_params} reduced parameters, got {psi.shape[-1]}")
         return psi @ self.T.T
 
     def reduce(self, pi: FloatArray) -> FloatArray:
         """:math:`\\psi = T^+\\pi` (last axis): tied bodies averaged, zero-fixed parameters 0."""
         pi = np.asarray(pi, dtype=float)
         if pi.shape[-1] != self.T.shape[0]:
-            raise ConfigError(f"expected {self.T.shape[0]} standard parameters, got {pi.shape[-1]}")
+            raise ModelError(f"expected {self.T.shape[0]} standard parameters, got {pi.shape[-1]}")
         # T has orthogonal columns (each a sum of unit vectors on disjoint rows): T^+ = D^-1 T^T
         counts = np.sum(self.T, axis=0)
         return (pi @ self.T) / np.where(counts > 0, counts, 1.0)
