@@ -377,6 +377,10 @@ def test_info_json_of_every_mechanism(runs, name, dof, n_actuators, redundant):
     assert 0 < info["n_base_params"] < info["n_standard_params"]
     if name == "shang2dof":
         assert (info["n_base_rigid_body"], info["n_base_joint_terms"]) == (10, 15)
+    # the reduced structures each built-in declares (identical chains, the papers' symmetric bodies)
+    counts = {st: (d["n_base_rigid_body"], d["n_base_params"]) for st, d in info["structures"].items()}
+    assert counts == {"shang2dof": {}, "rps3": {"identical_chains": (15, 24)}, "fivebar": {},
+                      "hexapod": {"identical_chains": (23, 37), "paper": (10, 24)}}[name]
 
 
 def test_info_text_of_a_mechanism(runs):
@@ -385,6 +389,7 @@ def test_info_text_of_a_mechanism(runs):
     out = r.stdout
     assert "degrees of freedom: 6" in out and "actuators        : 6" in out
     assert re.search(r"base params      : \d+ \(\d+ rigid-body \+ 14 joint terms\)", out), out
+    assert "structure paper           : 54 parameters, 24 base (10 rigid-body + 14 joint terms)" in out, out
 
 
 def test_info_mechanism_errors_are_one_line(runs):

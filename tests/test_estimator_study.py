@@ -39,9 +39,12 @@ def test_paper001_weighting_the_observation_matrix(capsys):
 def test_paper004_table2_gm_vs_ml(capsys):
     res = study.hexapod_table2(quick=True)
     print(study.hexapod_table(res))
-    assert [r["name"] for r in res["rows"]] == list(study.PAPER_TABLE2)
-    # the truth of the twin's friction is the paper's Gauss-Markov column
-    assert all(r["truth"] == pytest.approx(r["paper_gm"]) for r in res["rows"])
+    # all 24 rows of Table II: p1..p10 (paper 002 Table 1, structure 'paper') and the 14 friction terms
+    assert [r["name"] for r in res["rows"]] == list(study.PAPER_TABLE2) and len(res["rows"]) == 24 == res["n_base"]
+    # the twin's truth: the a priori p1..p10 (its body values reproduce them) and the paper's Gauss-Markov friction
+    assert [r["truth"] for r in res["rows"][:10]] == pytest.approx(list(study.hexapod.A_PRIORI), rel=1e-9)
+    assert all(r["truth"] == pytest.approx(r["paper_gm"]) for r in res["rows"][10:])
+    assert all(r["gm_std"] > 0 and r["ml_std"] > 0 for r in res["rows"])
     costs = [r for r in res["ml_profile"] if r["cost"] is not None]
     best = min(costs, key=lambda r: r["cost"])
     # ML returns the cut-off of least total cost, inside the searched range (paper 004 Eq. 24)

@@ -85,6 +85,24 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _structures(mech) -> dict:
+    """Base-parameter counts of the reduced structures a mechanism declares (identical chains, the
+    papers' symmetric bodies; :mod:`dynid.model.reduction`)."""
+    from dynid.model.closed_loop import mechanism_base_parameters
+    from dynid.model.reduction import reduce_mechanism
+
+    out = {}
+    for st in ("identical_chains", "paper") if mech.identical_chains else ():
+        if st == "paper" and not mech.symmetric_zero:
+            continue
+        red = reduce_mechanism(mech, st)
+        base = mechanism_base_parameters(mech, reduction=red)
+        out[st] = {"n_params": red.n_params, "n_base_params": base.n_base,
+                   "n_base_rigid_body": int(sum(1 for i in base.independent if i < red.n_body_params)),
+                   "base_param_names": list(base.names)}
+    return out
+
+
 def _info_mechanism(mech, as_json: bool) -> int:
     from dynid.model.closed_loop import mechanism_base_parameters
 
@@ -114,6 +132,7 @@ def _info_mechanism(mech, as_json: bool) -> int:
         "n_base_rigid_body": n_rb,
         "n_base_joint_terms": base.n_base - n_rb,
         "base_param_names": list(base.names),
+        "structures": _structures(mech),
         "notes": list(mech.notes),
     }
     if as_json:
@@ -130,6 +149,9 @@ def _info_mechanism(mech, as_json: bool) -> int:
     print(f"base params      : {base.n_base} ({n_rb} rigid-body + {base.n_base - n_rb} joint terms)")
     for name, expr in zip(base.names, base.expressions()):
         print(f"  {name:<12} = {expr}")
+    for st, d in info["structures"].items():
+        print(f"structure {st:<16}: {d['n_params']} parameters, {d['n_base_params']} base "
+              f"({d['n_base_rigid_body']} rigid-body + {d['n_base_params'] - d['n_base_rigid_body']} joint terms)")
     for note in mech.notes:
         print(f"note: {note}")
     return EXIT_OK

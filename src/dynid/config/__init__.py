@@ -183,6 +183,9 @@ class IdentificationConfig:
     bodies: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
     friction_model: str = "linear"  # "stribeck": nonlinear friction (paper 000 Eq. 32)
     max_samples: int = 4000  # friction_model = "stribeck": samples used by the nonlinear fit
+    # structural reduction (dynid.model.reduction): "full", "identical_chains" or "paper"
+    structure: str = "full"
+    identical_chains: tuple[tuple[tuple[str, ...], ...], ...] | None = None  # None: the mechanism's own chains
 
 
 _PHYSICAL_KEYS = ("margin", "regularization", "regularization_weight", "solver", "bodies", "friction_model", "max_samples")
@@ -406,11 +409,31 @@ def _parse_processing(t: Any) -> ProcessingConfig:
     )
 
 
+_STRUCTURES = ("full", "identical_chains", "paper")  # dynid.model.reduction.STRUCTURES (config sits above model)
+
+
+def _chain_groups(spec: Any, where: str) -> tuple[tuple[tuple[str, ...], ...], ...]:
+    """``identical_chains``: one group of chains ``[["a1", "b1", "P1"], ["a2", "b2", "P2"], ...]`` (each chain
+    its joint names in corresponding order) or several groups ``[[["a1", "b1"], ["a2", "b2"]], [...]]``."""
+    if not isinstance(spec, list) or not spec:
+        raise ConfigError(f"{where} must be a non-empty list of chains (lists of joint names)")
+    nested = all(isinstance(c, list) and c and isinstance(c[0], list) for c in spec)
+    out = []
+    for g in spec if nested else [spec]:
+        if not isinstance(g, list) or len(g) < 2:
+            raise ConfigError(f"{where}: a group needs at least two chains, got {g!r}")
+        for c in g:
+            if not isinstance(c, list) or not c or not all(isinstance(j, str) for j in c):
+                raise ConfigError(f"{where}: a chain is a list of joint names, got {c!r}")
+        out.append(tuple(tuple(c) for c in g))
+    return tuple(out)
+
+
 def _parse_identification(t: Any) -> IdentificationConfig:
     where = "identification"
     t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
                           "force_model", "noise_covariance", "iterations", "nominal_weighting",
-                          "position_covariance", "cutoff_range_hz", *_PHYSICAL_KEYS})
+                          "position_covariance", "cutoff_range_hz", "structure", "identical_chains", *_PHYSICAL_KEYS})
     method = _str(t.get("method", "wls"), f"{where}.method", _METHODS)
     physical = _bool(t.get("physical_consistency", False), f"{where}.physical_consistency")
     given = [k for k in _PHYSICAL_KEYS if k in t]
@@ -456,7 +479,13 @@ def _parse_identification(t: Any) -> IdentificationConfig:
         crange = (_num(v[0], f"{where}.cutoff_range_hz"), _num(v[1], f"{where}.cutoff_range_hz"))
         if not 0 < crange[0] < crange[1]:
             raise ConfigError(f"{where}.cutoff_range_hz must satisfy 0 < low < high, got {list(crange)}")
+    chains = _chain_groups(t["identical_chains"], f"{where}.identical_chains") if "identical_chains" in t else None
+    structure = _str(t.get("structure", "identical_chains" if chains else "full"), f"{where}.structure", _STRUCTURES)
+    if chains and structure == "full":
+        raise ConfigError(f"{where}.identical_chains needs {where}.structure = 'identical_chains' or 'paper', not 'full'")
     return IdentificationConfig(
+        structure=structure,
+        identical_chains=chains,
         noise_covariance=ncov,
         position_covariance=pcov,
         cutoff_range_hz=crange,

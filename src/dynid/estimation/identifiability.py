@@ -196,7 +196,7 @@ def is_feasible(
     s_body = cp.Variable(n_b, nonneg=True) if n_b else None
     s_nn = cp.Variable(nn.size, nonneg=True) if nn.size else None
     scale = max(float(np.max(np.abs(beta))), 1.0) if beta.size else 1.0
-    constraints = [smap.B @ pi == beta]
+    constraints = [smap.B @ pi == beta] + ([pi[smap.zero] == 0] if smap.zero.size else [])
     objective = 0
     for k, blk in enumerate(smap.body_blocks):
         constraints.append(_pseudo_inertia_expr(cp, pi[blk]) + s_body[k] * np.eye(4) >> 0)

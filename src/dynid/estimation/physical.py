@@ -328,6 +328,8 @@ class PhysicalLS:
             if b.com_ellipsoid is not None:
                 c0, a = np.array(b.com_ellipsoid[0]), np.array(b.com_ellipsoid[1])
                 cons.append(cp.norm(cp.multiply(1.0 / a, h - m * c0)) + tau <= m)
+        if smap.zero.size:  # the structural simplification's zeros (dynid.model.reduction): equalities, not bounds
+            cons.append(pi[smap.zero] == 0)
         if self.constraints.sign:
             if smap.nonnegative.size:
                 cons.append(pi[smap.nonnegative] >= tau)

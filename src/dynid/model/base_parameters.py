@@ -291,6 +291,10 @@ class StandardMap:
         Indices of parameters that are non-positive physically: the Coulomb coefficient of
         the negative direction of an asymmetric friction model (Shang 2009, Eq. 2, where
         the force for :math:`\\dot q < 0` is :math:`f_c^- + f_v^-\\dot q` with :math:`f_c^- \\le 0`).
+    zero : int array
+        Indices of parameters fixed at zero by a structural simplification (the symmetric
+        bodies of :mod:`dynid.model.reduction`, structure ``"paper"``): physically consistent
+        fits keep them at zero.
     """
 
     standard_names: tuple[str, ...]
@@ -299,6 +303,7 @@ class StandardMap:
     nonnegative: IntArray
     reference: FloatArray | None = None
     nonpositive: IntArray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=int))
+    zero: IntArray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=int))
 
     @property
     def body_names(self) -> tuple[str, ...]:

@@ -40,6 +40,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.base_parameters import BaseParameters, _base_from_stack
 from dynid.model.mechanism import JointCoordinates, KinematicState, Mechanism
+from dynid.model.reduction import ParameterReduction
 
 __all__ = [
     "DISTRIBUTIONS",
@@ -407,8 +408,12 @@ def mechanism_base_parameters(
     seed: int = 0,
     spread: float = 0.3,
     rank_tol: float = 1e-8,
+    reduction: ParameterReduction | None = None,
 ) -> BaseParameters:
     """Base parameters of a closed-loop mechanism, on constraint-consistent random samples.
+
+    With a ``reduction`` (:mod:`dynid.model.reduction`), those of the reduced regressor
+    :math:`Y T` in the parameters :math:`\\psi` (:math:`\\pi = T\\psi`).
 
     The projected equations :math:`G^T[Y\\;F]` are used for redundant actuation unless
     another distribution is asked for (the minimum-norm rows span the same column space
@@ -423,4 +428,7 @@ def mechanism_base_parameters(
     if mech.redundant and dist is None:
         dist = "projected"
     W = actuator_regressor(mech, state, distribution=dist).W
+    if reduction is not None:
+        W, p = W @ reduction.T, reduction.n_params
+        return _base_from_stack(W.reshape(-1, p), reduction.names, rank_tol, n_samples, seed)
     return _base_from_stack(W.reshape(-1, p), mech.parameter_names, rank_tol, n_samples, seed)

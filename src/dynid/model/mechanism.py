@@ -111,6 +111,12 @@ class Mechanism:
         (one step checks it) instead of walking from the previous sample.
     position_guess : callable, optional
         Set by :meth:`in_task_space`: initial guesses of :meth:`solve_positions` from ``u``.
+    identical_chains : groups of chains of joint names, optional
+        Kinematic chains that are identical by the robot's symmetry (a built-in's own knowledge),
+        the default chains of the structural reduction (:mod:`dynid.model.reduction`).
+    symmetric_zero : sequence of str
+        Standard parameters that the papers' symmetric-body simplification fixes at zero
+        (structure ``"paper"``, :mod:`dynid.model.reduction`).
     """
 
     pin_model: pin.Model
@@ -127,6 +133,8 @@ class Mechanism:
     task_coordinates: tuple[str, ...] = ()
     task_ik: object = None
     position_guess: object = None
+    identical_chains: tuple = ()
+    symmetric_zero: tuple[str, ...] = ()
 
     # derived
     bodies: tuple[int, ...] = dataclasses.field(init=False)
@@ -209,6 +217,9 @@ class Mechanism:
         set_(self, "bodies", bodies)
         pnames = [f"{p}_{m.names[j]}" for j in bodies for p in BODY_PARAMS] + tnames
         set_(self, "parameter_names", tuple(pnames))
+        set_(self, "symmetric_zero", tuple(self.symmetric_zero))
+        if set(self.symmetric_zero) - set(pnames):
+            raise ModelError(f"symmetric_zero names unknown parameters {sorted(set(self.symmetric_zero) - set(pnames))[:3]}")
         indep = self.independent if self.independent is not None else JointCoordinates(self.actuated)
         if isinstance(indep, JointCoordinates):
             badj = [j for j in indep.joints if not 0 <= j < nv]

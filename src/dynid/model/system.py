@@ -26,7 +26,11 @@ joint terms ``<extra>_<joint>`` on the actuated joints of a mechanism
 
 What stays specific is physical: a redundantly actuated mechanism needs a force model
 (:data:`~dynid.model.closed_loop.DISTRIBUTIONS`), a serial arm has none; only a mechanism that
-reaches its platform through a chain of joints has a platform pose (``task_coordinates``).
+reaches its platform through a chain of joints has a platform pose (``task_coordinates``); only a
+mechanism has identical kinematic chains whose bodies may share parameters
+(:meth:`System.with_structure`, :mod:`dynid.model.reduction`): its "standard" parameters are then
+:math:`\\psi` with :math:`\\pi = T\\psi`, and every stage that works on the standard parameters
+(base parameters, rows, nominal values, physical consistency) sees :math:`\\psi` unchanged.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from dynid.model.closed_loop import DISTRIBUTIONS, actuator_regressor, mechanism
 from dynid.model.closures import JointCoordinates, JointTerm
 from dynid.model.loop_kinematics import actuator_states, platform_pose, pose_states
 from dynid.model.mechanism import Mechanism
+from dynid.model.reduction import ParameterReduction, reduce_mechanism
 from dynid.model.serial_dynamics import regressor
 from dynid.model.robot import RobotModel, _normalize_extras, joint_kinds
 from dynid.model.transmission import Transmission
@@ -81,6 +86,7 @@ class System(Protocol):
     parameter_names: tuple[str, ...]
     task_coordinates: tuple[str, ...]
     max_chunk: int | None  # largest chunk of samples the rows take at once (None: any)
+    structure: str  # "full", or the structural reduction of the parameters (dynid.model.reduction)
 
     def actuator_kinds(self) -> tuple[str, ...]: ...
     def nominal_parameters(self) -> FloatArray: ...
@@ -96,6 +102,9 @@ class System(Protocol):
     def passive_friction_joints(self) -> tuple[int, ...]: ...
     def still_parameters(self, actuators: Sequence[int]) -> list[str]: ...
     def describe(self) -> dict[str, Any]: ...
+    def with_structure(self, structure: str, chains: Any = None) -> System: ...
+    def reduce_parameters(self, pi: FloatArray) -> FloatArray: ...
+    def expand_parameters(self, params: FloatArray) -> FloatArray: ...
 
 
 def _velocity_unit(kind: str) -> str:
@@ -142,6 +151,7 @@ class SerialSystem:
         return self.model.dof
 
     redundant = False
+    structure = "full"  # a serial arm has one chain: nothing to tie
     task_coordinates: tuple[str, ...] = ()
     max_chunk = None  # the regressor of a long chunk costs no more per sample (no limit)
 
@@ -207,6 +217,21 @@ class SerialSystem:
         return {"name": r.name, "kind": "serial", "dof": r.dof, "extras": list(r.extras),
                 "transmission": r.transmission.describe() if r.transmission else None}
 
+    def with_structure(self, structure: str, chains: Any = None) -> SerialSystem:
+        """Only ``"full"``: a serial arm has one chain, nothing to tie."""
+        if structure != "full" or chains:
+            raise ConfigError(f"identification.structure / identical_chains: {self.name!r} is a serial robot; identical "
+                              "chains are those of a closed-loop mechanism")
+        return self
+
+    def reduce_parameters(self, pi: FloatArray) -> FloatArray:
+        """The system's parameters of the model's standard vector ``pi`` (the same here)."""
+        return np.asarray(pi, dtype=float)
+
+    def expand_parameters(self, params: FloatArray) -> FloatArray:
+        """The model's standard vector of the system's parameters (the same here)."""
+        return np.asarray(params, dtype=float)
+
 
 # ----------------------------------------------------------------------------------- closed loop
 class _MechanismRows:
@@ -214,8 +239,8 @@ class _MechanismRows:
     previous chunk's solution at the same or the nearest earlier sample), then the actuator-space
     regressor."""
 
-    def __init__(self, mech: Mechanism, force_model: str | None) -> None:
-        self.mech, self.force_model = mech, force_model
+    def __init__(self, mech: Mechanism, force_model: str | None, T: FloatArray | None = None) -> None:
+        self.mech, self.force_model, self.T = mech, force_model, T
         self.data = mech.pin_model.createData()
         self.last: tuple[int, FloatArray] | None = None  # (start sample, joint positions) of the previous chunk
 
@@ -230,16 +255,19 @@ class _MechanismRows:
         state, resid = actuator_states(self.mech, q, dq, ddq, q0=self._guess(start), sample_offset=start)
         self.last = (start, state.q)
         reg = actuator_regressor(self.mech, state, distribution=self.force_model, data=self.data)
-        return Rows(W=reg.W, y=reg.outputs(tau), inconsistency=resid, joint_dq=state.dq)
+        W = reg.W if self.T is None else reg.W @ self.T
+        return Rows(W=W, y=reg.outputs(tau), inconsistency=resid, joint_dq=state.dq)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class ClosedLoopSystem:
     """A closed-loop :class:`~dynid.model.mechanism.Mechanism` as a :class:`System`, with the
-    drive train of its actuators."""
+    drive train of its actuators and, optionally, a structural reduction of its parameters
+    (:meth:`with_structure`: identical chains share parameters; ``model`` stays the full mechanism)."""
 
     model: Mechanism
     transmission: Transmission | None = None
+    reduction: ParameterReduction | None = None
     kind: str = dataclasses.field(default="closed-loop", init=False)
     max_chunk = 2000  # samples solved through the loops at once (batched kinematics hold (n, n_v, n_v) arrays)
 
@@ -274,16 +302,33 @@ class ClosedLoopSystem:
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
-        return self.model.parameter_names
+        return self.model.parameter_names if self.reduction is None else self.reduction.names
+
+    @property
+    def structure(self) -> str:
+        return "full" if self.reduction is None else self.reduction.structure
 
     def actuator_kinds(self) -> tuple[str, ...]:
         return joint_kinds(self.model.pin_model, self.model.actuated)
 
     def nominal_parameters(self) -> FloatArray:
-        return self.model.nominal_parameters()
+        return self.reduce_parameters(self.model.nominal_parameters())
 
     def body_blocks(self) -> tuple[np.ndarray, ...]:
-        return self.model.body_blocks()
+        return self.model.body_blocks() if self.reduction is None else self.reduction.body_blocks
+
+    def with_structure(self, structure: str, chains: Any = None) -> ClosedLoopSystem:
+        """The same system whose parameters follow ``structure`` (``"full"``, ``"identical_chains"``,
+        ``"paper"``; :func:`dynid.model.reduction.reduce_mechanism`), the chains given or the mechanism's own."""
+        return dataclasses.replace(self, reduction=reduce_mechanism(self.model, structure, chains))
+
+    def reduce_parameters(self, pi: FloatArray) -> FloatArray:
+        """The system's parameters :math:`\\psi = T^+\\pi` of the mechanism's standard vector ``pi``."""
+        return np.asarray(pi, dtype=float) if self.reduction is None else self.reduction.reduce(pi)
+
+    def expand_parameters(self, params: FloatArray) -> FloatArray:
+        """The mechanism's standard vector :math:`T\\psi` of the system's parameters."""
+        return np.asarray(params, dtype=float) if self.reduction is None else self.reduction.expand(params)
 
     def force_model(self, requested: str | None) -> str | None:
         m = self.model
@@ -313,16 +358,18 @@ class ClosedLoopSystem:
     def base_parameters(self, force_model: str | None = None, *, n_samples: int | None = None,
                         seed: int = 0, rank_tol: float = 1e-8) -> BaseParameters:
         return mechanism_base_parameters(self.model, distribution=force_model if self.redundant else None,
-                                         n_samples=n_samples, seed=seed, rank_tol=rank_tol)
+                                         n_samples=n_samples, seed=seed, rank_tol=rank_tol, reduction=self.reduction)
 
     def standard_map(self, base: BaseParameters) -> StandardMap:
-        m = self.model
-        return StandardMap(standard_names=m.parameter_names, B=base.B, body_blocks=m.body_blocks(),
-                           nonnegative=m.nonnegative_parameters(), reference=m.nominal_parameters(),
-                           nonpositive=m.nonpositive_parameters())
+        m, red = self.model, self.reduction
+        shift = 0 if red is None else red.n_body_params - m.n_body_params  # joint terms close the vector in both
+        return StandardMap(standard_names=self.parameter_names, B=base.B, body_blocks=self.body_blocks(),
+                           nonnegative=m.nonnegative_parameters() + shift, reference=self.nominal_parameters(),
+                           nonpositive=m.nonpositive_parameters() + shift,
+                           zero=np.zeros(0, dtype=int) if red is None else red.zero)
 
     def rows(self, force_model: str | None) -> _MechanismRows:
-        return _MechanismRows(self.model, force_model)
+        return _MechanismRows(self.model, force_model, None if self.reduction is None else self.reduction.T)
 
     def passive_friction_joints(self) -> tuple[int, ...]:
         """Velocity indices of the passive joints that carry a Coulomb term (``coulomb``,
@@ -358,7 +405,8 @@ class ClosedLoopSystem:
         state, *_ = pose_states(self.model, qa, fs, cutoff_hz, pose=pose)
         reg = actuator_regressor(self.model.in_task_space(), state, distribution=force_model if self.redundant else None)
         act = list(self.model.actuated)
-        rows = Rows(W=reg.W, y=reg.outputs(tau), inconsistency=np.zeros(state.q.shape[0]), joint_dq=state.dq)
+        W = reg.W if self.reduction is None else reg.W @ self.reduction.T
+        rows = Rows(W=W, y=reg.outputs(tau), inconsistency=np.zeros(state.q.shape[0]), joint_dq=state.dq)
         return (rows, state.dq[:, act], state.q[:, act]) if positions else (rows, state.dq[:, act])
 
     def still_parameters(self, actuators: Sequence[int]) -> list[str]:
@@ -369,7 +417,8 @@ class ClosedLoopSystem:
     def describe(self) -> dict[str, Any]:
         m = self.model
         return {"name": m.name, "kind": "closed-loop", "dof": m.dof, "actuators": list(self.actuator_names),
-                "transmission": self.transmission.describe() if self.transmission else None}
+                "transmission": self.transmission.describe() if self.transmission else None,
+                **({} if self.reduction is None else {"parameter_structure": self.reduction.describe()})}
 
 
 def with_actuator_extras(mech: Mechanism, extras: Sequence[str]) -> Mechanism:

@@ -87,6 +87,11 @@ def identified_parameters(model: str, base_dir: Path, robot, nominal: np.ndarray
     kw = {k: sampling[k] for k in ("seed", "n_samples", "rank_tol") if isinstance(sampling.get(k), (int, float))}
     rec_robot = prov.get("robot") if isinstance(prov.get("robot"), dict) else {}
     system = as_system(robot)
+    structure = rec_robot.get("parameter_structure")
+    if isinstance(structure, dict) and isinstance(structure.get("structure"), str):  # identification.structure
+        chains = structure.get("identical_chains") or None
+        system = system.with_structure(structure["structure"],
+                                       tuple(tuple(tuple(c) for c in g) for g in chains) if chains else None)
     recorded = rec_robot.get("force_model")
     force_model = (recorded if recorded in DISTRIBUTIONS else "projected") if system.redundant else None
     base = system.base_parameters(force_model, n_samples=kw.get("n_samples"), seed=kw.get("seed", 0),
@@ -109,4 +114,7 @@ def identified_parameters(model: str, base_dir: Path, robot, nominal: np.ndarray
         "n_base": base.n_base,
         "standard_parameters": "closest to the nominal ones with the identified base parameters",
     }
-    return base.to_standard(beta, reference=nominal), record
+    if system.structure != "full":
+        record["structure"] = system.structure
+    psi = base.to_standard(beta, reference=system.reduce_parameters(nominal))
+    return system.expand_parameters(psi), record

@@ -241,6 +241,7 @@ class IdentifyOutcome:
     elapsed_s: float = float("nan")  # wall-clock time of the identification (timing.json)
     nominal_validation: ValidationMetrics | None = None  # the nominal (CAD) model on the same held-out rows
     prior: dict[str, Any] | None = None  # prior_comparison of the two
+    system: Any = None  # the System identified (its parameters: the model's, or reduced by identification.structure)
 
     def summary_text(self) -> str:
         v = self.validation
@@ -378,7 +379,7 @@ def _stribeck_fit(cfg: Config, system: System, base: BaseParameters, train: Data
 
 
 def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
-    system = build_system(cfg.robot)
+    system = build_system(cfg.robot).with_structure(cfg.identification.structure, cfg.identification.identical_chains)
     force_model = _check_config(cfg, system)
     icfg, pcfg = cfg.identification, cfg.processing
     names, kinds = system.actuator_names, system.actuator_kinds()
@@ -462,7 +463,7 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
-                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable))
+                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system)
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
@@ -498,11 +499,13 @@ def export_model(outcome: IdentifyOutcome, folder: Path) -> Path | None:
     from dynid.io.export import write_model
 
     robot = outcome.robot
-    names = robot.parameter_names
+    system = outcome.system if outcome.system is not None else as_system(robot)
+    names = system.parameter_names
     missing = [n for n in names if n not in std]
     if missing:
         raise InputError(f"the result's standard parameters do not match the robot (missing {missing[:3]})")
-    params = np.array([std[n] for n in names], dtype=float)
+    # a reduced structure (identification.structure): every tied body gets its group's values
+    params = system.expand_parameters(np.array([std[n] for n in names], dtype=float))
     return write_model(robot, params, folder, name=f"{robot.name}_identified")
 
 
@@ -513,7 +516,7 @@ def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]
     comes from the tie-break, and a constrained fit on weak data can push it far (e.g. legs of
     hundreds of tonnes that give the same actuator forces)."""
     std = outcome.result.solver.get("standard_params")
-    robot = outcome.robot
+    robot = outcome.system if outcome.system is not None else as_system(outcome.robot)
     if not std:
         return []
     nominal = robot.nominal_parameters()

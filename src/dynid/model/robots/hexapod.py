@@ -36,8 +36,8 @@ actuator ``fc_P{j}`` [N], viscous ``fv_P{j}`` [N·s/m], one Coulomb coefficient 
 six α joints ``fc_alpha`` and one by the six β joints ``fc_beta`` [N·m]; nominal values are
 the Gauss–Markov estimates of paper 002, Table 2.
 
-Base parameters: why 88 and not 10
-----------------------------------
+Base parameters: 88 by default, the papers' 10 with their assumptions
+---------------------------------------------------------------------
 :func:`dynid.model.closed_loop.mechanism_base_parameters` finds 88 rigid-body base
 parameters (+ the 14 friction terms = 102): 13 per strut (ring: inertia about α grouped
 with the axial stator and slider inertias, and the two first moments across α that gravity
@@ -52,6 +52,15 @@ two modelling assumptions, both checked numerically on the regressor of this mod
   platform's z axis, ring centred on the cardan: keeping only the 15 standard parameters
   of Table 1 (ring Ixx; stator and slider Ixx, Iyy, Izz, mz; slider m; platform m, mz,
   Ixx, Iyy, Izz) leaves exactly 10.
+
+Both are available as structural reductions (:mod:`dynid.model.reduction`, ``[identification]
+structure``): the module declares the six struts as identical chains (:data:`IDENTICAL_CHAINS`)
+and the symmetric bodies' zeros (:data:`SYMMETRIC_ZERO`: products of inertia, first moments across
+the strut, the ring centred on the cardan, the platform's first moments across z). With
+``structure = "paper"`` the base parameters are exactly Table 1's p1..p10 (:data:`TABLE1_NAMES`;
+the platform, which belongs to no strut, comes first in the reduced vector, so the natural-order
+regrouping lumps the slider masses into it as the paper does) and their nominal values are
+:data:`A_PRIORI`; with the 14 friction terms, paper 004's 24 rows of Table II.
 """
 
 from __future__ import annotations
@@ -63,7 +72,8 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.mechanism import JointCoordinates, JointTerm, LoopClosure, Mechanism
 
-__all__ = ["A_PRIORI", "FRICTION", "HOME", "build", "chain_from_transform", "inverse_kinematics", "table1_parameters"]
+__all__ = ["A_PRIORI", "FRICTION", "HOME", "IDENTICAL_CHAINS", "SYMMETRIC_ZERO", "TABLE1_NAMES", "build",
+           "chain_from_transform", "inverse_kinematics", "table1_parameters"]
 
 R_BASE, R_PLATFORM = 0.40, 0.09
 """Joint-circle radii of base and platform [m] (our choice)."""
@@ -92,6 +102,20 @@ FRICTION = {
 _M_RING, _M_STATOR, _M_SLIDER = 1.1, 4.0, 2.0
 _J_AXIAL = (0.0015, 0.0004)  # stator, slider axial inertia [kg m^2]; p3 - p2 = their sum
 _T_STATOR = 0.0533  # stator transverse inertia at its centre of mass [kg m^2]
+
+
+IDENTICAL_CHAINS = (tuple((f"a{j}", f"b{j}", f"P{j}") for j in range(1, 7)),)
+"""The six struts (paper 002, Section 5.1: "6 identical ... cardan rings ... stators ... sliders")."""
+SYMMETRIC_ZERO = tuple(
+    [f"{p}_a{j}" for j in range(1, 7) for p in ("mx", "my", "mz", "Ixy", "Ixz", "Iyz")]
+    + [f"{p}_{b}{j}" for b in ("b", "P") for j in range(1, 7) for p in ("mx", "my", "Ixy", "Ixz", "Iyz")]
+    + [f"{p}_RX" for p in ("mx", "my", "Ixy", "Ixz", "Iyz")]
+)
+"""Parameters zero by the bodies' symmetry (structure ``"paper"``): products of inertia of every body,
+first moments across the strut (ring: all three, centred on the cardan) and across the platform's z axis."""
+TABLE1_NAMES = ("Ixx_a1..6", "Ixx_b1..6", "Iyy_b1..6", "mz_b1..6", "mz_P1..6", "Ixx_RX", "Iyy_RX", "Izz_RX", "mz_RX", "m_RX")
+"""The base parameters p1..p10 of paper 002, Table 1 under ``identification.structure = "paper"``: the
+independent parameter each groups (``Ixx_a1..6 + Izz_b1..6 + Izz_P1..6`` = p1, ``m_RX + 6 m_P1..6`` = p10, ...)."""
 
 
 def _rz(g: float) -> FloatArray:
@@ -185,11 +209,14 @@ def build(extras: object = None) -> Mechanism:
         source="builtin:hexapod",
         task_coordinates=PLATFORM_JOINTS,
         task_ik=inverse_kinematics,
+        identical_chains=IDENTICAL_CHAINS,
+        symmetric_zero=SYMMETRIC_ZERO,
         notes=(
             "6-UPS hexapod modelled like PaLiDA (papers 002/004): 19 bodies, cardan ring + stator + slider per strut",
             "dimensions are our choice; body values reproduce the a priori p1..p10 of paper 002, Table 2",
             "14 friction terms: Coulomb + viscous per actuator, one Coulomb shared by all α and one by all β joints",
-            "each strut has its own parameters: more rigid-body base parameters than the papers' 10 (identical struts)",
+            "by default each strut has its own parameters (88 rigid-body base parameters); identification.structure = "
+            "'paper' ties the six struts and fixes the symmetric bodies' zeros: the papers' 10 (Table 1)",
         ),
     )
 

@@ -179,6 +179,7 @@ def build(extras: Sequence[str] | None = None) -> Mechanism:
         source="builtin:rps3",
         task_coordinates=INDEPENDENT_POSE,
         task_ik=inverse_kinematics,
+        identical_chains=(tuple((f"R{i}", f"P{i}") for i in range(1, 4)),),  # the three legs (same bodies in own frames)
         notes=(
             "3-RPS after paper 000 (Mata, Farhat et al.); dimensions and body values are our choices (the chapter gives none)",
             "platform pose: chain PX, PY, PZ, RZ, RY, RX with massless intermediate bodies; (z, θ, φ) independent",
