@@ -234,3 +234,22 @@ def test_identify_refuses_block_covariance_where_it_does_not_apply(cobot_logs):
         parse_config(_doc(d, joints, method="tls", covariance="hac"), d)
     with pytest.raises(ConfigError, match=r"covariance_blocks = 100000: the training data have \d+ processed"):
         identify(parse_config(_doc(d, joints, covariance="block_bootstrap", covariance_blocks=100000), d))
+
+
+def test_montecarlo_passes_the_covariance_setting_through():
+    import tomllib
+    from pathlib import Path
+
+    from dynid.config.montecarlo import parse_montecarlo_config
+    from dynid.pipeline import montecarlo as mc
+    from tests.test_montecarlo import SMALL
+
+    doc = tomllib.loads(SMALL)
+    doc["montecarlo"]["trials"] = 2
+    plain = mc.run_montecarlo(parse_montecarlo_config(doc, Path(".")))
+    doc["identify"]["identification"].update(covariance="hac", covariance_blocks=60)
+    hac = mc.run_montecarlo(parse_montecarlo_config(doc, Path(".")))
+    assert plain.settings["covariance"] == "model" and hac.settings["covariance"] == "hac"
+    assert "WLS, hac covariance" in hac.summary_text()
+    np.testing.assert_array_equal(hac.estimates, plain.estimates)  # the same trials, only the intervals differ
+    assert np.all(np.isfinite(hac.std)) and not np.allclose(hac.std, plain.std, rtol=1e-3)

@@ -262,20 +262,11 @@ def block_covariance(blocks: BlockSums, weights: FloatArray, *, kind: str = "hac
         g = np.empty((B, p))
         for b, f in enumerate(F):
             R, u = f[:, :p], f[:, p] - f[:, :p] @ beta
-            g[b] = R.T @ (_inv_sqrt_complement(R @ Ainv @ R.T) @ u)
-        M = g.T @ g
-        idx = blocks.index
-        pos = {int(i): k for k, i in enumerate(idx)}
-        for lag in range(1, lags + 1):
-            w = 1.0 - lag / (lags + 1.0)
-            pairs = [(k, pos[int(i) + lag]) for k, i in enumerate(idx) if int(i) + lag in pos]
-            if pairs:
-                a, c = np.array(pairs).T
-                G = g[a].T @ g[c]
-                M += w * (G + G.T)
-        cov = Ainv @ M @ Ainv
+            T = R @ Rinv  # H_b = R A^-1 R^T = T T^T
+            g[b] = R.T @ (_inv_sqrt_complement(T @ T.T) @ u)
+        cov = _bartlett_sandwich(g, blocks.index, blocks.n_blocks, lags, Rinv)
         info.update(lags=int(lags), kernel="Bartlett (Newey-West) over neighbouring blocks",
-                    leverage="CR2 (Bell-McCaffrey)", adjacent_score_correlation=_adjacent_correlation(g, idx, Ainv))
+                    leverage="CR2 (Bell-McCaffrey)", adjacent_score_correlation=_adjacent_correlation(g, blocks.index, Ainv))
     else:
         rng = np.random.default_rng(seed)
         est = np.empty((replicates, p))
@@ -294,6 +285,20 @@ def block_covariance(blocks: BlockSums, weights: FloatArray, *, kind: str = "hac
         info.update(replicates=int(replicates), seed=int(seed), scheme="non-overlapping blocks drawn with replacement")
     cov = 0.5 * (cov + cov.T)
     return beta, cov, info
+
+
+def _bartlett_sandwich(g: FloatArray, index: np.ndarray, n_blocks: int, lags: int, Rinv: FloatArray) -> FloatArray:
+    """:math:`A^{-1} M A^{-1}` as a Gram matrix, so that it is positive semi-definite in floating
+    point too: with :math:`S_t = \\sum_{s=t}^{t+L} \\tilde g_s` (empty blocks count as zero),
+    :math:`M = \\frac{1}{L+1}\\sum_t S_t S_t^T` is exactly the Bartlett-weighted sum of the module
+    docstring (Newey & West 1987, proof of Theorem 1), and the covariance is :math:`U^T U` with the
+    rows :math:`A^{-1} S_t / \\sqrt{L+1}`."""
+    full = np.zeros((n_blocks + 2 * lags, g.shape[1]))
+    full[lags + index] = g
+    c = np.cumsum(np.vstack([np.zeros((1, g.shape[1])), full]), axis=0)
+    S = c[lags + 1:] - c[: -(lags + 1)]  # window sums of L + 1 neighbouring blocks, every window that meets a block
+    U = (S @ Rinv) @ Rinv.T / np.sqrt(lags + 1.0)  # rows A^-1 S_t (A^-1 = Rinv Rinv^T)
+    return U.T @ U
 
 
 def _adjacent_correlation(g: FloatArray, idx: np.ndarray, Ainv: FloatArray) -> float | None:
