@@ -108,6 +108,22 @@ edit("identify", "inf", 'model = "rp2.toml"', 'model = "rp2.toml"\nposition_offs
      "robot.position_offset[0]: expected a finite number, got inf")
 edit("identify", "min-joint-motion-negative", "min_joint_motion = 0.001", "min_joint_motion = -1",
      "identification.min_joint_motion: must be >= 0, got -1")
+edit("identify", "covariance-unknown", 'method = "ols"', 'method = "ols"\ncovariance = "sandwich"',
+     "identification.covariance: must be one of ['model', 'hac', 'block_bootstrap'], got 'sandwich'")
+edit("identify", "covariance-blocks-one", 'method = "ols"', 'method = "ols"\ncovariance = "hac"\ncovariance_blocks = 1',
+     "identification.covariance_blocks: must be >= 2, got 1")
+edit("identify", "covariance-blocks-too-many", 'method = "ols"', 'method = "ols"\ncovariance = "hac"\ncovariance_blocks = 5000',
+     "identification.covariance_blocks = 5000: the training data have")
+edit("identify", "covariance-lags-negative", 'method = "ols"', 'method = "ols"\ncovariance = "hac"\ncovariance_lags = -1',
+     "identification.covariance_lags: must be >= 0, got -1")
+edit("identify", "covariance-lags-for-model", 'method = "ols"', 'method = "ols"\ncovariance_lags = 2',
+     "identification.covariance_lags is for covariance = 'hac', not 'model'")
+edit("identify", "bootstrap-replicates-one", 'method = "ols"', 'method = "ols"\ncovariance = "block_bootstrap"\nbootstrap_replicates = 1',
+     "identification.bootstrap_replicates: must be >= 2, got 1")
+edit("identify", "bootstrap-seed-for-hac", 'method = "ols"', 'method = "ols"\ncovariance = "hac"\nbootstrap_seed = 3',
+     "identification.bootstrap_seed is for covariance = 'block_bootstrap', not 'hac'")
+edit("identify", "covariance-gm", 'method = "ols"', 'method = "gm"\ncovariance = "hac"',
+     "identification.covariance = 'hac' is for the linear least-squares methods 'ols' and 'wls'", "not method = 'gm'")
 edit("identify", "decimate-zero", "[processing]\n", "[processing]\ndecimate = 0\n", "processing.decimate: must be >= 1")
 edit("identify", "min-velocity-negative", "[processing]\n", "[processing]\nmin_velocity = [0.1, -0.1]\n",
      "processing.min_velocity[1]: must be >= 0")
@@ -454,6 +470,8 @@ edit("montecarlo", "simulate-file-and-tables", 'file = "sim.toml"', 'file = "sim
 edit("montecarlo", "simulate-file-missing", 'file = "sim.toml"', 'file = "simulation.toml"', "simulate.file", "config file not found", "simulation.toml")
 edit("montecarlo", "identify-robot-unknown", "[identify.identification]", '[identify.robot]\nmodel = "builtin:nope"\n\n[identify.identification]',
      "identify.robot.model", "unknown built-in robot 'nope'")
+edit("montecarlo", "identify-covariance-lags", 'method = "ols"', 'method = "ols"\ncovariance = "hac"\ncovariance_lags = -2',
+     "identify: identification.covariance_lags: must be >= 0")
 edit("montecarlo", "identify-min-motion", 'method = "ols"', 'method = "ols"\nmin_joint_motion = -1',
      "identify: identification.min_joint_motion: must be >= 0")
 case("montecarlo", "cli-trials-zero", "argument --trials: expected an integer >= 1, got '0'")(

@@ -37,6 +37,7 @@ __all__ = [
     "PeriodicConfig",
     "ProcessingConfig",
     "IdentificationConfig",
+    "CovarianceConfig",
     "OutputConfig",
     "load_config",
     "parse_config",
@@ -162,6 +163,45 @@ class ProcessingConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class CovarianceConfig:
+    """``[identification] covariance`` and its keys: which covariance of the estimates is reported
+    (:mod:`dynid.estimation.block_covariance`). ``blocks`` None: the default number."""
+
+    kind: str = "model"
+    blocks: int | None = None
+    lags: int = 1
+    replicates: int = 500
+    seed: int = 0
+
+
+_COVARIANCE_KINDS = ("model", "hac", "block_bootstrap")  # dynid.estimation.block_covariance.COVARIANCE_KINDS
+_COVARIANCE_KEYS = ("covariance", "covariance_blocks", "covariance_lags", "bootstrap_replicates", "bootstrap_seed")
+
+
+def _parse_covariance(t: Mapping[str, Any], method: str, physical: bool, friction_model: str) -> CovarianceConfig:
+    """The covariance keys of ``[identification]``; each only where it applies."""
+    where = "identification"
+    kind = _str(t.get("covariance", "model"), f"{where}.covariance", _COVARIANCE_KINDS)
+    for key, kinds in (("covariance_blocks", ("hac", "block_bootstrap")), ("covariance_lags", ("hac",)),
+                       ("bootstrap_replicates", ("block_bootstrap",)), ("bootstrap_seed", ("block_bootstrap",))):
+        if key in t and kind not in kinds:
+            raise ConfigError(f"{where}.{key} is for covariance = {' or '.join(repr(k) for k in kinds)}, not {kind!r}")
+    if kind != "model":
+        if method not in ("ols", "wls") or physical or friction_model != "linear":
+            what = ("physical_consistency = true" if physical else "friction_model = 'stribeck'" if friction_model != "linear"
+                    else f"method = {method!r}")
+            raise ConfigError(f"{where}.covariance = {kind!r} is for the linear least-squares methods 'ols' and 'wls' "
+                              f"(an estimate that is a sum over blocks), not {what}")
+    return CovarianceConfig(
+        kind=kind,
+        blocks=_int(t["covariance_blocks"], f"{where}.covariance_blocks", 2) if "covariance_blocks" in t else None,
+        lags=_int(t.get("covariance_lags", 1), f"{where}.covariance_lags", 0),
+        replicates=_int(t.get("bootstrap_replicates", 500), f"{where}.bootstrap_replicates", 2),
+        seed=_int(t.get("bootstrap_seed", 0), f"{where}.bootstrap_seed", 0),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
 class IdentificationConfig:
     method: str = "wls"
     physical_consistency: bool = False
@@ -186,6 +226,7 @@ class IdentificationConfig:
     # structural reduction (dynid.model.reduction): "full", "identical_chains" or "paper"
     structure: str = "full"
     identical_chains: tuple[tuple[tuple[str, ...], ...], ...] | None = None  # None: the mechanism's own chains
+    covariance: CovarianceConfig = CovarianceConfig()  # the covariance the intervals use (issue 17)
 
 
 _PHYSICAL_KEYS = ("margin", "regularization", "regularization_weight", "solver", "bodies", "friction_model", "max_samples")
@@ -433,7 +474,8 @@ def _parse_identification(t: Any) -> IdentificationConfig:
     where = "identification"
     t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
                           "force_model", "noise_covariance", "iterations", "nominal_weighting",
-                          "position_covariance", "cutoff_range_hz", "structure", "identical_chains", *_PHYSICAL_KEYS})
+                          "position_covariance", "cutoff_range_hz", "structure", "identical_chains", *_PHYSICAL_KEYS,
+                          *_COVARIANCE_KEYS})
     method = _str(t.get("method", "wls"), f"{where}.method", _METHODS)
     physical = _bool(t.get("physical_consistency", False), f"{where}.physical_consistency")
     given = [k for k in _PHYSICAL_KEYS if k in t]
@@ -499,6 +541,7 @@ def _parse_identification(t: Any) -> IdentificationConfig:
         solver=_str(t.get("solver", "CLARABEL"), f"{where}.solver"),
         bodies=_parse_bodies(t["bodies"], f"{where}.bodies") if "bodies" in t else {},
         friction_model=friction_model,
+        covariance=_parse_covariance(t, method, physical, friction_model),
         max_samples=_int(t.get("max_samples", 4000), f"{where}.max_samples", 100),
         chunk_size=_int(t.get("chunk_size", 20000), f"{where}.chunk_size", 1),
         base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),

@@ -195,6 +195,16 @@ class IdentificationResult:
         return np.column_stack([self.params - half, self.params + half])
 
     @property
+    def covariance_kind(self) -> str | None:
+        """Which covariance the standard errors and intervals use: ``"model"`` (the estimator's own,
+        e.g. :math:`s^2 (W^T W)^{-1}`), ``"hac"`` or ``"block_bootstrap"`` (block-robust,
+        :mod:`dynid.estimation.block_covariance`); None when the method gives none."""
+        if self.cov_params is None:
+            return None
+        c = self.solver.get("covariance")
+        return str(c.get("kind", "model")) if isinstance(c, Mapping) else "model"
+
+    @property
     def rmse_per_channel(self) -> FloatArray:
         """Training RMSE per output channel."""
         return np.sqrt(self.rss_per_channel / np.maximum(self.n_obs, 1))
@@ -280,7 +290,8 @@ class IdentificationResult:
             ("residual scale", f"{self.scale:.4g}"),
         )
         if self.cov_params is not None:
-            info += (("correlation cond. number", f"{self._corr_cond_text()}"),)
+            info += (("covariance", str(self.covariance_kind)),
+                     ("correlation cond. number", f"{self._corr_cond_text()}"))
         ch_rows = [("channel", "samples", "train RMSE", "noise std")]
         for c, n, r, s in zip(self.channel_names, self.n_obs, self.rmse_per_channel, self.noise_std):
             ch_rows.append((c, str(int(n)), f"{r:.4g}", f"{s:.4g}"))
@@ -362,6 +373,7 @@ class IdentificationResult:
                 )
             ],
             "has_covariance": self.cov_params is not None,
+            "covariance": self.covariance_kind,
             "solver": _jsonable(_without_timing(self.solver)),
             "provenance": _jsonable(self.provenance),
             "notes": list(self.notes),

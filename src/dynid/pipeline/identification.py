@@ -46,6 +46,7 @@ from dynid.io.output import staged_output
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System, as_system
 from dynid.pipeline import stribeck
+from dynid.pipeline.covariance import block_builder, with_covariance
 from dynid.pipeline.data import (
     build_system,
     check_held_out,
@@ -166,8 +167,10 @@ def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str 
 
 
 def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model, min_velocity, parallel_decimate,
-              chunk_size, progress, meta, cross, periodic, min_velocity_passive=None) -> tuple[RegressionProblem, float]:
-    """:func:`build_problem` and the largest inconsistency of redundant actuator positions."""
+              chunk_size, progress, meta, cross, periodic, min_velocity_passive=None,
+              blocks=None) -> tuple[RegressionProblem, float]:
+    """:func:`build_problem` and the largest inconsistency of redundant actuator positions; ``blocks``
+    (a :class:`~dynid.estimation.block_covariance.BlockBuilder`) also gets every chunk and its rows."""
     builder = ProblemBuilder(base.names, system.channel_names(force_model), cross=cross)
     worst = 0.0
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
@@ -178,6 +181,8 @@ def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model,
             builder.add(c.W[mask], c.y[mask])
         else:
             builder.add(c.W, c.y, mask)
+        if blocks is not None:
+            blocks.add(c.W, c.y, mask)
         worst = max(worst, float(c.inconsistency.max(initial=0.0)))
     problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta or {})
     return problem, worst
@@ -428,12 +433,14 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     elif icfg.friction_model == "stribeck":
         result, fj, worst = _stribeck_fit(cfg, system, base, train, force_model, periodic, progress, meta)
     else:
+        blocks = block_builder(icfg.covariance, base.names, channels, n_eff)
         problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
                                        parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
                                        meta=meta, cross=icfg.method == "gm", periodic=periodic,
-                                       min_velocity_passive=pcfg.min_velocity_passive)
+                                       min_velocity_passive=pcfg.min_velocity_passive, blocks=blocks)
         nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
         result = configured_estimator(icfg, steps, tuple(channels), tuple(names), nominal).fit(problem)
+        result = with_covariance(result, blocks, icfg.covariance)
     if pcfg.min_velocity is not None or pcfg.min_velocity_passive is not None:
         whole = icfg.method == "gm" or not system.channels_are_actuators(force_model)
         selection = {"rows_kept_per_joint": result.n_obs.tolist()}
@@ -561,14 +568,14 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     )
     with open(stage / "params.csv", "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["name", "value", "std", "rel_std_pct", "ci_low", "ci_high", "expression"])
+        w.writerow(["name", "value", "std", "rel_std_pct", "ci_low", "ci_high", "expression", "covariance"])
         if res.cov_params is not None:
             ci, bse, rel = res.conf_int(), res.bse, res.rel_std
             stats = [(repr(float(bse[i])), f"{rel[i]:.6g}", repr(float(ci[i, 0])), repr(float(ci[i, 1]))) for i in range(len(res.names))]
         else:  # the method gives no covariance (see the result's notes): leave the columns empty
             stats = [("", "", "", "")] * len(res.names)
         for i, n in enumerate(res.names):
-            w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i]])
+            w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i], res.covariance_kind or ""])
     warn = export_warnings(outcome)
     (stage / "summary.txt").write_text(outcome.summary_text() + "\n" + "".join(f"\n{w}\n" for w in warn))
     export_model(outcome, stage)

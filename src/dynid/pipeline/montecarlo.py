@@ -348,7 +348,8 @@ class MonteCarloResult:
         lines += [
             "",
             f"trials           : {n} ({int(self.ok.sum())} identified, {len(self.failures)} failed"
-            + (f", {int(self.ok.sum()) - n_cov} without covariance" if int(self.ok.sum()) != n_cov else "") + f"), {self.method}",
+            + (f", {int(self.ok.sum()) - n_cov} without covariance" if int(self.ok.sum()) != n_cov else "") + f"), {self.method}"
+            + f", {self.settings.get('covariance', 'model')} covariance",
             f"coverage         : {self.overall_coverage:.1f} % of the {level:g} % intervals contain the truth",
             f"ellipsoid        : {self.ellipsoid_share:.1f} % of the trials inside chi2({self.n_params}, {level:g} %) = "
             f"{self.radius:.2f}; mean chi2 {self.mean_chi2:.2f} (expected {self.n_params})",
@@ -466,6 +467,7 @@ def run_montecarlo(cfg: MonteCarloConfig, progress: Progress = _no_progress) -> 
         "resimulate": cfg.resimulate,
         "mode": MODE_TEXT[cfg.resimulate],
         "alpha": cfg.alpha,
+        "covariance": str(cfg.identify.get("identification", {}).get("covariance", "model")),  # the intervals' covariance
         "robot": cfg.simulate.robot.model,
         "identify": cfg.identify,
     }
