@@ -52,7 +52,7 @@ EFFORT_UNITS = {
     "torque": {"N*m": 1.0, "Nm": 1.0, "N.m": 1.0, "mN*m": 1e-3, "N": 1.0},
     "current": {"A": 1.0, "mA": 1e-3},
 }
-_METHODS = ("ols", "wls", "gm", "irls", "tls", "ml")
+_METHODS = ("ols", "wls", "gm", "irls", "tls", "ml", "iv", "didim")
 _FORCE_MODELS = ("projected", "min_norm", "min_norm_local_friction")
 _EXTRAS = ("Ia", "fv", "fc", "offset")
 _ALL_EXTRAS = _EXTRAS + ("fv+", "fv-", "fc+", "fc-")  # dynid.model.robot.ALL_EXTRAS (config sits above model)
@@ -227,6 +227,11 @@ class IdentificationConfig:
     structure: str = "full"
     identical_chains: tuple[tuple[tuple[str, ...], ...], ...] | None = None  # None: the mechanism's own chains
     covariance: CovarianceConfig = CovarianceConfig()  # the covariance the intervals use (issue 17)
+    # methods "iv" and "didim" (issue 17): the experiment replayed on the model under its controller
+    experiment: Path | None = None  # the dynid simulate config of the training experiment
+    start: str = "wls"  # "wls" (IDIM-WLS estimate) or "nominal" (the robot description's values)
+    max_iterations: int = 10
+    tolerance: float = 0.5  # stop when no parameter moves by more than this many standard deviations
 
 
 _PHYSICAL_KEYS = ("margin", "regularization", "regularization_weight", "solver", "bodies", "friction_model", "max_samples")
@@ -470,21 +475,32 @@ def _chain_groups(spec: Any, where: str) -> tuple[tuple[tuple[str, ...], ...], .
     return tuple(out)
 
 
-def _parse_identification(t: Any) -> IdentificationConfig:
+_LOOP_KEYS = ("experiment", "start", "max_iterations", "tolerance")
+
+
+def _parse_identification(t: Any, base: Path) -> IdentificationConfig:
     where = "identification"
     t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
                           "force_model", "noise_covariance", "iterations", "nominal_weighting",
                           "position_covariance", "cutoff_range_hz", "structure", "identical_chains", *_PHYSICAL_KEYS,
-                          *_COVARIANCE_KEYS})
+                          *_COVARIANCE_KEYS, *_LOOP_KEYS})
     method = _str(t.get("method", "wls"), f"{where}.method", _METHODS)
     physical = _bool(t.get("physical_consistency", False), f"{where}.physical_consistency")
     given = [k for k in _PHYSICAL_KEYS if k in t]
     if given and not physical:
         raise ConfigError(f"{where}.{given[0]} is for physically consistent identification: set "
                           f"{where}.physical_consistency = true")
-    if physical and method not in ("ols", "wls", "gm"):
-        raise ConfigError(f"{where}.physical_consistency = true is available with methods 'ols', 'wls' and 'gm', "
-                          f"not {method!r}")
+    if physical and method not in ("ols", "wls", "gm", "didim"):
+        raise ConfigError(f"{where}.physical_consistency = true is available with methods 'ols', 'wls', 'gm' and "
+                          f"'didim', not {method!r}")
+    loop = method in ("iv", "didim")
+    extra = [k for k in _LOOP_KEYS if k in t]
+    if extra and not loop:
+        raise ConfigError(f"{where}.{extra[0]} is for method = 'iv' or 'didim' (the experiment replayed on the model)")
+    if loop and "experiment" not in t:
+        raise ConfigError(f"{where}.method = {method!r} simulates the experiment with the current estimate under its "
+                          f"controller: set {where}.experiment to the dynid simulate config of the training experiment "
+                          "(controller, gains, reference, rates)")
     reg = _str(t.get("regularization", "none"), f"{where}.regularization", ("none", "euclidean", "logdet"))
     reg_w = _num(t.get("regularization_weight", 0.0), f"{where}.regularization_weight")
     if (reg == "none") != (reg_w == 0.0) or reg_w < 0:
@@ -528,6 +544,10 @@ def _parse_identification(t: Any) -> IdentificationConfig:
     return IdentificationConfig(
         structure=structure,
         identical_chains=chains,
+        experiment=_path(t["experiment"], f"{where}.experiment", base) if loop else None,
+        start=_str(t.get("start", "wls" if method == "iv" else "nominal"), f"{where}.start", ("wls", "nominal")),
+        max_iterations=_int(t.get("max_iterations", 10), f"{where}.max_iterations", 1),
+        tolerance=_num(t.get("tolerance", 0.5), f"{where}.tolerance", minimum=0.0),
         noise_covariance=ncov,
         position_covariance=pcov,
         cutoff_range_hz=crange,
@@ -596,7 +616,7 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
         data=data,
         validation=validation,
         processing=processing,
-        identification=_parse_identification(doc.get("identification", {})),
+        identification=_parse_identification(doc.get("identification", {}), base_dir),
         output=OutputConfig(plots=_bool(out_t.get("plots", True), "output.plots")),
         source=source,
         raw=doc,

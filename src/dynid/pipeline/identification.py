@@ -300,6 +300,9 @@ def _check_config(cfg: Config, system: System) -> str | None:
                           f"({'a serial arm has no passive joint' if system.kind == 'serial' else 'no Coulomb term on a passive joint'})")
     if icfg.friction_model == "stribeck":
         stribeck.check_config(cfg, system)
+    if icfg.method in ("iv", "didim") and pc is not None:
+        raise ConfigError(f"identification.method = {icfg.method!r} replays the experiment sample by sample; "
+                          "processing.periodic replaces the log by one averaged period: use time-domain processing")
     return force_model
 
 
@@ -383,6 +386,32 @@ def _stribeck_fit(cfg: Config, system: System, base: BaseParameters, train: Data
     return result, fj, worst
 
 
+def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Dataset, force_model: str | None,
+                  parallel: int, meta: dict, progress: Progress) -> tuple[IdentificationResult, float]:
+    """IDIM-IV / DIDIM (:mod:`dynid.pipeline.control_loop`) from the WLS estimate or the nominal model."""
+    from dynid.pipeline.control_loop import control_loop_estimate
+
+    icfg, pcfg = cfg.identification, cfg.processing
+    start, worst = None, 0.0
+    if icfg.start == "wls":
+        problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
+                                   parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
+                                   meta=meta, cross=False, periodic=None, min_velocity_passive=pcfg.min_velocity_passive)
+        from dynid.estimation import WLS
+
+        start = WLS().fit(problem)
+
+    def chunks(ds: Dataset) -> Iterator[Chunk]:
+        return _chunks(system, base, ds, force_model, parallel_decimate=parallel, chunk_size=icfg.chunk_size)
+
+    def mask_of(c: Chunk):
+        return row_mask(system, force_model, c.dq, pcfg.min_velocity, joint_dq=c.joint_dq,
+                        min_velocity_passive=pcfg.min_velocity_passive)
+
+    result = control_loop_estimate(cfg, system, base, train, force_model, start, chunks, mask_of, meta, progress)
+    return result, worst
+
+
 def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     system = build_system(cfg.robot).with_structure(cfg.identification.structure, cfg.identification.identical_chains)
     force_model = _check_config(cfg, system)
@@ -432,6 +461,8 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         held_out, _ = preprocess(valid_a, at_fc, "validation")
     elif icfg.friction_model == "stribeck":
         result, fj, worst = _stribeck_fit(cfg, system, base, train, force_model, periodic, progress, meta)
+    elif icfg.method in ("iv", "didim"):
+        result, worst = _control_loop(cfg, system, base, train, force_model, parallel, meta, progress)
     else:
         blocks = block_builder(icfg.covariance, base.names, channels, n_eff)
         problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,

@@ -55,7 +55,7 @@ from dynid.simulation.sensors import Measurements, Sensors
 from dynid.trajectories import FourierTrajectory
 from dynid.stats import tracking_errors
 
-__all__ = ["SimulationOutcome", "TrueSignals", "measure_signals", "run_simulation", "write_simulation", "SIMULATION_FILES"]
+__all__ = ["SimulationOutcome", "TrueSignals", "actuator_states", "measure_signals", "run_simulation", "write_simulation", "SIMULATION_FILES"]
 
 SIMULATION_FILES = ("log.csv", "log.npz", "truth.json", "metadata.json", "config.toml")
 Progress = Callable[[str, int, int], None]
@@ -324,14 +324,22 @@ def _force_covariance(s, n_a: int) -> np.ndarray:
     return std[:, None] * corr * std[None, :]
 
 
-def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> SimulationOutcome:
-    """Run the virtual experiment of ``cfg`` (nothing is written)."""
+def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *,
+                   plant: np.ndarray | None = None) -> SimulationOutcome:
+    """Run the virtual experiment of ``cfg`` (nothing is written).
+
+    ``plant``: standard parameters of the simulated robot (the layout of ``cfg.robot.model``)
+    instead of the configured truth, its friction and its payload; the controller stays
+    exactly as configured (its model included). This is the experiment replayed on a model,
+    e.g. an identified one (IDIM-IV and DIDIM, :mod:`dynid.pipeline.control_loop`); the
+    outcome's truth still describes the configured robot.
+    """
     t0 = time.perf_counter()
-    outcome = _run_simulation(cfg, progress)
+    outcome = _run_simulation(cfg, progress, plant)
     return dataclasses.replace(outcome, elapsed_s=time.perf_counter() - t0)
 
 
-def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> SimulationOutcome:
+def _run_simulation(cfg: SimulateConfig, progress: Progress | None, plant_params: np.ndarray | None = None) -> SimulationOutcome:
     robot = load_model(cfg.robot.model)
     mech = isinstance(robot, Mechanism)
     as_loaded = robot  # the robot dynid identify builds (its base parameters)
@@ -381,9 +389,11 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
             ctrl = DecentralizedPID(robot, JointPID(kp=kp, kd=kd, ki=ki))
         fmodel = _friction_model(cfg.robot.friction, robot.n_actuators)
         override = None
-        if fmodel is not None:
+        if fmodel is not None and plant_params is None:
             override = _mechanism_friction(robot, true, fmodel)
         plant = true if payload is None else _with_payload(robot, true, payload[1], payload[2])
+        if plant_params is not None:
+            plant = np.asarray(plant_params, dtype=float)
         motion = simulate_mechanism_control(ConstrainedSimulator(robot, plant, friction=override), ctrl, reference,
                                             duration=duration, dt=dt, substeps=c.substeps)
         q_act = motion.q[:, list(robot.actuated)]
@@ -394,9 +404,12 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
         act_names = robot.actuated_names
         constraint = float(np.abs(robot.constraint_residual(motion.q[:: max(1, motion.t.size // 200)])).max())
     else:
-        plant = SerialPlant(robot, true, friction=_friction_model(cfg.robot.friction, robot.dof),
-                            payload=None if payload is None else payload[2],
-                            payload_joint=None if payload is None else payload[1])
+        if plant_params is not None:
+            plant = SerialPlant(robot, np.asarray(plant_params, dtype=float))
+        else:
+            plant = SerialPlant(robot, true, friction=_friction_model(cfg.robot.friction, robot.dof),
+                                payload=None if payload is None else payload[2],
+                                payload_joint=None if payload is None else payload[1])
         inverse = model_inverse(robot, model_params)
         if c.kind == "computed_torque":
             ctrl = ComputedTorque(inverse, kp, kd)
@@ -472,6 +485,16 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
     )
     return SimulationOutcome(dataset=dataset, columns=columns, truth=truth, metadata=metadata, config=cfg, motion=motion,
                              signals=signals)
+
+
+def actuator_states(outcome: SimulationOutcome) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The true actuator states of a simulation at the control instants: ``t`` (n,), positions,
+    velocities, accelerations (n, n_a) (accelerations at the start of each hold, under the held
+    forces)."""
+    motion = outcome.motion
+    robot = load_model(outcome.config.robot.model)
+    act = list(robot.actuated) if isinstance(robot, Mechanism) else slice(None)
+    return motion.t, motion.q[:, act], motion.dq[:, act], motion.ddq[:, act]
 
 
 def _jsonable_metrics(track: dict) -> dict:

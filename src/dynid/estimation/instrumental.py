@@ -1,0 +1,149 @@
+"""Instrumental-variable estimation on accumulated cross products (IDIM-IV).
+
+The inverse dynamic model :math:`y = W\\beta + e` is linear in the base parameters, but on a
+closed-loop experiment the regressor :math:`W` is built from measured, filtered and
+differentiated positions: its errors are correlated with the noise (the controller feeds the
+noise back into the motion) and, through the filters, with each other. Least squares is then
+biased. The instrumental-variable estimate replaces :math:`W^T` in the normal equations by
+the transpose of an *instrument* matrix :math:`Z`, correlated with :math:`W` but not with the
+errors (Janot, Vandanjon & Gautier, "A generic instrumental variable approach for industrial
+robot identification", IEEE TCST 22(1), 2014, Eqs. 18–25):
+
+.. math::
+
+    \\hat\\beta_{IV} = \\Big(\\sum_j w_j Z_j^T W_j\\Big)^{-1} \\sum_j w_j Z_j^T y_j, \\qquad
+    \\mathrm{cov}(\\hat\\beta_{IV}) = \\Big(\\sum_j w_j Z_j^T W_j\\Big)^{-1}
+    \\Big(\\sum_j w_j Z_j^T Z_j\\Big) \\Big(\\sum_j w_j W_j^T Z_j\\Big)^{-1},
+
+with per-channel weights :math:`w_j = 1/\\hat\\sigma_j^2` from the residuals
+:math:`y_j - W_j\\hat\\beta_{IV}` (Gautier's weighting, as in WLS; the covariance is the
+IV sandwich with the estimated noise variances, Janot 2014 Eq. 24). The instruments of IDIM-IV
+are the regressor evaluated on the states of a simulation of the model with the current
+estimate, under the same controller and reference as the experiment
+(:mod:`dynid.pipeline.control_loop`), which composes this module with the simulator.
+
+Only cross products of size ``p x p`` per channel are accumulated
+(:class:`InstrumentBuilder`), so memory does not grow with the log.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+
+from dynid._typing import BoolArray, FloatArray
+from dynid.errors import IdentifiabilityError, InputError
+from dynid.estimation.results import IdentificationResult
+from dynid.stats import condition_number
+
+__all__ = ["InstrumentBuilder", "InstrumentalProblem", "iv_solve"]
+
+
+@dataclasses.dataclass(frozen=True)
+class InstrumentalProblem:
+    """Per-channel cross products of instruments ``Z``, regressor ``W`` and outputs ``y``.
+
+    ``ZW``, ``ZZ``, ``WW`` (n_ch, p, p); ``Zy``, ``Wy`` (n_ch, p); ``yy`` (n_ch,); ``n_obs`` (n_ch,).
+    """
+
+    names: tuple[str, ...]
+    channel_names: tuple[str, ...]
+    ZW: FloatArray
+    ZZ: FloatArray
+    WW: FloatArray
+    Zy: FloatArray
+    Wy: FloatArray
+    yy: FloatArray
+    n_obs: FloatArray
+
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    def rss_per_channel(self, beta: FloatArray) -> FloatArray:
+        """``||y_j - W_j beta||^2`` per channel."""
+        b = np.asarray(beta, dtype=float)
+        return np.maximum(self.yy - 2.0 * self.Wy @ b + np.einsum("i,jik,k->j", b, self.WW, b), 0.0)
+
+
+class InstrumentBuilder:
+    """Accumulates chunks of (instruments, regressor, outputs) into an :class:`InstrumentalProblem`."""
+
+    def __init__(self, names: Sequence[str], channel_names: Sequence[str]) -> None:
+        self.names, self.channel_names = tuple(names), tuple(channel_names)
+        n, p = len(self.channel_names), len(self.names)
+        self._ZW, self._ZZ, self._WW = (np.zeros((n, p, p)) for _ in range(3))
+        self._Zy, self._Wy = np.zeros((n, p)), np.zeros((n, p))
+        self._yy, self._n = np.zeros(n), np.zeros(n)
+
+    def add(self, Z: FloatArray, W: FloatArray, y: FloatArray, mask: BoolArray | None = None) -> None:
+        """Accumulate rows: ``Z``, ``W`` (n, n_ch, p), ``y`` (n, n_ch); ``mask`` (n, n_ch) or (n,)."""
+        Z, W, y = (np.asarray(a, dtype=float) for a in (Z, W, y))
+        n_ch, p = len(self.channel_names), len(self.names)
+        if Z.shape != W.shape or W.ndim != 3 or W.shape[1:] != (n_ch, p) or y.shape != W.shape[:2]:
+            raise InputError(f"instrument chunk {Z.shape}, regressor {W.shape}, outputs {y.shape}: expected "
+                             f"(n, {n_ch}, {p}) twice and (n, {n_ch})")
+        if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(W)) and np.all(np.isfinite(y))):
+            raise InputError("instruments, regressor or outputs contain NaN/inf")
+        if mask is not None:
+            mask = np.asarray(mask, dtype=bool)
+            if mask.ndim == 1:
+                mask = np.broadcast_to(mask[:, None], y.shape)
+        for j in range(n_ch):
+            rows = slice(None) if mask is None else mask[:, j]
+            Zj, Wj, yj = Z[rows, j], W[rows, j], y[rows, j]
+            self._ZW[j] += Zj.T @ Wj
+            self._ZZ[j] += Zj.T @ Zj
+            self._WW[j] += Wj.T @ Wj
+            self._Zy[j] += Zj.T @ yj
+            self._Wy[j] += Wj.T @ yj
+            self._yy[j] += yj @ yj
+            self._n[j] += Zj.shape[0]
+
+    def build(self) -> InstrumentalProblem:
+        return InstrumentalProblem(self.names, self.channel_names, self._ZW.copy(), self._ZZ.copy(), self._WW.copy(),
+                                   self._Zy.copy(), self._Wy.copy(), self._yy.copy(), self._n.copy())
+
+
+def iv_solve(problem: InstrumentalProblem, sigma: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+    """The weighted IV estimate, its covariance (Janot 2014, Eq. 24) and cond(Σ w Z^T W).
+
+    ``sigma`` (n_ch,): the channels' noise standard deviations (weights ``1/sigma^2``).
+    """
+    s = np.asarray(sigma, dtype=float)
+    if s.shape != (len(problem.channel_names),) or np.any(~np.isfinite(s)) or np.any(s <= 0):
+        raise IdentifiabilityError(f"channel noise levels must be positive and finite, got {s}", problem.names)
+    w = 1.0 / s**2
+    A = np.einsum("j,jik->ik", w, problem.ZW)
+    b = np.einsum("j,ji->i", w, problem.Zy)
+    S = np.einsum("j,jik->ik", w, problem.ZZ)
+    # scale the columns for the solve (parameters of very different magnitudes)
+    d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    As = A / np.outer(d, d)
+    cond = condition_number(As)
+    if not np.isfinite(cond) or cond > 1e14:
+        raise IdentifiabilityError("the instruments do not determine the parameters (Z^T W is singular: "
+                                   f"condition number {cond:.3g})", problem.names)
+    beta = np.linalg.solve(As, b / d) / d
+    Ainv = np.linalg.inv(As) / np.outer(d, d)
+    cov = Ainv @ S @ Ainv.T
+    return beta, 0.5 * (cov + cov.T), cond
+
+
+def iv_result(problem: InstrumentalProblem, beta: FloatArray, cov: FloatArray, sigma: FloatArray, cond: float, *,
+              method: str, solver: dict, provenance: dict, notes: tuple[str, ...],
+              expressions: tuple[str, ...] | None = None) -> IdentificationResult:
+    """An :class:`IdentificationResult` of an instrumental-variable (or output-error) fit."""
+    rss = problem.rss_per_channel(beta)
+    p = problem.n_params
+    dof = int(problem.n_obs.sum()) - p
+    if dof <= 0:
+        raise InputError(f"fewer observations ({int(problem.n_obs.sum())}) than parameters ({p})")
+    w = 1.0 / np.asarray(sigma, dtype=float) ** 2
+    return IdentificationResult(
+        method=method, names=problem.names, params=np.asarray(beta, dtype=float), cov_params=cov, dof=dof,
+        scale=float(np.sum(w * rss) / dof), channel_names=problem.channel_names,
+        n_obs=problem.n_obs.astype(np.int64), rss_per_channel=rss, noise_std=np.asarray(sigma, dtype=float),
+        condition_number=float(cond), expressions=expressions, solver=solver, provenance=provenance, notes=notes)
