@@ -85,7 +85,7 @@ def _experiment(cfg: Config, system: System) -> _Experiment:
     exp = load_simulate_config(path)
     robot = load_model(exp.robot.model)
     names = tuple(robot.parameter_names)
-    ident = tuple(system.parameter_names)
+    ident = tuple(system.model.parameter_names)  # the model's full layout (expand_parameters of a reduced one)
     missing = [n for n in names if n not in ident]
     extra = [n for n in ident if n not in names]
     if missing or extra:
@@ -102,7 +102,7 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray) -> 
     the standard parameters ``standard`` (identified robot's layout), at the instants ``t``."""
     from dynid.pipeline.simulate import actuator_states, run_simulation
 
-    outcome = run_simulation(exp.cfg, plant=standard[exp.index])
+    outcome = run_simulation(exp.cfg, plant=standard[exp.index])  # standard: the model's full layout
     ts, q, dq, ddq = actuator_states(outcome)
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(dq)) and np.all(np.isfinite(ddq))):
         raise FloatingPointError("the simulated motion is not finite")
@@ -114,7 +114,7 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray) -> 
 
 
 def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_old, beta_new, t, progress, k: int,
-                       standard_of=None):
+                       standard_of=None, expand=lambda pi: pi):
     """Simulate at ``beta_new``; on failure halve the step from ``beta_old`` (see module doc)."""
     step = 1.0
     last = None
@@ -122,7 +122,7 @@ def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_ol
         beta = beta_new if beta_old is None else beta_old + step * (beta_new - beta_old)
         standard = standard_of(beta) if standard_of is not None and step == 1.0 else base.to_standard(beta, reference)
         try:
-            return beta, step, _simulated_states(exp, standard, t)
+            return beta, step, _simulated_states(exp, expand(standard), t)
         except ConfigError:
             raise
         except (DynidError, FloatingPointError, RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
@@ -175,7 +175,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
     for k in range(1, icfg.max_iterations + 1):
         progress(f"{method.upper()} iterations", k - 1, icfg.max_iterations)
         beta_used, step, (qs, dqs, ddqs) = _simulate_or_halve(exp, base, nominal_std, beta_prev, beta, t, progress, k,
-                                                             standard_of)
+                                                             standard_of, system.expand_parameters)
         sim = train.replace(q=qs, dq=dqs, ddq=ddqs)
         if method == "iv":
             builder = InstrumentBuilder(base.names, channels)
