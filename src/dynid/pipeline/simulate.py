@@ -40,7 +40,7 @@ from dynid import __version__
 from dynid._files import TIMING_FILE, save_npz, write_timing
 from dynid.config.simulate import SimulateConfig
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError, read_file_text
+from dynid.errors import ConfigError, ModelError, read_file_text
 from dynid.io.output import staged_output
 from dynid.model.closed_loop import mechanism_base_parameters
 from dynid.model.loading import load_model
@@ -324,15 +324,25 @@ def _force_covariance(s, n_a: int) -> np.ndarray:
     return std[:, None] * corr * std[None, :]
 
 
-def run_simulation(cfg: SimulateConfig, progress: Progress | None = None) -> SimulationOutcome:
-    """Run the virtual experiment of ``cfg`` (nothing is written)."""
+def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, robot=None) -> SimulationOutcome:
+    """Run the virtual experiment of ``cfg`` (nothing is written).
+
+    ``robot``: the model to simulate in place of loading ``cfg.robot.model``, for a variant built
+    in code (e.g. a study's twin whose nominal joint terms differ, :func:`dataclasses.replace` of a
+    :class:`~dynid.model.mechanism.Mechanism`); it must have the loaded model's parameters, in the
+    same order, and truth.json records the variant's true values (``model`` says ``"variant of ..."``).
+    """
     t0 = time.perf_counter()
-    outcome = _run_simulation(cfg, progress)
+    outcome = _run_simulation(cfg, progress, robot)
     return dataclasses.replace(outcome, elapsed_s=time.perf_counter() - t0)
 
 
-def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> SimulationOutcome:
+def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None) -> SimulationOutcome:
     robot = load_model(cfg.robot.model)
+    if variant is not None:
+        if list(variant.parameter_names) != list(robot.parameter_names):
+            raise ModelError(f"the variant of {cfg.robot.model} has other parameters than the model itself")
+        robot = variant
     mech = isinstance(robot, Mechanism)
     as_loaded = robot  # the robot dynid identify builds (its base parameters)
     if cfg.trajectory.values["coordinates"] == "task":
@@ -421,7 +431,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None) -> Simulatio
     effort_prefix = "i" if meas.effort_kind == "current" else "tau"
     base = mechanism_base_parameters(robot) if mech else robot_base_parameters(robot)
     truth = {
-        "model": cfg.robot.model,
+        "model": cfg.robot.model if variant is None else f"variant of {cfg.robot.model}",
         "parameter_names": list(robot.parameter_names),
         "true_parameters": true.tolist(),
         "nominal_parameters": nominal.tolist(),
