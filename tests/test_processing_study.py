@@ -1,43 +1,59 @@
-"""The signal-processing study of bench/processing_study.py (issue 6, paper 004 Fig. 4), in its
-quick version: it runs end to end, prints its table, and what holds for any excitation holds."""
+"""The signal-processing study of bench/processing_study.py (issues 6 and 17, paper 004 Fig. 4), in
+its quick version: the same fixed excitation, rates and twin as the full study, 2 periods instead
+of 4; it reaches the full study's conclusion (bench/README.md section 7) for the physical reason
+given there, with a margin from the noise replicates of the experiment."""
 
 from __future__ import annotations
 
 import importlib.util
 
 import numpy as np
+from scipy import stats
 
 from conftest import REPO
 
 
-def test_processing_study_quick(capsys):
+def _study():
     spec = importlib.util.spec_from_file_location("processing_study", REPO / "bench" / "processing_study.py")
     study = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(study)
-    res = study.study(quick=True)
+    return study
+
+
+def test_processing_study_quick(capsys):
+    study = _study()
+    b, c, c2 = study.B, study.C, study.C2
+    res = study.study(quick=True, labels=(b, c, c2), coulomb_free=False)
     print(study.table(res))
     out = capsys.readouterr().out
-    assert "Prediction error variance" in out and "(c) frequency domain" in out
+    assert "Prediction error variance" in out and c2 in out
+    print(out)  # shown on failure, or with pytest -rP
     rows = res["rows"]
+    pred = {k: r["mean_variance_N2"] for k, r in rows.items()}
     truth = {k: r["truth_residual_variance_N2"] for k, r in rows.items()}
-    # Which processing predicts the circle best is the study's question, answered at full size in
-    # bench/README.md section 7 (there the time domain wins). The quick version's short D-optimal
-    # search ends in a different excitation on every BLAS kernel, and with it the ranking of the
-    # processings (frequency domain first on one kernel, time domain on another), so the quick
-    # test asserts what holds for any excitation:
-    # - pose reconstruction (paper 004 §3.3) at the same cut-off is as consistent with the true
-    #   model as the actuator route (the forward kinematics is smooth and the window the same),
-    #   and the two models predict alike
-    assert abs(truth["(d) frequency, pose"] - truth["(c) frequency domain"]) < 0.05 * truth["(c) frequency domain"], truth
-    ratio = rows["(d) frequency, pose"]["mean_variance_N2"] / rows["(c) frequency domain"]["mean_variance_N2"]
-    assert 1 / 1.6 < ratio < 1.6, ratio
-    # - a window at the excited band also removes the closed loop's response above it, which the
-    #   measured forces contain: more processing error, and an estimate that amplifies it
-    assert truth["(e) pose, excited band"] > truth["(d) frequency, pose"], truth
-    assert rows["(e) pose, excited band"]["mean_variance_N2"] > rows["(d) frequency, pose"]["mean_variance_N2"]
-    # - every processing's error is finite and positive, above the processing's own floor
+    # The study's conclusion: the time-domain chain (b) predicts the circle better than the
+    # frequency-domain chain at paper 004's kind of window (c). Margin: the same motion measured
+    # again with other sensor seeds (independent replicates of the experiment); the one-sided
+    # 99.5 % lower confidence bound (Student t) of the mean difference must be above zero.
+    dd = np.asarray(res["difference_c_minus_b"]["values"])
+    assert dd.size == study.SEEDS >= 3
+    se = dd.std(ddof=1) / np.sqrt(dd.size)
+    assert dd.mean() - stats.t.ppf(0.995, dd.size - 1) * se > 0, (dd, se)
+    # ... for the physical reason of bench/README section 7: the window at 10.5 f0 (2.1 Hz) removes
+    # the closed loop's response to the Coulomb reversals from the states but not from the forces,
+    # so the processed data are less consistent with the true model than after (b) (cut-off 4 Hz).
+    # truth = systematic part + the force noise left: 4 N^2 after (b) (forces unfiltered), 4/P N^2
+    # after averaging P periods; the systematic parts differ by more than 5 standard errors of a
+    # sample variance of the noise (4 N^2 sqrt(2/n), n samples of one period and drive)
+    n = round(study.RATE / study.F0)
+    noise_se = 4.0 * np.sqrt(2.0 / n)
+    assert (truth[c] - 4.0 / res["periods"]) - (truth[b] - 4.0) > 5 * noise_se, truth
+    # ... and not because of the domain: the frequency-domain chain with the band of (b) (c')
+    # predicts like (b); the difference is small against the band's effect
+    assert abs(pred[c2] - pred[b]) < 0.25 * dd.mean(), pred
+    # every model is above the force noise of the validation run (4 N^2): a floor no fit can beat
     for k, r in rows.items():
-        assert np.all(np.isfinite(r["error_variance_N2"])) and truth[k] > 0, k
-    # - the leakage of the implicit fit with a 0.5 % period mismatch, which the exact DFT avoids
-    #   (analytic signals: no excitation design involved)
+        assert np.all(np.isfinite(r["error_variance_N2"])) and r["mean_variance_N2"] > 4.0 * 0.9, k
+    # the leakage of the implicit fit with a 0.5 % period mismatch, which the exact DFT avoids
+    # (analytic signals: no excitation involved)
     assert res["leakage"]["dft_rms_error_acc"] < 1e-9 < res["leakage"]["implicit_fit_rms_error_acc"]

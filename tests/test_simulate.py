@@ -199,3 +199,34 @@ def test_circle_of_a_platform_in_task_space(tmp_path):
     np.testing.assert_allclose(np.hypot(c["ref_PX"], c["ref_PY"]), 0.01, atol=1e-12)
     with pytest.raises(ConfigError, match="name 2 of the coordinates"):
         run_simulation(parse_simulate_config({**cfg.raw, "trajectory": {**cfg.raw["trajectory"], "axes": ["PX", "QQ"]}}, tmp_path))
+
+
+def test_simulate_a_variant_built_in_code(tmp_path):
+    """run_simulation(robot=...) simulates a variant of the configured model (here without Coulomb
+    friction, the controlled experiment of bench/processing_study.py): truth.json holds the
+    variant's parameters, the logged forces are the variant's, and a model with other parameters
+    is refused."""
+    from dynid.errors import ModelError
+
+    mech = build_mechanism("shang2dof")
+    zero = {t.name for t in mech.terms if t.kind.startswith("coulomb")}
+    variant = dataclasses.replace(mech, nominal_terms={k: 0.0 if k in zero else v for k, v in mech.nominal_terms.items()})
+    cfg = parse_simulate_config(
+        {"robot": {"model": "builtin:shang2dof"},
+         "trajectory": {"kind": "circle", "centre": [0.29, 0.25], "radius": 0.03, "speed": 0.1, "turns": 0.2},
+         "control": {"rate_hz": 500, "kp": 20000, "kd": 250, "model": "true"}},
+        tmp_path,
+    )
+    out = run_simulation(cfg, robot=variant)
+    assert out.truth["model"] == "variant of builtin:shang2dof"
+    names, true = out.truth["parameter_names"], np.array(out.truth["true_parameters"])
+    assert {names[k]: true[k] for k in range(len(names)) if names[k] in zero} == dict.fromkeys(zero, 0.0)
+    assert np.all(np.array(out.truth["nominal_parameters"]) == true)
+    m = out.motion
+    reg = actuator_regressor(mech, mech.kinematic_state(m.q, m.dq, m.ddq), distribution="projected")
+    logged = np.column_stack([out.columns[f"tau_qa{i}"] for i in (1, 2, 3)])
+    np.testing.assert_allclose(reg.outputs(logged), reg.W @ true, atol=1e-8 * np.abs(logged).max())
+    # the configured model's own Coulomb friction is not in the logged forces
+    assert np.abs(reg.outputs(logged) - reg.W @ mech.nominal_parameters()).max() > 1e-3 * np.abs(logged).max()
+    with pytest.raises(ModelError, match="other parameters"):
+        run_simulation(cfg, robot=build_mechanism("hexapod"))

@@ -40,7 +40,7 @@ from dynid import __version__
 from dynid._files import TIMING_FILE, save_npz, write_timing
 from dynid.config.simulate import SimulateConfig
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError, read_file_text
+from dynid.errors import ConfigError, ModelError, read_file_text
 from dynid.io.output import staged_output
 from dynid.model.closed_loop import mechanism_base_parameters
 from dynid.model.loading import load_model
@@ -324,9 +324,14 @@ def _force_covariance(s, n_a: int) -> np.ndarray:
     return std[:, None] * corr * std[None, :]
 
 
-def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *,
+def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, robot=None,
                    plant: np.ndarray | None = None) -> SimulationOutcome:
     """Run the virtual experiment of ``cfg`` (nothing is written).
+
+    ``robot``: the model to simulate in place of loading ``cfg.robot.model``, for a variant built
+    in code (e.g. a study's twin whose nominal joint terms differ, :func:`dataclasses.replace` of a
+    :class:`~dynid.model.mechanism.Mechanism`); it must have the loaded model's parameters, in the
+    same order, and truth.json records the variant's true values (``model`` says ``"variant of ..."``).
 
     ``plant``: standard parameters of the simulated robot (the layout of ``cfg.robot.model``)
     instead of the configured truth, its friction and its payload; the controller stays
@@ -335,12 +340,17 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *,
     outcome's truth still describes the configured robot.
     """
     t0 = time.perf_counter()
-    outcome = _run_simulation(cfg, progress, plant)
+    outcome = _run_simulation(cfg, progress, robot, plant)
     return dataclasses.replace(outcome, elapsed_s=time.perf_counter() - t0)
 
 
-def _run_simulation(cfg: SimulateConfig, progress: Progress | None, plant_params: np.ndarray | None = None) -> SimulationOutcome:
+def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None,
+                    plant_params: np.ndarray | None = None) -> SimulationOutcome:
     robot = load_model(cfg.robot.model)
+    if variant is not None:
+        if list(variant.parameter_names) != list(robot.parameter_names):
+            raise ModelError(f"the variant of {cfg.robot.model} has other parameters than the model itself")
+        robot = variant
     mech = isinstance(robot, Mechanism)
     as_loaded = robot  # the robot dynid identify builds (its base parameters)
     if cfg.trajectory.values["coordinates"] == "task":
@@ -434,7 +444,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, plant_params
     effort_prefix = "i" if meas.effort_kind == "current" else "tau"
     base = mechanism_base_parameters(robot) if mech else robot_base_parameters(robot)
     truth = {
-        "model": cfg.robot.model,
+        "model": cfg.robot.model if variant is None else f"variant of {cfg.robot.model}",
         "parameter_names": list(robot.parameter_names),
         "true_parameters": true.tolist(),
         "nominal_parameters": nominal.tolist(),
