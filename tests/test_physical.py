@@ -283,7 +283,7 @@ def test_mass_matrix_of_the_constrained_model_matches_pinocchio():
 
 @pytest.mark.parametrize("ident, message", [
     ({"margin": 1e-3}, "physical_consistency = true"),
-    ({"physical_consistency": True, "method": "tls"}, "'ols', 'wls' and 'gm'"),
+    ({"physical_consistency": True, "method": "tls"}, "'ols', 'wls', 'gm' and 'didim'"),
     ({"physical_consistency": True, "regularization": "logdet"}, "regularization_weight > 0"),
     ({"physical_consistency": True, "bodies": {"3": {"mass": [1.0]}}}, "list of 2 numbers"),
     ({"physical_consistency": True, "bodies": {"3": {"volume": 1.0}}}, "volume"),

@@ -478,7 +478,7 @@ def _chain_groups(spec: Any, where: str) -> tuple[tuple[tuple[str, ...], ...], .
 _LOOP_KEYS = ("experiment", "start", "max_iterations", "tolerance")
 
 
-def _parse_identification(t: Any, base: Path) -> IdentificationConfig:
+def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfig:
     where = "identification"
     t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
                           "force_model", "noise_covariance", "iterations", "nominal_weighting",
