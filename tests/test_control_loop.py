@@ -186,3 +186,31 @@ def test_the_experiment_must_simulate_the_identified_robot(twin):
     (twin / "other.toml").write_text(_toml({**_SIM, "robot": {"model": "builtin:fivebar"}, "trajectory": _TRAIN}))
     with pytest.raises(ConfigError, match="the experiment must simulate the robot being identified"):
         identify(_config(twin, "didim", experiment="other.toml"))
+
+
+def test_fixed_point_covariance_of_a_linear_iteration():
+    """beta_{k+1} = b + M beta_k with one-step covariance C: the fixed point (I - M)^-1 b has the
+    covariance (I - M)^-1 C (I - M)^-T; the secants of the iterates recover M exactly on a
+    linear map (here the iterates span the whole space)."""
+    from dynid.estimation.instrumental import fixed_point_covariance
+
+    rng = np.random.default_rng(3)
+    Q = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+    M = Q @ np.diag([0.6, -0.3, 0.1]) @ Q.T
+    b = np.array([1.0, -2.0, 0.5])
+    C = np.diag([0.04, 0.01, 0.09])
+    x = np.array([5.0, 5.0, -5.0])
+    xs, fs = [], []
+    for _ in range(6):
+        fx = b + M @ x
+        xs.append(x)
+        fs.append(fx)
+        x = fx
+    cov, eig = fixed_point_covariance(np.array(xs), np.array(fs), C, rtol=1e-9)
+    A = np.linalg.inv(np.eye(3) - M)
+    np.testing.assert_allclose(cov, A @ C @ A.T, rtol=1e-6, atol=1e-10)
+    np.testing.assert_allclose(np.sort(eig.real), [-0.3, 0.1, 0.6], atol=1e-6)
+    # a diverging iteration is not corrected (its fixed point is not what it converges to)
+    xs2 = [np.zeros(3), np.ones(3), 3 * np.ones(3)]
+    cov2, _ = fixed_point_covariance(np.array(xs2[:2]), np.array(xs2[1:]), C)
+    assert cov2 is C or np.array_equal(cov2, C)

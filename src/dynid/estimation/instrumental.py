@@ -38,7 +38,7 @@ from dynid.errors import IdentifiabilityError, InputError
 from dynid.estimation.results import IdentificationResult
 from dynid.stats import condition_number
 
-__all__ = ["InstrumentBuilder", "InstrumentalProblem", "iv_solve"]
+__all__ = ["InstrumentBuilder", "InstrumentalProblem", "fixed_point_covariance", "iv_result", "iv_solve"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -147,3 +147,59 @@ def iv_result(problem: InstrumentalProblem, beta: FloatArray, cov: FloatArray, s
         scale=float(np.sum(w * rss) / dof), channel_names=problem.channel_names,
         n_obs=problem.n_obs.astype(np.int64), rss_per_channel=rss, noise_std=np.asarray(sigma, dtype=float),
         condition_number=float(cond), expressions=expressions, solver=solver, provenance=provenance, notes=notes)
+
+
+def fixed_point_covariance(inputs: FloatArray, outputs: FloatArray, cov: FloatArray, *, rtol: float = 1e-2,
+                           max_radius: float = 0.95) -> tuple[FloatArray, FloatArray]:
+    """The covariance of an iteration's fixed point from that of one step, with the iteration's
+    Jacobian estimated by secants.
+
+    An iteration :math:`\\beta_{k+1} = F(\\beta_k)` whose every step is a regression with
+    covariance :math:`C` (DIDIM: least squares on the regressor of the motion simulated with
+    :math:`\\beta_k`) has its fixed point :math:`\\beta^* = F(\\beta^*)`. Linearized,
+    :math:`\\delta^* = (I - M)^{-1}\\,\\delta_1` with :math:`M = \\partial F/\\partial\\beta` and
+    :math:`\\delta_1` one step's error, so
+    :math:`\\mathrm{cov}(\\beta^*) = (I - M)^{-1} C (I - M)^{-T}`. :math:`M` is estimated from
+    the iterates themselves (the secant equations :math:`M\\,\\Delta\\beta_k = \\Delta F_k`,
+    least squares on their span, in units of the standard deviations of :math:`C`; the
+    directions the iteration never moved along keep :math:`M = 0`). The slowly contracting
+    directions, which amplify the error, are those the late iterates move along, so a few
+    iterates find them (a low-rank, Broyden-type estimate).
+
+    Parameters
+    ----------
+    inputs, outputs : arrays (k, p)
+        ``beta_k`` and ``F(beta_k)`` of the iterations (k >= 2).
+    cov : array (p, p)
+        The covariance of one step.
+
+    Returns
+    -------
+    cov_star : array (p, p)
+        The fixed point's covariance (``cov`` when fewer than two iterations, or when the
+        estimated iteration does not contract: spectral radius above ``max_radius``).
+    eigenvalues : array
+        The eigenvalues of the estimated Jacobian on the span of the steps (empty when none).
+    """
+    X, Fx, C = (np.asarray(a, dtype=float) for a in (inputs, outputs, cov))
+    if X.shape[0] < 2:
+        return C, np.zeros(0)
+    s = np.sqrt(np.maximum(np.diag(C), 1e-300))
+    dX = np.diff(X, axis=0) / s
+    dF = np.diff(Fx, axis=0) / s
+    U, sv, Vt = np.linalg.svd(dX, full_matrices=False)  # rows of dX: the steps
+    keep = sv > rtol * sv[0] if sv.size and sv[0] > 0 else np.zeros(sv.size, dtype=bool)
+    if not keep.any():
+        return C, np.zeros(0)
+    V = Vt[keep].T  # p x r: the span of the steps
+    # M dX_k = dF_k for every k: M V (V^T dX_k) = dF_k  ->  M V = dF^T pinv(dX V)^T
+    MV = np.linalg.lstsq(dX @ V, dF, rcond=None)[0].T  # p x r
+    eig = np.linalg.eigvals(V.T @ MV)
+    if np.max(np.abs(eig)) > max_radius:
+        return C, eig
+    p = C.shape[0]
+    M = MV @ V.T
+    A = np.linalg.inv(np.eye(p) - M)
+    Cs = C / np.outer(s, s)
+    out = (A @ Cs @ A.T) * np.outer(s, s)
+    return 0.5 * (out + out.T), eig
