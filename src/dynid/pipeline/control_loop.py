@@ -35,8 +35,8 @@ and Janot do. On the shang2dof twin (500 Hz augmented PD, Kp = 35000) the full-r
 iteration is unstable: the simulated accelerations at the control instants carry the closed
 loop's response to the zero-order hold, which depends on the estimate, so the iteration moves
 away even from the truth; low-passed and decimated, it converges from the nominal model in 3–5
-iterations (15-turn circle: all 25 true base parameters inside their 95 % intervals, held-out
-error below the nominal model's, where WLS on the same rows covers 10 of 25).
+iterations (15-turn circle: 24 of the 25 true base parameters inside their 95 % intervals,
+held-out error below the nominal model's, where WLS on the same rows covers 10 of 25).
 
 Uncertainty: DIDIM's Jacobian neglects how the simulated motion depends on the estimate
 (Gautier 2013's assumption of a stiff loop). Where it does not, the iteration contracts slowly
