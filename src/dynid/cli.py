@@ -313,15 +313,16 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     print(f"outputs in {out}/:")
     for name, what in (
         ("summary.txt", "this summary"),
-        ("result.json", "WLS: method, parameters (value, std, rel. std %, 95 % CI), validation"),
+        ("result.json", "DIDIM: method, parameters (value, std, rel. std %, 95 % CI), validation, iterations"),
         ("params.csv", "identified base parameters with grouping expressions"),
         ("validation.png", "held-out projected forces, measured vs predicted"),
         ("report.html", "HTML report"),
         ("tracking.png", "rectangle tracked with the nominal, identified and true models"),
         ("tracking.json", "P-RSME and errors of the three tracking runs"),
         ("config.toml", "the identification config (rerun: dynid identify config.toml --out DIR)"),
-        ("ols/", "the same identification with OLS"),
-        ("data/", "simulated logs (train: circle, validation: rectangle), each with truth.json and metadata.json"),
+        ("wls/", "the same rows identified with WLS (the errors in the variables DIDIM avoids)"),
+        ("data/", "simulated logs (train: circle, validation: rectangle), each with truth.json, metadata.json and "
+                  "the config of the experiment (config.toml)"),
     ):
         if (out / name.rstrip("/")).exists():
             print(f"  {out / name}  - {what}")

@@ -61,6 +61,7 @@ with an error naming the iteration.
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -141,6 +142,14 @@ def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_ol
     raise InputError(f"identification: the experiment replayed with the estimate of iteration {k} does not simulate "
                      f"({last}); the estimate is not a robot the simulator can run: try "
                      "physical_consistency = true (method 'didim') or start = 'nominal'")
+
+
+def _relative(path, config_file) -> str:
+    """The experiment's path as result.json records it: relative to the config's folder (the same
+    inputs give the same bytes wherever they are)."""
+    import os
+
+    return str(path) if config_file is None else os.path.relpath(path, Path(config_file).parent)
 
 
 def _sigma(rss: np.ndarray, n_obs: np.ndarray, p: int) -> np.ndarray:
@@ -254,7 +263,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
     name = "IV" if method == "iv" else "DIDIM" + (" + " + result.method if result.method != "WLS" else "")
     solver = {**dict(result.solver), "algorithm": ("IDIM-IV (Janot, Vandanjon & Gautier 2014)" if method == "iv" else
                                                    "DIDIM (Gautier, Janot & Vandanjon 2013)"),
-              "experiment": str(icfg.experiment), "start": icfg.start, "iterations": history, "converged": converged,
+              "experiment": _relative(icfg.experiment, cfg.source), "start": icfg.start, "iterations": history, "converged": converged,
               "tolerance_std": icfg.tolerance, **fixed_point}
     notes = [("instruments: the regressor on the states of the experiment replayed with the current estimate under its "
               "controller; IV covariance" if method == "iv" else

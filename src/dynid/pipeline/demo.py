@@ -8,13 +8,16 @@ The parallel-robot study of paper 001 (Shang, Cong & Kong 2009) as a virtual exp
    augmented PD of Eq. 22 at 500 Hz with the nominal model; encoders and motor-torque noise
    (correlated across the drives) make the training log; the rectangle-with-diagonals path
    makes the validation log (``dynid simulate``);
-2. the logs are identified with WLS (and OLS for comparison) exactly as ``dynid identify``
-   would: actuator positions through the closed loops, projected equations;
+2. the logs are identified with DIDIM (the experiment replayed on the estimate under its own
+   controller, :mod:`dynid.pipeline.control_loop`) and, for comparison, with WLS on the same
+   processed rows, exactly as ``dynid identify`` would: actuator positions through the closed
+   loops, projected equations, Gautier's parallel decimation;
 3. the identified model replaces the nominal one in the controller, and the rectangle is
    tracked again (paper 001, Table 5: P-RSME of the nominal and the identified model).
 
 Because the truth is known, the demo also reports how many true base parameters fall inside
-their 95 % intervals.
+their 95 % intervals. The training experiment's own configuration is delivered with its log
+(``data/train/config.toml``): DIDIM replays it.
 """
 
 from __future__ import annotations
@@ -69,17 +72,29 @@ file = "data/validation/log.csv"
 [processing]
 lowpass = {{ cutoff_hz = 20.0, order = 4, filter_effort = false }}
 derivatives = "central"
+decimate = 5
+decimate_method = "parallel"
 
 [identification]
 method = "{method}"
 force_model = "projected"
 """
+_DIDIM = 'experiment = "data/train/config.toml"   # the training experiment, replayed on the estimate\n'
+
+
+def _toml(doc: dict) -> str:
+    """A simulate configuration of flat tables (numbers, strings, booleans, lists) as TOML."""
+    lines = []
+    for section, table in doc.items():
+        lines += ["", f"[{section}]"] + [f"{k} = {json.dumps(v)}" for k, v in table.items()]
+    return "\n".join(lines[1:]) + "\n"
+
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class DemoOutcome:
     outcome: IdentifyOutcome
-    ols: IdentifyOutcome
+    wls: IdentifyOutcome
     true_base: np.ndarray
     tracking: dict
     out_dir: Path
@@ -91,7 +106,7 @@ class DemoOutcome:
 
     def truth_table(self) -> str:
         lines = []
-        for label, o in (("WLS", self.outcome), ("OLS", self.ols)):
+        for label, o in (("DIDIM", self.outcome), ("WLS", self.wls)):
             r = o.result
             ci = r.conf_int()
             inside = (ci[:, 0] <= self.true_base) & (self.true_base <= ci[:, 1])
@@ -100,9 +115,9 @@ class DemoOutcome:
                 f"Ground truth check ({label}): {int(inside.sum())} of {inside.size} true base parameters lie inside "
                 f"their 95 % intervals; largest |z| = {np.max(np.abs(z)):.2f}"
             )
-        v_w, v_o = self.outcome.validation, self.ols.validation
+        v_w, v_o = self.outcome.validation, self.wls.validation
         lines.append(
-            "Held-out RMSE of the projected forces (WLS / OLS): "
+            "Held-out RMSE of the projected forces (DIDIM / WLS): "
             + ", ".join(f"{c} {a:.3g} / {b:.3g}" for c, a, b in zip(v_w.channel_names, v_w.rmse, v_o.rmse))
         )
         return "\n".join(lines)
@@ -154,15 +169,19 @@ def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int =
         for k, (name, traj) in enumerate((("train", _CIRCLE), ("validation", _POLYLINE))):
             progress("simulate", k, 2)
             doc = {**_SIM, "trajectory": traj, "sensors": {**_SIM["sensors"], "seed": seed + k}}
-            sims[name] = run_simulation(parse_simulate_config(doc, stage))
+            source = stage / f"_{name}.toml"  # delivered as data/<name>/config.toml
+            source.write_text(_toml(doc))
+            sims[name] = run_simulation(parse_simulate_config(doc, stage, source=source))
             write_simulation(sims[name], stage / "data" / name)
+            source.unlink()
         progress("simulate", 2, 2)
         outcomes = {}
-        for method in ("wls", "ols"):
-            folder = stage if method == "wls" else stage / "ols"
+        for method in ("didim", "wls"):
+            folder = stage if method == "didim" else stage / "wls"
             folder.mkdir(exist_ok=True)
             (folder / "config.toml").write_text(_CONFIG.format(method=method).replace(
-                'file = "data/', 'file = "' + ("" if method == "wls" else "../") + "data/"))
+                'file = "data/', 'file = "' + ("" if method == "didim" else "../") + "data/")
+                + (_DIDIM if method == "didim" else ""))
             o = identify(load_config(folder / "config.toml"), progress)
             # the inputs were read from the staging folder: the record names them relative to the
             # folder of its result.json
@@ -172,24 +191,24 @@ def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int =
                 o, result=o.result.with_provenance(**relocated),
                 validation=dataclasses.replace(o.validation, source=_relocate(o.validation.source, *where)))
             write_files(outcomes[method], folder)
-        wls = outcomes["wls"]
+        main = outcomes["didim"]
         truth = sims["train"].truth
         true_std = np.array(truth["true_parameters"])
-        true_base = wls.base.from_standard(true_std)
+        true_base = main.base.from_standard(true_std)
         # paper 001, Table 5: track the rectangle with the nominal and with the identified model
         mech = build_mechanism("shang2dof")
         nominal = np.array(truth["nominal_parameters"])
-        identified = wls.base.to_standard(wls.result.params, reference=nominal)
+        identified = main.base.to_standard(main.result.params, reference=nominal)
         path = PolylinePath(np.array(_RECTANGLE), 0.1, ramp=0.1)
         progress("track", 0, 3)
         paths, tracking = {}, {}
-        for k, (label, params) in enumerate((("nominal", nominal), ("identified (WLS)", identified), ("true", true_std))):
+        for k, (label, params) in enumerate((("nominal", nominal), ("identified (DIDIM)", identified), ("true", true_std))):
             # the validation log is that very experiment with the nominal model (the controller
             # never sees the sensors): its true motion is the nominal row
             motion = sims["validation"].motion if label == "nominal" else _track(mech, true_std, params, path)
             paths[label], tracking[label] = _tracking(mech, motion, path)
             progress("track", k + 1, 3)
-        demo = DemoOutcome(wls, outcomes["ols"], true_base, tracking, out)
+        demo = DemoOutcome(main, outcomes["wls"], true_base, tracking, out)
         (stage / "tracking.json").write_text(json.dumps(tracking, indent=2) + "\n")
         from dynid.report import plot_tracking
 
