@@ -122,7 +122,7 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray) -> 
     return interp(q), interp(dq), interp(ddq)
 
 
-def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_old, beta_new, t, progress, k: int,
+def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_old, beta_new, t, k: int,
                        standard_of=None, expand=lambda pi: pi):
     """Simulate at ``beta_new``; on failure halve the step from ``beta_old`` (see module doc)."""
     step = 1.0
@@ -193,12 +193,11 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
     t = np.asarray(train.t, dtype=float)
     for k in range(1, icfg.max_iterations + 1):
         progress(f"{method.upper()} iterations", k - 1, icfg.max_iterations)
-        beta_used, step, (qs, dqs, ddqs) = _simulate_or_halve(exp, base, nominal_std, beta_prev, beta, t, progress, k,
+        beta_used, step, (qs, dqs, ddqs) = _simulate_or_halve(exp, base, nominal_std, beta_prev, beta, t, k,
                                                              standard_of, system.expand_parameters)
         sim = train.replace(q=qs, dq=dqs, ddq=ddqs)
         if method == "iv":
             builder = InstrumentBuilder(base.names, channels)
-            mb = ProblemBuilder(base.names, channels)
             for cm, cs in zip(chunks(train), chunks(sim)):
                 mask = mask_of(cm)
                 builder.add(cs.W, cm.W, cm.y, mask)
