@@ -13,6 +13,7 @@ import re
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import run_dynid
 
@@ -53,7 +54,25 @@ def test_demo(demos):
         assert (out / "data" / part / "log.csv").is_file() and (out / "data" / part / "truth.json").is_file()
     # DIDIM replayed the delivered experiment: the config it names is the one in the output
     doc = json.loads((out / "result.json").read_text())
-    assert doc["method"] == "DIDIM" and doc["solver"]["experiment"] == "data/train/config.toml"
+    assert doc["method"] == "DIDIM + WLS+LMI (projected)" and doc["solver"]["experiment"] == "data/train/config.toml"
+    # physically consistent: no friction coefficient of the wrong sign (fc- is the Coulomb force of
+    # negative velocities, <= 0 by convention)
+    params = {p["name"]: p for p in doc["params"]}
+    for name, p in params.items():
+        if name.startswith(("fv", "fc+")):
+            assert p["value"] >= 0, (name, p["value"])
+        if name.startswith("fc-"):
+            assert p["value"] <= 0, (name, p["value"])
+    # honest intervals: the truth's chi^2 against the reported covariance below chi^2_25's 99.9 %
+    # quantile (52.6), and at most 5 of 25 outside the 95 % intervals (binomial: P(>= 6) = 0.7 %)
+    truth = json.loads((out / "data" / "train" / "truth.json").read_text())["base_parameters"]
+    true = dict(zip(truth["names"], truth["true_values"]))
+    names = [p["name"] for p in doc["params"]]
+    e = np.array([params[n]["value"] - true[n] for n in names])
+    cov = np.load(out / "result.npz")["cov_params"]
+    assert float(e @ np.linalg.solve(cov, e)) < 52.6
+    outside = sum(not (params[n]["ci_low"] <= true[n] <= params[n]["ci_high"]) for n in names)
+    assert outside <= 5, outside
     assert (out / "data" / "train" / "config.toml").is_file()
     assert "Ground truth check" in (out / "summary.txt").read_text()
 

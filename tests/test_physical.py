@@ -138,6 +138,34 @@ def test_an_infeasible_estimate_becomes_feasible_with_the_smallest_residual_incr
     assert inc <= _chi2_increase(prob, TRUE_BETA, ols)
 
 
+def test_projection_in_the_covariance_metric_is_the_constrained_fit_and_non_expansive():
+    """PhysicalLS.project (used by DIDIM): projecting the OLS estimate onto the consistent set in
+    the metric of its covariance solves the constrained least-squares problem (the objective is
+    the residual's increase), and a projection onto a convex set brings the estimate no farther
+    from any consistent point, the truth included, in that metric."""
+    prob = _serial_problem(120, 7, noise=3.0, scale=0.3)
+    ols = OLS().fit(prob)
+    assert not is_feasible(ols.params, SMAP), "precondition: the unconstrained estimate is not physical"
+    phys = PhysicalLS(weighting="ols").fit(prob)
+    proj = PhysicalLS(weighting="ols").project(ols.params, ols.cov_params, SMAP)
+    assert not proj["unchanged"] and proj["active_constraints"]
+    assert is_feasible(proj["params"], SMAP)
+    # the same optimum by both routes: equal objective values (the SDP's accuracy), close estimates
+    np.testing.assert_allclose(proj["distance_chi2"], phys.solver["residual_increase_chi2"], rtol=1e-3)
+    np.testing.assert_allclose(_chi2_increase(prob, proj["params"], ols), proj["distance_chi2"], rtol=1e-3)
+    Sinv = np.linalg.inv(ols.cov_params)
+    dist = lambda a, b: float((a - b) @ Sinv @ (a - b))  # noqa: E731
+    for point in (TRUE_BETA, phys.params):
+        assert dist(proj["params"], point) <= dist(ols.params, point) * (1 + 1e-6)
+    # a consistent estimate is returned unchanged
+    same = PhysicalLS(weighting="ols").project(TRUE_BETA, ols.cov_params, SMAP)
+    assert same["unchanged"] and np.array_equal(same["params"], TRUE_BETA)
+    with pytest.raises(InputError, match="regularization"):
+        PhysicalLS(regularization="euclidean", regularization_weight=1.0).project(ols.params, ols.cov_params, SMAP)
+    with pytest.raises(InputError, match="positive definite"):
+        PhysicalLS().project(ols.params, -ols.cov_params, SMAP)
+
+
 def test_margin_and_bounds_hold_and_bind():
     prob = _serial_problem(300, 11, noise=1.0, scale=0.5)
     margin = 1e-3

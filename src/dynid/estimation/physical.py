@@ -430,6 +430,61 @@ class PhysicalLS:
             active = [self._nearest(smap, pi_sdp, buf)]
         return self._result(problem, smap, fit, beta, pi_std, ref, cost, active, stages, unchanged, A)
 
+    def project(self, beta: FloatArray, cov: FloatArray, smap: StandardMap) -> dict:
+        """The physically consistent base parameters closest to ``beta`` in the metric of its
+        covariance: :math:`\\arg\\min_\\pi (B\\pi - \\hat\\beta)^T \\Sigma^{-1} (B\\pi - \\hat\\beta)`
+        under the constraints (the SDP of :meth:`fit` with :math:`A = U^{-1}B`,
+        :math:`d = U^{-1}\\hat\\beta`, :math:`\\Sigma = UU^T`).
+
+        For WLS this is exactly what :meth:`fit` computes (its objective is the residual's
+        increase over the unconstrained optimum, :math:`(\\beta - \\hat\\beta)^T \\Sigma^{-1}
+        (\\beta - \\hat\\beta)` in :math:`\\chi^2` units); here it serves estimators whose
+        covariance is not a least-squares one (DIDIM's fixed point). The feasible set is
+        convex and, when the model is right, contains the truth :math:`\\beta^*`; a projection
+        onto a closed convex set is non-expansive in its metric, so
+        :math:`\\|P\\hat\\beta - \\beta^*\\|_{\\Sigma^{-1}} \\le \\|\\hat\\beta - \\beta^*\\|_{\\Sigma^{-1}}`:
+        the confidence ellipsoid of :math:`\\Sigma` centred on the projection contains the truth
+        whenever the one centred on :math:`\\hat\\beta` does (a conservative region; per-parameter
+        intervals inherit no such guarantee). Regularization does not apply (it would move the
+        estimate by a prior, not by the data).
+
+        Returns a dict: ``params`` (projected base parameters), ``standard_params`` (a
+        consistent standard vector that gives them, tie-broken towards the reference as in
+        :meth:`fit`), ``distance_chi2`` (the Mahalanobis distance squared of the move),
+        ``active_constraints``, ``unchanged`` and ``stages``.
+        """
+        if self.regularization != "none":
+            raise InputError("the projection onto the physically consistent set takes no regularization")
+        cp = require("cvxpy", "sdp")
+        if self.solver not in cp.installed_solvers():
+            raise DynidError(f"solver {self.solver} is not installed (installed: {', '.join(cp.installed_solvers())})")
+        import scipy.linalg as sla
+
+        b = np.asarray(beta, dtype=float)
+        S = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
+        try:
+            U = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise InputError("the covariance to project with is not positive definite") from None
+        A = sla.solve_triangular(U, smap.B, lower=True)
+        d = sla.solve_triangular(U, b, lower=True)
+        ref = smap.reference
+        ref0 = np.zeros(smap.B.shape[1]) if ref is None else np.asarray(ref, dtype=float)
+        stages: dict = {}
+        pi_sdp, stages["sdp"] = self._sdp(cp, smap, A, d, lambda pi: 0)
+        cost = float(np.sum((A @ pi_sdp - d) ** 2))
+        unchanged = cost <= _UNCHANGED
+        params = b.copy() if unchanged else smap.B @ pi_sdp
+        scale = float(np.linalg.norm(smap.B.T @ np.linalg.lstsq(smap.B @ smap.B.T, b - smap.B @ ref0, rcond=None)[0]))
+        eta = _TIE_BREAK / max(scale + float(np.linalg.norm(ref0)), 1e-12)
+        pi_std, stages["standard"] = self._sdp(cp, smap, A, d, lambda pi: eta * cp.norm(pi - ref0))
+        buf = stages["sdp"]["buffer"]
+        active = [] if unchanged else self._active(smap, pi_sdp, buf)
+        if not unchanged and not active:
+            active = [self._nearest(smap, pi_sdp, buf)]
+        return {"params": params, "standard_params": pi_std, "distance_chi2": cost, "active_constraints": active,
+                "unchanged": unchanged, "stages": stages}
+
     # ------------------------------------------------------------------ reporting
     def _margins(self, smap: StandardMap, pi: FloatArray) -> list[tuple[str, float, float]]:
         """(constraint, slack, scale) for every constraint at ``pi``."""

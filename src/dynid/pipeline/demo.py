@@ -9,7 +9,9 @@ The parallel-robot study of paper 001 (Shang, Cong & Kong 2009) as a virtual exp
    (correlated across the drives) make the training log; the rectangle-with-diagonals path
    makes the validation log (``dynid simulate``);
 2. the logs are identified with DIDIM (the experiment replayed on the estimate under its own
-   controller, :mod:`dynid.pipeline.control_loop`) and, for comparison, with WLS on the same
+   controller, :mod:`dynid.pipeline.control_loop`; physically consistent: every iterate a robot,
+   the fixed point projected onto the consistent set in the metric of its covariance, so no
+   friction coefficient has the wrong sign) and, for comparison, with WLS on the same
    processed rows, exactly as ``dynid identify`` would: actuator positions through the closed
    loops, projected equations, Gautier's parallel decimation;
 3. the identified model replaces the nominal one in the controller, and the rectangle is
@@ -79,7 +81,9 @@ decimate_method = "parallel"
 method = "{method}"
 force_model = "projected"
 """
-_DIDIM = 'experiment = "data/train/config.toml"   # the training experiment, replayed on the estimate\n'
+_DIDIM = ('experiment = "data/train/config.toml"   # the training experiment, replayed on the estimate\n'
+          "physical_consistency = true   # every iterate a robot; the result projected onto the consistent set, "
+          "with its covariance\n")
 
 
 def _toml(doc: dict) -> str:
