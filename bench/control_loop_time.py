@@ -224,6 +224,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     worst = max(loop, key=lambda m: median([x["s"] for x in runs[m]]))
     ratio = median([x["s"] for x in runs[worst]]) / wls
+    print(f"{worst} / WLS round by round (same round, minutes apart: load changes show here): "
+          + ", ".join(f"{a['s'] / b['s']:.1f}" for a, b in zip(runs[worst], runs["wls"])))
     ok = ratio <= TARGET_RATIO
     print(f"\n{worst} / WLS: {ratio:.1f}x (target at most {TARGET_RATIO:g}x): {'PASS' if ok else 'FAIL'}"
           + (" (quick run: not enforced)" if args.quick else ""))
