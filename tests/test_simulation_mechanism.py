@@ -111,3 +111,28 @@ def test_free_closed_loop_motion_conserves_energy():
     assert swing > 0.3  # it really moved (rad)
     assert np.abs(mech.constraint_residual(m.q)).max() < 1e-8
     assert np.abs(E - E[0]).max() < 1e-6 * np.abs(E).max()
+
+
+def test_reused_working_memory_leaves_no_trace():
+    """The controller and the projection reuse one pinocchio Data from call to call (bench/README,
+    control-loop identification time): every quantity read from it is recomputed first, so a call
+    gives bit for bit what a fresh Data gives, whatever was computed before (task-space hexapod:
+    point coordinates; shang2dof: joint coordinates, redundant actuation)."""
+    rng = np.random.default_rng(7)
+    for mech, dist in ((build_mechanism("hexapod").in_task_space(), None), (build_mechanism("shang2dof"), "min_norm_local_friction")):
+        pi = mech.nominal_parameters()
+        u0 = mech.coordinates(mech.q_ref)[0]
+        qs = mech.solve_positions(u0 + 1e-3 * rng.standard_normal((3, u0.size)))
+        vs = mech.states(qs, 0.05 * rng.standard_normal((3, u0.size)), np.zeros((3, u0.size))).dq
+        ref = tuple(u0 + 1e-3 * rng.standard_normal(u0.size) for _ in range(3))
+        gains = np.full(u0.size, 2500.0), np.full(u0.size, 100.0)
+        ctrl = AugmentedPD(mech, pi, *gains, dist)
+        used = [ctrl(1e-3, q, v, ref) for q, v in zip(qs, vs)]  # one controller, three states in a row
+        for q, v, tau in zip(qs, vs, used):
+            assert np.array_equal(tau, AugmentedPD(mech, pi, *gains, dist)(1e-3, q, v, ref))  # a fresh one
+        data = mech.pin_model.createData()
+        for q, v in zip(qs[::-1], vs[::-1]):
+            q1 = q + 1e-7 * rng.standard_normal(q.size)  # off the closures: the projection iterates
+            fresh = mech.project(q1, v)
+            reused = mech.project(q1, v, data=data)
+            assert all(np.array_equal(a, b) for a, b in zip(fresh, reused))

@@ -470,26 +470,29 @@ class Mechanism:
         q = self._check_q(np.atleast_2d(np.asarray(q, dtype=float)))[0]
         return self._constraint_jacobian(q, self.pin_model.createData())
 
-    def coordinates(self, q: FloatArray) -> FloatArray:
-        """Independent coordinates :math:`u(q)`, shape ``(n, n_u)``."""
+    def coordinates(self, q: FloatArray, *, data: pin.Data | None = None) -> FloatArray:
+        """Independent coordinates :math:`u(q)`, shape ``(n, n_u)``. ``data``: working memory of
+        ``pin_model`` to reuse (a controller calls this every period; creating it costs about
+        100 us for the hexapod)."""
         q = self._check_q(np.atleast_2d(np.asarray(q, dtype=float)))
-        data = self.pin_model.createData()
+        data = self.pin_model.createData() if data is None else data
         return np.array([self._coordinate_values(qi, data) for qi in q])
 
-    def coordinate_velocities(self, q: FloatArray, dq: FloatArray) -> FloatArray:
-        """:math:`\\dot u = J_u(q)\\dot q`, shape ``(n, n_u)``."""
+    def coordinate_velocities(self, q: FloatArray, dq: FloatArray, *, data: pin.Data | None = None) -> FloatArray:
+        """:math:`\\dot u = J_u(q)\\dot q`, shape ``(n, n_u)``; ``data`` as in :meth:`coordinates`."""
         q = self._check_q(np.atleast_2d(np.asarray(q, dtype=float)))
         dq = self._check_q(np.atleast_2d(np.asarray(dq, dtype=float)), "dq")
-        data = self.pin_model.createData()
+        data = self.pin_model.createData() if data is None else data
         return np.array([self._coordinate_jacobian(qi, data) @ vi for qi, vi in zip(q, dq)])
 
-    def project(self, q: FloatArray, dq: FloatArray | None = None, *, tol: float = 1e-12, max_iter: int = 10):
+    def project(self, q: FloatArray, dq: FloatArray | None = None, *, tol: float = 1e-12, max_iter: int = 10,
+                data: pin.Data | None = None):
         """The nearest assembled configuration (minimum-norm Gauss–Newton steps on the
         independent constraint rows) and, if given, the velocity projected on the constraint
         tangent space (:math:`\\dot q - J_c^+ J_c \\dot q`). Used to remove the drift of a
-        numerical integration; one sample, shapes ``(n_v,)``."""
+        numerical integration; one sample, shapes ``(n_v,)``. ``data`` as in :meth:`coordinates`."""
         q = np.array(q, dtype=float)
-        data = self.pin_model.createData()
+        data = self.pin_model.createData() if data is None else data
         rows = self.constraint_rows
         for _ in range(max_iter):
             c = self._constraint_residual(q, data)[rows]
@@ -594,6 +597,7 @@ class Mechanism:
         ddu: FloatArray,
         *,
         max_cond: float = 1e8,
+        data: pin.Data | None = None,
     ) -> KinematicState:
         """Velocities and accelerations of all joints from those of the independent coordinates.
 
@@ -606,6 +610,9 @@ class Mechanism:
         max_cond : float
             Largest accepted condition number of :math:`[J_c; J_u]` (1-norm); beyond it
             the configuration is reported as singular.
+        data : pinocchio.Data, optional
+            Working memory of ``pin_model`` to reuse call after call (a controller); every
+            quantity read from it is recomputed first, so the result does not depend on it.
 
         Returns
         -------
@@ -615,7 +622,7 @@ class Mechanism:
             :math:`J_u \\ddot q_0 = -\\dot J_u \\dot q` (batched over samples, see
             :mod:`dynid.model.loop_kinematics`).
         """
-        return loop_kinematics.states(self, q, du, ddu, max_cond=max_cond)
+        return loop_kinematics.states(self, q, du, ddu, max_cond=max_cond, data=data)
 
     def kinematic_state(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, *, max_cond: float = 1e8) -> KinematicState:
         """Wrap given joint positions, velocities and accelerations (e.g. from a constrained

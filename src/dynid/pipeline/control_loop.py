@@ -75,6 +75,7 @@ with an error naming the iteration.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -217,7 +218,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
 
     ``start``: the WLS estimate (None when ``start = "nominal"``); ``chunks(ds)`` yields the
     :class:`~dynid.pipeline.identification.Chunk` rows of a dataset processed like the
-    training rows; ``mask_of(chunk)`` the row selection of a chunk.
+    training rows; ``mask_of(chunk)`` the row selection of a chunk (None: every row is kept).
     """
     icfg = cfg.identification
     method = icfg.method
@@ -241,6 +242,14 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
     standard_of = None
     beta_prev = None
     t = np.asarray(train.t, dtype=float)
+    # the measured rows do not change from one iteration to the next: computed once (forward
+    # kinematics of every sample, the regressor). IV keeps them (its normal equations use them at
+    # every iteration: the decimated base regressor, n/k x n_a x p doubles), DIDIM only their row
+    # selection.
+    if method == "iv" or mask_of is not None:
+        measured = [(cm if method == "iv" else None, None if mask_of is None else mask_of(cm)) for cm in chunks(train)]
+    else:  # DIDIM keeping every row: the measured rows are not needed at all
+        measured = itertools.repeat((None, None))
     for k in range(1, icfg.max_iterations + 1):
         progress(f"{method.upper()} iterations", k - 1, icfg.max_iterations)
         beta_used, step, (qs, dqs, ddqs) = _simulate_or_halve(exp, base, nominal_std, beta_prev, beta, t, k,
@@ -248,8 +257,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         sim = train.replace(q=qs, dq=dqs, ddq=ddqs)
         if method == "iv":
             builder = InstrumentBuilder(base.names, channels)
-            for cm, cs in zip(chunks(train), chunks(sim)):
-                mask = mask_of(cm)
+            for (cm, mask), cs in zip(measured, chunks(sim), strict=True):
                 builder.add(cs.W, cm.W, cm.y, mask)
             problem = builder.build()
             if sigma is None:
@@ -261,8 +269,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
                                notes=(), expressions=base.expressions())
         else:
             mb = ProblemBuilder(base.names, channels)
-            for cm, cs in zip(chunks(train), chunks(sim)):
-                mask = mask_of(cm)
+            for (_, mask), cs in zip(measured, chunks(sim)):
                 # the equations at the simulated configuration (projected equations of a redundant
                 # mechanism: G_a(q_s)^T tau_a), the measured forces
                 if mask is not None and mask.ndim == 1:

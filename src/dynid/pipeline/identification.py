@@ -408,7 +408,9 @@ def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Data
         return row_mask(system, force_model, c.dq, pcfg.min_velocity, joint_dq=c.joint_dq,
                         min_velocity_passive=pcfg.min_velocity_passive)
 
-    result = control_loop_estimate(cfg, system, base, train, force_model, start, chunks, mask_of, meta, progress)
+    selects = pcfg.min_velocity is not None or pcfg.min_velocity_passive is not None
+    result = control_loop_estimate(cfg, system, base, train, force_model, start, chunks, mask_of if selects else None,
+                                   meta, progress)
     return result, worst
 
 

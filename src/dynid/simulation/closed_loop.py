@@ -201,12 +201,14 @@ class AugmentedPD:
         self.distribution = distribution
         self._model = mech.with_parameters(self.params)  # the model's inertias, for RNEA at every period
         self._data = self._model.createData()
+        self._kinematics = mech.pin_model.createData()  # working memory of the kinematics, reused every period
 
     def __call__(self, dt: float, q: FloatArray, dq: FloatArray, ref: tuple[FloatArray, FloatArray, FloatArray]) -> FloatArray:
-        u = self.mech.coordinates(q)[0]
-        du = self.mech.coordinate_velocities(q, dq)[0]
+        data = self._kinematics
+        u = self.mech.coordinates(q, data=data)[0]
+        du = self.mech.coordinate_velocities(q, dq, data=data)[0]
         a = ref[2] + self.kv * (ref[1] - du) + self.kp * (ref[0] - u)
-        state = self.mech.states(q[None], du[None], a[None])
+        state = self.mech.states(q[None], du[None], a[None], data=data)
         # RNEA + joint terms, projected: equal to the closed-loop regressor times the parameters
         # (tests/test_closed_loop.py checks the two routes against each other)
         return actuator_forces(self.mech, self.params, state, distribution=self.distribution,
@@ -346,6 +348,7 @@ def _simulate_mechanism_control(sim, controller, reference, duration, dt, subste
     nv, na = mech.nv, mech.n_actuators
     Q, V, A, T = np.empty((n, nv)), np.empty((n, nv)), np.empty((n, nv)), np.empty((n, na))
     h = dt / substeps
+    data = mech.pin_model.createData()  # the projection's working memory, reused every period
     for k in range(n):
         tau = np.asarray(controller(dt, q, v, tuple(r[k] for r in refs)), dtype=float)
         Q[k], V[k], T[k] = q, v, tau
@@ -354,5 +357,5 @@ def _simulate_mechanism_control(sim, controller, reference, duration, dt, subste
             break
         for _ in range(substeps):
             q, v = rk4_step(lambda a, b: sim.acceleration(a, b, tau), q, v, h)
-        q, v = mech.project(q, v)
+        q, v = mech.project(q, v, data=data)
     return SimulatedMotion(t=t, q=Q, dq=V, ddq=A, tau_a=T)
