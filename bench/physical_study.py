@@ -34,7 +34,10 @@ A. 6R serial twin (``builtin:cobot6r``, paper 003's JAKA cobot): truth 15 % away
 B. 3-RPS parallel twin (``builtin:rps3``, paper 000's robot; as examples/twins/rps3_fourier.toml,
    truth 10 % away), Stribeck friction on the three actuated legs, 5 N of force noise, 1 um
    encoders; training on the twin's own excitation (5 harmonics of 0.2 Hz, 40 % of the strokes),
-   held out another one (5 harmonics of 0.1 Hz): the same rows and tables.
+   held out another one (5 harmonics of 0.1 Hz): the same rows and tables, and (8) what limits the
+   held-out Sum (issue 17, item 5; :func:`limits`): rows with ``min_velocity``, the same fits on the
+   simulation's exact states, the model class fitted on the held-out log itself (a bound no
+   training log beats) and the held-out error without the slow samples.
 
 Run: ``.venv/bin/python bench/physical_study.py`` (2 to 4 minutes on 2 cores; ``--quick``: a
 small version, used by the tests). The figures of the last full run are in bench/README.md.
