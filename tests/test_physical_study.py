@@ -93,5 +93,27 @@ def test_parallel_twin(capsys):
     # the log-det row either ran and is consistent, or names why it did not
     r = run["rows"]["WLS+LMI+log-det"]
     assert ("error" in r and r["error"]) or _consistent(r)
+    # section B8 (issue 17, item 5), the full study's conclusions at small size:
+    lim = run["limits"]
+    rows, cad = lim["rows"], lim["cad"]
+    # with exact states the Stribeck fit recovers the truth's hump (72 N) and predicts at the
+    # noise floor, far below half of the CAD model's error on the same states; the linear
+    # constrained fit beats the CAD model there too
+    x = rows["Nonlinear (Opt.), exact states"]
+    assert x["total"] < 1.3 * lim["noise"] and x["ratio"] < 0.5, x
+    assert all(abs(f["Fs"] - f["Fc"] - 72.0) < 10.0 for f in x["stribeck"].values()), x["stribeck"]
+    assert rows["WLS+LMI, exact states"]["ratio"] < 0.85, rows["WLS+LMI, exact states"]
+    # on the processed held-out states that same true model predicts worse than the CAD model:
+    # the held-out Sum is decided by the slow samples (reversals), not by the friction model
+    assert rows["exact-state Nonlinear, processed held-out"]["ratio"] > 1.0
+    assert lim["split"]["exact_nonlinear_fast"] < 0.75 * lim["split"]["cad_fast"], lim["split"]
+    # the in-sample bound: fitted on the held-out log itself, neither model class gets below
+    # 0.85 x CAD, so the nonlinear target (0.5 x CAD) is out of reach of any training log, and
+    # the best linear row sits at the CAD row's level (within 5 %, thin either way)
+    for label in ("in-sample bound, linear (OLS)", "in-sample bound, Nonlinear"):
+        assert 0.85 < rows[label]["ratio"] < 1.0, (label, rows[label])
+    acc = study.acceptance(run)
+    assert not acc["nonlinear_ok"] and acc["best_nonlinear_total"] > 1.5 * 0.5 * cad
+    assert abs(acc["best_linear_total"] / cad - 1.0) < 0.05, acc
     out = capsys.readouterr().out
-    assert "B1." in out and "B4." in out and "Linear (Opt.)" in out
+    assert "B1." in out and "B4." in out and "B8." in out and "Linear (Opt.)" in out
