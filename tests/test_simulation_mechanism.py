@@ -136,3 +136,21 @@ def test_reused_working_memory_leaves_no_trace():
             fresh = mech.project(q1, v)
             reused = mech.project(q1, v, data=data)
             assert all(np.array_equal(a, b) for a, b in zip(fresh, reused))
+
+
+def test_a_diverged_configuration_is_a_model_error_not_a_lapack_message(capfd):
+    """A NaN configuration (a diverged integration) stops the projection with a ModelError that the
+    control-loop identification turns into a halved step; LAPACK never sees the NaN (it would print
+    'On entry to DLASCL ...' to the terminal)."""
+    from dynid.errors import ModelError
+
+    mech = build_mechanism("shang2dof")
+    q = mech.solve_positions(np.array([[0.29, 0.25]]))[0]
+    bad = q.copy()
+    bad[0] = np.nan
+    with pytest.raises(ModelError, match="not finite"):
+        mech.project(bad)
+    with pytest.raises(ModelError, match="not finite"):
+        mech.project(q, np.full_like(q, np.nan))
+    assert "DLASCL" not in capfd.readouterr().out
+    np.testing.assert_allclose(mech.project(q), q, atol=1e-12)  # an assembled configuration stays

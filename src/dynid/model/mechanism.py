@@ -492,10 +492,15 @@ class Mechanism:
         tangent space (:math:`\\dot q - J_c^+ J_c \\dot q`). Used to remove the drift of a
         numerical integration; one sample, shapes ``(n_v,)``. ``data`` as in :meth:`coordinates`."""
         q = np.array(q, dtype=float)
+        if not (np.all(np.isfinite(q)) and (dq is None or np.all(np.isfinite(dq)))):
+            # a diverged integration: say so before LAPACK sees NaN (it prints to the terminal)
+            raise ModelError("cannot project onto the loop closures: the configuration is not finite (the motion diverged)")
         data = self.pin_model.createData() if data is None else data
         rows = self.constraint_rows
         for _ in range(max_iter):
             c = self._constraint_residual(q, data)[rows]
+            if not np.all(np.isfinite(c)):
+                raise ModelError("cannot project onto the loop closures: the closure residual is not finite")
             if np.linalg.norm(c, np.inf) < tol:
                 break
             q = q - np.linalg.lstsq(self._constraint_jacobian(q, data, exact=True)[rows], c, rcond=None)[0]
