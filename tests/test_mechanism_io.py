@@ -364,3 +364,16 @@ def test_loop_that_cannot_close_is_refused_naming_the_closure(tmp_path):
     m = re.search(pattern, msg)
     assert m, msg
     assert float(m.group(2)) >= 1.5 / np.sqrt(2) - 1e-9
+
+
+def test_mjcf_connect_closes_at_qpos0_by_construction(tmp_path):
+    """MuJoCo semantics (followed by pinocchio): a body-based <connect> gives the anchor in
+    body1's frame and computes the point on body2 at qpos0, so moving the anchor 1.73 m away
+    (out of reach of the 0.45 m distal link of the real linkage) still closes: the point on dist2
+    becomes (2.0 - 0.54, 0, 0.36) m (dist2's origin is 0.54 m right of dist1's at q = 0)."""
+    path = _variant(tmp_path, "far.xml", (CONNECT, CONNECT.replace("0.27 0 0.36", "2.0 0 0.36")))
+    mech = load_mechanism_mjcf(path)
+    c = mech.closures[0]
+    assert np.allclose(mech.q_ref, 0.0) and np.abs(mech.constraint_residual(mech.q_ref)).max() < 1e-12
+    pa, pb = c.placement_a.translation, c.placement_b.translation
+    assert np.allclose(sorted([pa[0], pb[0]]), [1.46, 2.0]) and np.allclose([pa[2], pb[2]], 0.36)
