@@ -547,6 +547,28 @@ def _(w):
     return ["info", str(w.write("robot.urdf", URDF))]
 
 
+_LINK = '<inertial><mass value="1"/><inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial>'
+_HINGE = '<axis xyz="0 0 1"/><limit effort="1" velocity="1" lower="-3" upper="3"/></joint>'
+FOURBAR_FAR = f"""<robot name="fourbar">
+  <link name="base"/> <link name="l1">{_LINK}</link> <link name="l2">{_LINK}</link> <link name="l3">{_LINK}</link>
+  <link name="t2"/> <link name="t3"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>{_HINGE}
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="1 0 0"/>{_HINGE}
+  <joint name="tip2" type="fixed"><parent link="l2"/><child link="t2"/><origin xyz="0 1.2 0"/></joint>
+  <joint name="j3" type="revolute"><parent link="base"/><child link="l3"/><origin xyz="-0.5 1.2 0"/>{_HINGE}
+  <joint name="tip3" type="fixed"><parent link="l3"/><child link="t3"/><origin xyz="5 0 0"/></joint>
+</robot>
+"""
+
+
+@case("info", "closure-cannot-close", "robot.urdf + robot.yaml: cannot assemble the loops of",
+      "closure 'tip2-tip3' (3d) cannot close (constraint residual")
+def _(w):
+    """A four-bar whose rocker tip (5 m) lies at least 1.5 m from anything the crank side reaches."""
+    w.write("robot.yaml", "closed_loop: [[tip2, tip3]]\ntype: [3d]\nname_mot: [j1]\n")
+    return ["info", str(w.write("robot.urdf", FOURBAR_FAR))]
+
+
 @case("info", "robot-read-error", "cannot read robot file", "Input/output error",
       marks=pytest.mark.skipif(not Path("/proc/self/mem").exists(), reason="needs Linux /proc"))
 def _(w):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from importlib import resources
 from pathlib import Path
@@ -11,7 +12,7 @@ import pinocchio as pin
 import pytest
 
 from dynid.errors import DynidError, InputError, ModelError
-from dynid.model.mechanism import JointTerm
+from dynid.model.mechanism import JointTerm, Mechanism
 from dynid.model.mechanism_files import _mjcf_closures, _mjcf_equalities, _parse_xml
 from dynid.model.mechanism_io import load_mechanism, load_mechanism_mjcf, load_mechanism_urdf
 
@@ -330,3 +331,49 @@ def test_bad_closure_yaml(tmp_path, yaml_text, expected):
     with pytest.raises(ModelError) as err:
         load_mechanism_urdf(urdf, y)
     assert re.search(expected, _one_line(err.value)), str(err.value)
+
+
+def test_loop_that_cannot_close_is_refused_naming_the_closure(tmp_path):
+    """The four-bar with the rocker tip moved from 1.5 m to 5 m along l3: tip2 stays within
+    |l1| + |tip2| = 1 + 1.2 = 2.2 m of the base origin, tip3 runs on a 5 m circle whose centre is
+    |(-0.5, 1.2)| = 1.3 m from it, so the gap is at least 5 - 1.3 - 2.2 = 1.5 m in any
+    configuration (planar: its z row is 0, so the largest component is >= 1.5/sqrt(2) m). Both the
+    URDF+YAML reader and the Python builder (Mechanism) refuse it and name the closure."""
+    urdf = tmp_path / "r.urdf"
+    urdf.write_text(_URDF.replace('<child link="t3"/><origin xyz="1.5 0 0"/>', '<child link="t3"/><origin xyz="5 0 0"/>'))
+    (tmp_path / "robot.yaml").write_text("closed_loop: [[tip2, tip3]]\ntype: [3D]\nname_mot: [j1]\n")
+    pattern = r"cannot assemble the loops of '(r|fourbar)': closure 'tip2-tip3' \(3d\) cannot close .*constraint residual (\S+) after 100"
+    with pytest.raises(ModelError) as err:
+        load_mechanism_urdf(urdf)
+    msg = _one_line(err.value)
+    m = re.search(pattern, msg)
+    assert m and msg.startswith(f"{urdf} + robot.yaml: "), msg
+    assert float(m.group(2)) >= 1.5 / np.sqrt(2) - 1e-9
+    # the Python builder, from the good four-bar's tree and closure with the tip moved the same way
+    good = tmp_path / "good"
+    good.mkdir()
+    (good / "fourbar.urdf").write_text(_URDF)
+    (good / "robot.yaml").write_text("closed_loop: [[tip2, tip3]]\ntype: [3D]\nname_mot: [j1]\n")
+    mech = load_mechanism_urdf(good / "fourbar.urdf")
+    c = mech.closures[0]
+    assert mech.pin_model.names[c.joint_b] == "j3"  # side b is tip3, 1.5 m along l3: move it to 5 m
+    far = dataclasses.replace(c, placement_b=c.placement_b * pin.SE3(np.eye(3), np.array([3.5, 0.0, 0.0])))
+    with pytest.raises(ModelError) as err:
+        Mechanism(mech.pin_model, (far,), actuated=mech.actuated, terms=mech.terms, q_guess=mech.q_ref, name="fourbar")
+    msg = _one_line(err.value)
+    m = re.search(pattern, msg)
+    assert m, msg
+    assert float(m.group(2)) >= 1.5 / np.sqrt(2) - 1e-9
+
+
+def test_mjcf_connect_closes_at_qpos0_by_construction(tmp_path):
+    """MuJoCo semantics (followed by pinocchio): a body-based <connect> gives the anchor in
+    body1's frame and computes the point on body2 at qpos0, so moving the anchor 1.73 m away
+    (out of reach of the 0.45 m distal link of the real linkage) still closes: the point on dist2
+    becomes (2.0 - 0.54, 0, 0.36) m (dist2's origin is 0.54 m right of dist1's at q = 0)."""
+    path = _variant(tmp_path, "far.xml", (CONNECT, CONNECT.replace("0.27 0 0.36", "2.0 0 0.36")))
+    mech = load_mechanism_mjcf(path)
+    c = mech.closures[0]
+    assert np.allclose(mech.q_ref, 0.0) and np.abs(mech.constraint_residual(mech.q_ref)).max() < 1e-12
+    pa, pb = c.placement_a.translation, c.placement_b.translation
+    assert np.allclose(sorted([pa[0], pb[0]]), [1.46, 2.0]) and np.allclose([pa[2], pb[2]], 0.36)

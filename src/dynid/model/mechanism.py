@@ -280,7 +280,9 @@ class Mechanism:
             )
 
     def _assemble(self, q0: FloatArray, data: pin.Data, tol: float = 1e-12, max_iter: int = 100) -> FloatArray:
-        """Closest assembly to ``q0``: Gauss–Newton on c(q) = 0 with minimum-norm steps."""
+        """Closest assembly to ``q0``: Gauss–Newton on c(q) = 0 with minimum-norm steps. When it
+        does not converge the loops cannot close (an unreachable loop: Gauss–Newton ends at the
+        least-squares gap): the error names the closure with the largest residual [m, rad]."""
         q = q0.copy()
         for _ in range(max_iter):
             c = self._constraint_residual(q, data)
@@ -290,9 +292,14 @@ class Mechanism:
             step = np.linalg.lstsq(J, -c, rcond=1e-10)[0]
             q = q + step
         c = self._constraint_residual(q, data)
+        ends = np.cumsum([cl.rows for cl in self.closures])
+        per = [float(np.linalg.norm(part, np.inf)) if np.all(np.isfinite(part)) else np.inf
+               for part in np.split(c, ends[:-1])]
+        worst = int(np.argmax(per))
+        cl = self.closures[worst]
         raise ModelError(
-            f"cannot assemble the loops of {self.name!r} near the given configuration "
-            f"(constraint residual {np.linalg.norm(c, np.inf):.3g} after {max_iter} iterations)"
+            f"cannot assemble the loops of {self.name!r}: closure {cl.name!r} ({cl.kind}) cannot close near the given "
+            f"configuration (constraint residual {per[worst]:.3g} after {max_iter} Gauss-Newton steps)"
         )
 
     def in_task_space(self) -> Mechanism:

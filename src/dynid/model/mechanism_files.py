@@ -14,6 +14,18 @@ with a closure YAML in the format of Gepetto's *example-parallel-robots*. (The b
   names), ``type`` (``6d``/``3d`` per pair) and ``name_mot`` (actuated joints). URDF
   ``<dynamics>`` damping/friction become nominal viscous/Coulomb values.
 
+Closure check at load. Every loader assembles the loops by Gauss-Newton from the model's
+reference configuration (MJCF ``qpos0``, i.e. the joints' ``ref``; URDF: zero) and refuses a
+loop that does not close, naming the closure with the largest residual [m, rad]. What can
+fail differs by format: a body-based MJCF ``<connect>`` closes at ``qpos0`` by construction
+(MuJoCo semantics, which pinocchio follows: ``anchor`` is given in ``body1``'s frame and the
+point on ``body2`` is computed at ``qpos0``), so an anchor away from ``body2``'s far end gives a
+loop that closes with a link of another length, never an error; a ``<weld>`` with an explicit
+``relpose`` and a URDF+YAML closure (both frames given by the file) can fail. Closing does not
+have to happen *at* the reference configuration: the Gepetto examples are not assembled at
+zero (largest residual 1.57 rad for ``5bar_linkage``, 3.14 rad for ``robot_delta``) and are
+assembled nearby.
+
 Idle joints. The Gepetto examples weld the child bodies of two revolute "closedloop"
 joints with a ``6d`` closure: the welded pair can then spin about the common axis, a
 degree of freedom that no actuator determines and that carries no dynamics worth
