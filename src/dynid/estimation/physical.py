@@ -407,27 +407,15 @@ class PhysicalLS:
         stages: dict = {}
         ref0 = np.zeros(smap.B.shape[1]) if ref is None else ref
         if lam == 0:
-            pi_sdp, stages["sdp"] = self._sdp(cp, smap, A, d, lambda pi: 0)
-            cost = float(np.sum((A @ pi_sdp - d) ** 2))
-            unchanged = cost <= _UNCHANGED  # a feasible unconstrained optimum is returned unchanged
-            beta = s.beta.copy() if unchanged else smap.B @ pi_sdp
-            # the standard vector: tie-break towards the reference (module docstring, step 3)
-            scale = float(np.linalg.norm(smap.B.T @ np.linalg.lstsq(smap.B @ smap.B.T, s.beta - smap.B @ ref0, rcond=None)[0]))
-            eta = _TIE_BREAK / max(scale + float(np.linalg.norm(ref0)), 1e-12)
-            pi_std, stages["standard"] = self._sdp(cp, smap, A, d, lambda pi: eta * cp.norm(pi - ref0))
-            stages["standard"]["residual_increase_chi2"] = float(np.sum((A @ pi_std - d) ** 2)) - cost
+            beta, pi_std, cost, unchanged, active, stages = self._closest(cp, smap, A, d, s.beta, ref0)
         else:
             pi_sdp, stages["sdp"] = self._sdp(cp, smap, A, d, lambda pi: lam * self._divergence(cp, smap, pi, ref, kind),
                                               squared=True)
             pi_std, unchanged = pi_sdp, False
             cost = float(np.sum((A @ pi_sdp - d) ** 2))
             beta = smap.B @ pi_sdp
-        buf = stages["sdp"]["buffer"]
-        active = [] if unchanged else self._active(smap, pi_sdp, buf)
-        if not unchanged and not active and lam == 0:
-            # the optimum moved but no constraint sits on the boundary within the tolerance:
-            # name the nearest one (with regularization the move is the regularization's)
-            active = [self._nearest(smap, pi_sdp, buf)]
+            # with regularization the move is the regularization's: no nearest constraint named
+            active = self._active(smap, pi_sdp, stages["sdp"]["buffer"])
         return self._result(problem, smap, fit, beta, pi_std, ref, cost, active, stages, unchanged, A)
 
     def project(self, beta: FloatArray, cov: FloatArray, smap: StandardMap) -> dict:
@@ -468,22 +456,29 @@ class PhysicalLS:
             raise InputError("the covariance to project with is not positive definite") from None
         A = sla.solve_triangular(U, smap.B, lower=True)
         d = sla.solve_triangular(U, b, lower=True)
-        ref = smap.reference
-        ref0 = np.zeros(smap.B.shape[1]) if ref is None else np.asarray(ref, dtype=float)
+        ref0 = np.zeros(smap.B.shape[1]) if smap.reference is None else np.asarray(smap.reference, dtype=float)
+        params, pi_std, cost, unchanged, active, stages = self._closest(cp, smap, A, d, b, ref0)
+        return {"params": params, "standard_params": pi_std, "distance_chi2": cost, "active_constraints": active,
+                "unchanged": unchanged, "stages": stages}
+
+    def _closest(self, cp, smap: StandardMap, A, d, beta0: FloatArray, ref0: FloatArray):
+        """The constrained minimum of :math:`\\|A\\pi - d\\|` (``beta0``, the unconstrained
+        optimum, returned unchanged when it is feasible), a standard vector that gives it
+        tie-broken towards ``ref0`` (module docstring, step 3), and the active constraints (the
+        nearest one named when the optimum moved but none sits on the boundary within the
+        tolerance). Returns ``(beta, pi_std, cost, unchanged, active, stages)``."""
         stages: dict = {}
         pi_sdp, stages["sdp"] = self._sdp(cp, smap, A, d, lambda pi: 0)
         cost = float(np.sum((A @ pi_sdp - d) ** 2))
-        unchanged = cost <= _UNCHANGED
-        params = b.copy() if unchanged else smap.B @ pi_sdp
-        scale = float(np.linalg.norm(smap.B.T @ np.linalg.lstsq(smap.B @ smap.B.T, b - smap.B @ ref0, rcond=None)[0]))
+        unchanged = cost <= _UNCHANGED  # a feasible unconstrained optimum is returned unchanged
+        beta = beta0.copy() if unchanged else smap.B @ pi_sdp
+        scale = float(np.linalg.norm(smap.B.T @ np.linalg.lstsq(smap.B @ smap.B.T, beta0 - smap.B @ ref0, rcond=None)[0]))
         eta = _TIE_BREAK / max(scale + float(np.linalg.norm(ref0)), 1e-12)
         pi_std, stages["standard"] = self._sdp(cp, smap, A, d, lambda pi: eta * cp.norm(pi - ref0))
+        stages["standard"]["residual_increase_chi2"] = float(np.sum((A @ pi_std - d) ** 2)) - cost
         buf = stages["sdp"]["buffer"]
-        active = [] if unchanged else self._active(smap, pi_sdp, buf)
-        if not unchanged and not active:
-            active = [self._nearest(smap, pi_sdp, buf)]
-        return {"params": params, "standard_params": pi_std, "distance_chi2": cost, "active_constraints": active,
-                "unchanged": unchanged, "stages": stages}
+        active = [] if unchanged else (self._active(smap, pi_sdp, buf) or [self._nearest(smap, pi_sdp, buf)])
+        return beta, pi_std, cost, unchanged, active, stages
 
     # ------------------------------------------------------------------ reporting
     def _margins(self, smap: StandardMap, pi: FloatArray) -> list[tuple[str, float, float]]:

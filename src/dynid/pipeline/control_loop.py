@@ -181,6 +181,19 @@ def _sigma(rss: np.ndarray, n_obs: np.ndarray, p: int) -> np.ndarray:
     return s
 
 
+def _fixed_point(inputs, outputs, cov: np.ndarray, steps: str) -> tuple[np.ndarray, dict]:
+    """The fixed point's covariance (one step's ``cov`` through the iteration's Jacobian, by
+    secants of the iterates after the first, which starts far from the fixed point) and what
+    result.solver records of it; ``steps`` names the steps in that record."""
+    first = 1 if len(inputs) >= 3 else 0
+    out, eig = fixed_point_covariance(np.array(inputs[first:]), np.array(outputs[first:]), cov)
+    info = {"iteration_jacobian_eigenvalues": [complex(e).real if abs(complex(e).imag) < 1e-12 else str(e) for e in eig],
+            "covariance": ("(I - M)^-1 C (I - M)^-T, M by secants of the iterates" if out is not cov else
+                           f"C of the last {steps}" + (" (the estimated iteration does not contract)"
+                                                        if eig.size else " (too few iterations to estimate M)"))}
+    return out, info
+
+
 def _projected_fixed_point(icfg, problem, free: IdentificationResult, inputs, free_outputs) -> tuple[IdentificationResult, dict]:
     """DIDIM with ``physical_consistency``: the unconstrained step at the last (consistent)
     iterate, with the fixed point's covariance (secants of the unconstrained steps at the
@@ -189,9 +202,7 @@ def _projected_fixed_point(icfg, problem, free: IdentificationResult, inputs, fr
     from dynid.estimation import PhysicalLS
     from dynid.pipeline.data import physical_options
 
-    first = 1 if len(inputs) >= 3 else 0
-    cov, eig = fixed_point_covariance(np.array(inputs[first:]), np.array(free_outputs[first:]), free.cov_params)
-    applied = cov is not free.cov_params
+    cov, info = _fixed_point(inputs, free_outputs, free.cov_params, "unconstrained step")
     opts = physical_options(icfg)
     smap = problem.standard
     proj = PhysicalLS(weighting="wls", constraints=opts["constraints"], solver=opts["solver"]).project(free.params, cov, smap)
@@ -209,10 +220,6 @@ def _projected_fixed_point(icfg, problem, free: IdentificationResult, inputs, fr
     result = dataclasses.replace(free, method="WLS+LMI (projected)", params=beta, cov_params=cov,
                                  rss_per_channel=problem.rss_per_channel(beta), solver=solver,
                                  notes=tuple(free.notes) + (moved, "standard errors: " + se))
-    info = {"iteration_jacobian_eigenvalues": [complex(e).real if abs(complex(e).imag) < 1e-12 else str(e) for e in eig],
-            "covariance": ("(I - M)^-1 C (I - M)^-T, M by secants of the unconstrained steps" if applied else
-                           "C of the last unconstrained step" + (" (the estimated iteration does not contract)"
-                                                                 if eig.size else " (too few iterations to estimate M)"))}
     return result, info
 
 
@@ -318,17 +325,8 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
     if method == "didim" and icfg.physical_consistency and icfg.regularization == "none":
         result, fixed_point = _projected_fixed_point(icfg, problem, free, inputs, free_outputs)
     elif method == "didim" and result.cov_params is not None:
-        # the fixed point's covariance: one step's, through the iteration's Jacobian (secants of
-        # the iterates after the first, which starts far from the fixed point)
-        first = 1 if len(inputs) >= 3 else 0
-        cov, eig = fixed_point_covariance(np.array(inputs[first:]), np.array(outputs[first:]), result.cov_params)
-        applied = cov is not result.cov_params
-        fixed_point = {"iteration_jacobian_eigenvalues": [complex(e).real if abs(complex(e).imag) < 1e-12 else str(e)
-                                                          for e in eig],
-                       "covariance": ("(I - M)^-1 C (I - M)^-T, M by secants of the iterates" if applied else
-                                      "C of the last step" + (" (the estimated iteration does not contract)"
-                                                              if eig.size else " (too few iterations to estimate M)"))}
-        if applied:
+        cov, fixed_point = _fixed_point(inputs, outputs, result.cov_params, "step")
+        if cov is not result.cov_params:
             result = dataclasses.replace(result, cov_params=cov)
     name = "IV" if method == "iv" else "DIDIM" + (" + " + result.method if result.method != "WLS" else "")
     solver = {**dict(result.solver), "algorithm": ("IDIM-IV (Janot, Vandanjon & Gautier 2014)" if method == "iv" else
