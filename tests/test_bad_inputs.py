@@ -127,6 +127,10 @@ edit("identify", "covariance-gm", 'method = "ols"', 'method = "gm"\ncovariance =
 edit("identify", "decimate-zero", "[processing]\n", "[processing]\ndecimate = 0\n", "processing.decimate: must be >= 1")
 edit("identify", "min-velocity-negative", "[processing]\n", "[processing]\nmin_velocity = [0.1, -0.1]\n",
      "processing.min_velocity[1]: must be >= 0")
+edit("identify", "reversal-guard-unknown", "[processing]\n", "[processing]\nreversal_guard = \"wide\"\n",
+     "processing.reversal_guard")
+edit("identify", "reversal-guard-auto-without-lowpass", "lowpass = { cutoff_hz = 10.0, order = 2, filter_effort = false }",
+     "reversal_guard = \"auto\"", "processing.reversal_guard = 'auto' is the settling time of processing.lowpass")
 edit("identify", "gear-ratio-zero", 'model = "rp2.toml"', 'model = "rp2.toml"\ngear_ratios = [10.0, 0.0]',
      "robot.gear_ratios[1] is 0")
 edit("identify", "gear-ratios-length", 'model = "rp2.toml"', 'model = "rp2.toml"\ngear_ratios = [10.0, 5.0, 2.0]',

@@ -160,6 +160,24 @@ class ProcessingConfig:
     min_velocity: tuple[float, ...] | None = None
     min_velocity_passive: float | None = None  # mechanisms: samples with a slower passive friction joint left out
     periodic: PeriodicConfig | None = None
+    reversal_guard: float | str | None = None  # seconds, or "auto" (the low-pass's settling time): rows near a reversal left out
+
+    def reversal_guard_s(self) -> float | None:
+        """``reversal_guard`` in seconds (``"auto"``: :func:`dynid.signals.zero_phase_settling_time`
+        of ``lowpass``), None when unset."""
+        if self.reversal_guard is None:
+            return None
+        if self.reversal_guard == "auto":
+            from dynid.signals import zero_phase_settling_time
+
+            assert self.lowpass is not None  # checked when parsed
+            return zero_phase_settling_time(self.lowpass.order, self.lowpass.cutoff_hz)
+        return float(self.reversal_guard)
+
+    @property
+    def selects_rows(self) -> bool:
+        """Whether a row selection (``min_velocity``, ``min_velocity_passive``, ``reversal_guard``) is set."""
+        return self.min_velocity is not None or self.min_velocity_passive is not None or self.reversal_guard is not None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -410,7 +428,7 @@ def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
 def _parse_processing(t: Any) -> ProcessingConfig:
     where = "processing"
     t = _table(t, where, {"resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity",
-                          "min_velocity_passive", "periodic"})
+                          "min_velocity_passive", "periodic", "reversal_guard"})
     resample: str | float = "auto"
     if "resample" in t:
         r = t["resample"]
@@ -428,6 +446,17 @@ def _parse_processing(t: Any) -> ProcessingConfig:
         v = t["min_velocity"]
         mv = _num_or_list(v, f"{where}.min_velocity", minimum=0.0)
         mv = mv if isinstance(mv, tuple) else (mv,)
+    guard: float | str | None = None
+    if "reversal_guard" in t:
+        g = t["reversal_guard"]
+        guard = (_str(g, f"{where}.reversal_guard", ("auto",)) if isinstance(g, str)
+                 else _num(g, f"{where}.reversal_guard", minimum=0.0))
+        if "periodic" in t:
+            raise ConfigError(f"{where}.reversal_guard applies to the time-domain processing (lowpass, central "
+                              f"differences); {where}.periodic filters whole periods in the frequency domain")
+        if guard == "auto" and lowpass is None:
+            raise ConfigError(f"{where}.reversal_guard = 'auto' is the settling time of {where}.lowpass, which is not "
+                              "set; give the guard in seconds or set the low-pass")
     periodic = None
     if "periodic" in t:
         pt = _table(t["periodic"], f"{where}.periodic", {"period_s", "cutoff_hz", "average", "filter_effort", "domain"}, {"period_s", "cutoff_hz"})
@@ -452,6 +481,7 @@ def _parse_processing(t: Any) -> ProcessingConfig:
         min_velocity=mv,
         min_velocity_passive=(_num(t["min_velocity_passive"], f"{where}.min_velocity_passive", minimum=0.0)
                               if "min_velocity_passive" in t else None),
+        reversal_guard=guard,
     )
 
 

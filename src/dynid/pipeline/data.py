@@ -32,7 +32,7 @@ from dynid.model.system import System, as_system, with_actuator_extras, with_mot
 from dynid.model.transmission import Coupling, Transmission
 from dynid.signals import central_difference, lowpass, padlen_for, resample_uniform
 
-__all__ = ["build_system", "build_robot", "to_actuator_space", "check_units", "read_log", "check_held_out", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask"]
+__all__ = ["build_system", "build_robot", "to_actuator_space", "check_units", "read_log", "check_held_out", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask", "reversal_keep"]
 
 _TORQUE_UNITS = ("N*m", "Nm", "N.m", "mN*m")
 _FORCE_UNITS = ("N",)
@@ -435,6 +435,43 @@ def velocity_mask(dq: np.ndarray, min_velocity: tuple[float, ...] | None) -> np.
         raise ConfigError(f"processing.min_velocity: {len(min_velocity)} entries for {n} joints")
     thr = np.broadcast_to(np.asarray(min_velocity, float), (n,))
     return np.abs(dq) >= thr
+
+
+def reversal_keep(dq: np.ndarray, t: np.ndarray, guard_s: float,
+                  slow: Sequence[float] | None = None) -> np.ndarray:
+    """Rows of each joint equation farther than ``guard_s`` seconds from every velocity reversal
+    and every slow sample of that joint (``processing.reversal_guard``), shape of ``dq``.
+
+    A reversal is a sign change of the processed velocity between two consecutive samples, placed
+    midway between them; a slow sample is one with ``|dq_j| < slow_j`` (``processing.min_velocity``,
+    when set: a joint that stops or sticks without changing sign has the same step). Why: where a joint with Coulomb friction reverses, the true acceleration
+    steps (the friction force flips, the controller answers); the zero-phase low-pass spreads that
+    step over its settling time on both sides (:func:`dynid.signals.zero_phase_settling_time`), so
+    within that distance the processed acceleration and the ``sign`` column of the regressor do
+    not describe the measured effort. ``min_velocity`` alone only removes the slow centre of that
+    window. On the hexapod twin of bench/README §8, leaving the window out brings the coverage of
+    the 95 % intervals from 71 % (no selection) and 87 % (``min_velocity = 0.01``) to the nominal
+    level (figures there).
+    """
+    dq = np.asarray(dq, float)
+    t = np.asarray(t, float)
+    keep = np.ones(dq.shape, dtype=bool)
+    if guard_s <= 0 or dq.shape[0] < 2:
+        return keep
+    pos = dq >= 0.0
+    fast = velocity_mask(dq, None if slow is None else tuple(slow))
+    for j in range(dq.shape[1]):
+        flips = np.nonzero(pos[1:, j] != pos[:-1, j])[0]
+        times = 0.5 * (t[flips] + t[flips + 1])
+        if fast is not None:
+            times = np.union1d(times, t[~fast[:, j]])
+        if times.size == 0:
+            continue
+        k = np.searchsorted(times, t)
+        before = np.abs(t - times[np.clip(k - 1, 0, times.size - 1)])
+        after = np.abs(times[np.clip(k, 0, times.size - 1)] - t)
+        keep[:, j] = np.minimum(before, after) > guard_s
+    return keep
 
 
 def _periodic_covariance(steps: list, kind: str, key: str) -> np.ndarray:

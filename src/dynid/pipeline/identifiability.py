@@ -142,9 +142,10 @@ def _evaluate(system: System, base: BaseParameters, ds, cfg: Config, force_model
     preds: list[list[FloatArray]] = [[] for _ in range(n_ch)]
     R = np.zeros((0, base.n_base))
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel, chunk_size=icfg.chunk_size,
-                     periodic=pcfg.periodic):
+                     periodic=pcfg.periodic, reversal_guard=pcfg.reversal_guard_s(),
+                     min_velocity=pcfg.min_velocity):
         mask = row_mask(system, force_model, c.dq, pcfg.min_velocity, joint_dq=c.joint_dq,
-                        min_velocity_passive=pcfg.min_velocity_passive)
+                        min_velocity_passive=pcfg.min_velocity_passive, reversal=c.reversal)
         n = c.y.shape[0]
         m = np.ones((n, n_ch), bool) if mask is None else (np.repeat(mask[:, None], n_ch, 1) if mask.ndim == 1 else mask)
         rows = []
@@ -439,6 +440,7 @@ def run_identifiability(cfg: Config, *, tests: Sequence[tuple[str, DataConfig]] 
     problem = build_problem(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
                             parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
                             periodic=pcfg.periodic, min_velocity_passive=pcfg.min_velocity_passive,
+                            reversal_guard=pcfg.reversal_guard_s(),
                             meta={"processing": steps})
     if problem.n_total <= base.n_base:
         raise InputError(f"data: {problem.n_total} equations are too few for the {base.n_base} base parameters")
@@ -472,8 +474,9 @@ def run_identifiability(cfg: Config, *, tests: Sequence[tuple[str, DataConfig]] 
     for label, act, _ in logs[1:]:
         ds, _ = preprocess(act, pcfg, label)
         evaluated.append(_evaluate(system, base, ds, cfg, force_model, betas, columns, label, False))
-    if pcfg.min_velocity is not None or pcfg.min_velocity_passive is not None:
-        notes.append("every log is scored on the rows the processing keeps (processing.min_velocity)")
+    if pcfg.selects_rows:
+        notes.append("every log is scored on the rows the processing keeps (processing.min_velocity, "
+                     "min_velocity_passive, reversal_guard)")
     return IdentifiabilityOutcome(cfg, base, sequence, models, tuple(feasibility), tuple(marked), tuple(evaluated),
                                   true, tuple(notes),
                                   time.perf_counter() - t0)

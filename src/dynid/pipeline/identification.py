@@ -56,6 +56,7 @@ from dynid.pipeline.data import (
     ml_covariances,
     preprocess,
     read_log,
+    reversal_keep,
     to_actuator_space,
     velocity_mask,
 )
@@ -83,11 +84,13 @@ class Chunk:
     dq: FloatArray
     inconsistency: FloatArray
     joint_dq: FloatArray | None = None  # velocities of all joints of a mechanism (passive row selection)
+    reversal: np.ndarray | None = None  # (n, n_a) rows farther than processing.reversal_guard from a reversal
 
 
 def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, *, parallel_decimate: int = 1,
             chunk_size: int = 20000, progress: Progress = _no_progress, task: str = "compress",
-            periodic=None) -> Iterator[Chunk]:
+            periodic=None, reversal_guard: float | None = None,
+            min_velocity: tuple[float, ...] | None = None) -> Iterator[Chunk]:
     """Yield the rows of ``ds`` chunk by chunk, at full rate or parallel-decimated.
 
     Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
@@ -97,8 +100,14 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     constants, which makes the result equal to whole-signal filtering to ~1e-12 without ever
     holding the full regressor. ``periodic`` with ``domain = "pose"``: the whole averaged period
     at once through the platform pose (paper 004 §3.3).
+
+    ``reversal_guard`` [s]: each chunk carries :func:`~dynid.pipeline.data.reversal_keep` of its
+    rows, computed on the whole log (a reversal near a chunk boundary counts on both sides), around
+    the reversals and the samples slower than ``min_velocity``.
     """
     if periodic is not None and periodic.domain == "pose":
+        if reversal_guard is not None:
+            raise ConfigError("processing.reversal_guard applies to the time-domain processing, not to processing.periodic")
         r, dq = system.pose_rows(ds.q, ds.tau, 1.0 / float(np.median(np.diff(ds.t))), periodic.cutoff_hz, force_model)
         progress(task, ds.n_samples, ds.n_samples)
         yield Chunk(base.regressor(r.W), r.y, dq, r.inconsistency, r.joint_dq)
@@ -108,11 +117,13 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     n = ds.n_samples
     size = max(1, int(chunk_size) if system.max_chunk is None else min(int(chunk_size), system.max_chunk))
     rows = system.rows(force_model)
+    guard = None if reversal_guard is None else reversal_keep(ds.dq, ds.t, reversal_guard, min_velocity)
     if parallel_decimate <= 1:
         for a in range(0, n, size):
             b = min(a + size, n)
             r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
-            yield Chunk(base.regressor(r.W), r.y, ds.dq[a:b], r.inconsistency, r.joint_dq)
+            yield Chunk(base.regressor(r.W), r.y, ds.dq[a:b], r.inconsistency, r.joint_dq,
+                        None if guard is None else guard[a:b])
             progress(task, b, n)
         return
     k = parallel_decimate
@@ -123,13 +134,13 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
         r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
         filt = lambda x: lowpass_sos(x, sos)[keep]  # noqa: E731
         yield Chunk(filt(base.regressor(r.W)), filt(r.y), filt(ds.dq[a:b]), r.inconsistency[keep],
-                    None if r.joint_dq is None else filt(r.joint_dq))
+                    None if r.joint_dq is None else filt(r.joint_dq), None if guard is None else guard[a:b][keep])
         progress(task, b, n)
 
 
 def row_mask(system: System, force_model: str | None, dq: FloatArray, min_velocity: tuple[float, ...] | None,
              whole_samples: bool = False, joint_dq: FloatArray | None = None,
-             min_velocity_passive: float | None = None) -> FloatArray | None:
+             min_velocity_passive: float | None = None, reversal: np.ndarray | None = None) -> FloatArray | None:
     """Rows kept by ``processing.min_velocity`` (None: all): per actuator equation where the
     equations are the actuators' own, else (projected equations of a redundant mechanism, or
     ``whole_samples`` for a full noise covariance across channels) the whole samples in which every
@@ -138,8 +149,13 @@ def row_mask(system: System, force_model: str | None, dq: FloatArray, min_veloci
     ``min_velocity_passive`` (mechanisms): the whole samples in which a passive joint with Coulomb
     friction (:meth:`~dynid.model.system.ClosedLoopSystem.passive_friction_joints`) is slower are
     left out too: its friction reaches every equation through the loops, and where it sticks or
-    reverses its force is whatever holds it, which no friction model describes."""
+    reverses its force is whatever holds it, which no friction model describes.
+
+    ``reversal`` (n, n_a): the rows farther than ``processing.reversal_guard`` from a reversal of
+    each actuator (:attr:`Chunk.reversal`), combined with ``min_velocity`` by the same rule."""
     mask = velocity_mask(dq, min_velocity)
+    if reversal is not None:
+        mask = reversal if mask is None else mask & reversal
     if mask is not None and (whole_samples or not system.channels_are_actuators(force_model)):
         mask = mask.all(axis=1)
     if min_velocity_passive is None or joint_dq is None:
@@ -154,29 +170,33 @@ def row_mask(system: System, force_model: str | None, dq: FloatArray, min_veloci
 def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str | None = None,
                   min_velocity: tuple[float, ...] | None = None, parallel_decimate: int = 1, chunk_size: int = 20000,
                   progress: Progress = _no_progress, meta: dict[str, Any] | None = None, cross: bool = False,
-                  periodic=None, min_velocity_passive: float | None = None) -> RegressionProblem:
+                  periodic=None, min_velocity_passive: float | None = None,
+                  reversal_guard: float | None = None) -> RegressionProblem:
     """Compress a processed actuator-space dataset chunk by chunk (never the full regressor).
 
     ``robot``: a :class:`~dynid.model.system.System` or a model. ``min_velocity`` drops the rows
     where an actuator's (filtered) velocity is below the threshold [rad/s or m/s]: Coulomb friction
-    is ill-defined there (:func:`row_mask`).
+    is ill-defined there (:func:`row_mask`); ``reversal_guard`` [s] drops the rows that close to a
+    reversal of the actuator (:func:`~dynid.pipeline.data.reversal_keep`).
     """
     return _compress(as_system(robot), base, ds, force_model=force_model, min_velocity=min_velocity,
                      parallel_decimate=parallel_decimate, chunk_size=chunk_size, progress=progress, meta=meta,
-                     cross=cross, periodic=periodic, min_velocity_passive=min_velocity_passive)[0]
+                     cross=cross, periodic=periodic, min_velocity_passive=min_velocity_passive,
+                     reversal_guard=reversal_guard)[0]
 
 
 def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model, min_velocity, parallel_decimate,
               chunk_size, progress, meta, cross, periodic, min_velocity_passive=None,
-              blocks=None) -> tuple[RegressionProblem, float]:
+              blocks=None, reversal_guard: float | None = None) -> tuple[RegressionProblem, float]:
     """:func:`build_problem` and the largest inconsistency of redundant actuator positions; ``blocks``
     (a :class:`~dynid.estimation.block_covariance.BlockBuilder`) also gets every chunk and its rows."""
     builder = ProblemBuilder(base.names, system.channel_names(force_model), cross=cross)
     worst = 0.0
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
-                     progress=progress, periodic=periodic):
+                     progress=progress, periodic=periodic, reversal_guard=reversal_guard,
+                     min_velocity=min_velocity):
         mask = row_mask(system, force_model, c.dq, min_velocity, whole_samples=cross, joint_dq=c.joint_dq,
-                        min_velocity_passive=min_velocity_passive)
+                        min_velocity_passive=min_velocity_passive, reversal=c.reversal)
         if mask is not None and mask.ndim == 1:
             builder.add(c.W[mask], c.y[mask])
         else:
@@ -373,8 +393,14 @@ def _stribeck_fit(cfg: Config, system: System, base: BaseParameters, train: Data
         idx = stribeck.sample_indices(W.shape[0], icfg.max_samples)
         W, y, dq, jdq = W[idx], y[idx], dq[idx], (None if jdq is None else jdq[idx])
     worst = max(float(c.inconsistency.max(initial=0.0)) for c in chunks)
+    guard = pcfg.reversal_guard_s()
+    reversal = None
+    if guard is not None:  # on the whole processed log, then at the rows the fit uses
+        reversal = reversal_keep(train.dq, train.t, guard, pcfg.min_velocity)
+        if rows is not train:
+            reversal = reversal[stribeck.sample_indices(train.n_samples, icfg.max_samples)]
     mask = row_mask(system, force_model, dq, pcfg.min_velocity, joint_dq=jdq,
-                    min_velocity_passive=pcfg.min_velocity_passive)
+                    min_velocity_passive=pcfg.min_velocity_passive, reversal=reversal)
     if mask is not None and mask.ndim == 1:
         mask = np.broadcast_to(mask[:, None], y.shape)
     sp = stribeck.sample_problem(W, y, dq, mask, fj, base, system.channel_names(force_model),
@@ -396,19 +422,21 @@ def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Data
     if icfg.start == "wls":
         problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
                                    parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
-                                   meta=meta, cross=False, periodic=None, min_velocity_passive=pcfg.min_velocity_passive)
+                                   meta=meta, cross=False, periodic=None, min_velocity_passive=pcfg.min_velocity_passive,
+                                   reversal_guard=pcfg.reversal_guard_s())
         from dynid.estimation import WLS
 
         start = WLS().fit(problem)
 
     def chunks(ds: Dataset) -> Iterator[Chunk]:
-        return _chunks(system, base, ds, force_model, parallel_decimate=parallel, chunk_size=icfg.chunk_size)
+        return _chunks(system, base, ds, force_model, parallel_decimate=parallel, chunk_size=icfg.chunk_size,
+                       reversal_guard=pcfg.reversal_guard_s(), min_velocity=pcfg.min_velocity)
 
     def mask_of(c: Chunk):
         return row_mask(system, force_model, c.dq, pcfg.min_velocity, joint_dq=c.joint_dq,
-                        min_velocity_passive=pcfg.min_velocity_passive)
+                        min_velocity_passive=pcfg.min_velocity_passive, reversal=c.reversal)
 
-    selects = pcfg.min_velocity is not None or pcfg.min_velocity_passive is not None
+    selects = pcfg.selects_rows
     result = control_loop_estimate(cfg, system, base, train, force_model, start, chunks, mask_of if selects else None,
                                    meta, progress)
     return result, worst
@@ -470,11 +498,12 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
                                        parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
                                        meta=meta, cross=icfg.method == "gm", periodic=periodic,
-                                       min_velocity_passive=pcfg.min_velocity_passive, blocks=blocks)
+                                       min_velocity_passive=pcfg.min_velocity_passive, blocks=blocks,
+                                       reversal_guard=pcfg.reversal_guard_s())
         nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
         result = configured_estimator(icfg, steps, tuple(channels), tuple(names), nominal).fit(problem)
         result = with_covariance(result, blocks, icfg.covariance)
-    if pcfg.min_velocity is not None or pcfg.min_velocity_passive is not None:
+    if pcfg.selects_rows:
         whole = icfg.method == "gm" or not system.channels_are_actuators(force_model)
         selection = {"rows_kept_per_joint": result.n_obs.tolist()}
         if pcfg.min_velocity is not None:
@@ -486,6 +515,11 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
             selection.update(min_velocity_passive=pcfg.min_velocity_passive,
                              passive_joints=[jn[j] for j in system.passive_friction_joints()],
                              passive_rule="whole samples with every passive joint with Coulomb friction at least that fast")
+        if pcfg.reversal_guard is not None:
+            selection.update(reversal_guard_s=pcfg.reversal_guard_s(), reversal_guard=pcfg.reversal_guard,
+                             reversal_rule=("rows farther than the guard from every velocity reversal of the actuator"
+                                            + (" and every sample slower than min_velocity" if pcfg.min_velocity else "")
+                                            + (" (whole samples: every actuator)" if whole else " (per actuator equation)")))
         result = result.with_provenance(row_selection=selection)
     notes = list(notes)
     if force_model == "projected":

@@ -32,6 +32,7 @@ __all__ = [
     "decimation_filter",
     "decimation_segments",
     "lowpass_sos",
+    "zero_phase_settling_time",
 ]
 
 
@@ -65,6 +66,27 @@ def butter_sos(order: int, cutoff_hz: float, fs: float) -> FloatArray:
 def padlen_for(order: int, cutoff_hz: float, fs: float) -> int:
     """Samples of edge transient of the zero-phase filter (about 5 time constants)."""
     return int(np.ceil(5.0 * order * fs / (2.0 * np.pi * cutoff_hz)))
+
+
+def zero_phase_settling_time(order: int, cutoff_hz: float, tol: float = 0.01) -> float:
+    """Seconds over which the zero-phase Butterworth low-pass of :func:`lowpass` smears a step:
+    the largest distance from the step at which its output differs from the step by more than
+    ``tol`` (relative), on either side (the forward-backward pair is symmetric up to a sample).
+
+    A property of the continuous filter (computed at 200 samples per cut-off period, where the
+    discrete filter has converged to it): 0.12 s for order 4 at 10 Hz, 0.08 s for order 2.
+    Used by ``processing.reversal_guard = "auto"``: a velocity reversal is a step in the
+    acceleration (Coulomb friction flips), and a sample within this distance of it carries the
+    filter's smear of that step into the regressor while the measured effort does not.
+    """
+    fs = 200.0 * cutoff_hz
+    half = int(np.ceil(fs * (2.0 + 2.0 * order) / cutoff_hz))
+    step = np.r_[np.zeros(half), np.ones(half)]
+    err = np.abs(lowpass(step, cutoff_hz, fs, order) - step)
+    far = np.nonzero(err > tol)[0]
+    if far.size == 0:
+        return 0.0
+    return float(max(half - far.min(), far.max() + 1 - half) / fs)
 
 
 def lowpass(x: FloatArray, cutoff_hz: float, fs: float, order: int = 4, axis: int = 0) -> FloatArray:

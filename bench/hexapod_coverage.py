@@ -1,0 +1,154 @@
+"""Study (issue 17, items 2 and 5): do the 95 % intervals cover the truth on the hexapod twin?
+
+The twin of ``bench/montecarlo_scaling.py`` (``builtin:hexapod`` with 10 % prior error, a
+3-harmonic task-space Fourier excitation at 0.5 Hz, 3 periods, 500 Hz computed torque, the log
+at 250 Hz; 1 µm strut encoders, 2 N of drive-force noise correlated 0.2 across the struts;
+WLS with 102 base parameters after a 10 Hz zero-phase low-pass), identified ``--trials`` times
+by ``dynid montecarlo`` (:func:`dynid.pipeline.montecarlo.run_montecarlo`) with each row
+selection of the processing:
+
+* none (the figure of bench/README §8 before issue 17);
+* ``min_velocity = 0.01`` m/s (the slow rows out);
+* ``min_velocity = 0.01`` and ``reversal_guard = "auto"``: also every row within the low-pass's
+  settling time (0.12 s at 10 Hz, order 4) of a reversal or a slow row of that strut; what the
+  README recommends when the controller is unknown;
+* the same with ``resimulate = true``: every trial a new trajectory, a new perturbation of the
+  robot and a new simulation (does it hold beyond one motion?).
+
+Reported per variant: coverage of the 95 % intervals over all parameters and trials (95 % if
+honest), the median over the parameters of the median |error| / reported std (0.67 if honest),
+the share of trials whose truth lies inside the 95 % ellipsoid and the mean chi-square of the
+truth (p if honest), the failed trials, the time.
+
+``--figure PATH`` draws where the bias lives instead: the same twin with noise-free forces, the
+residual of the true parameters on the processed rows of strut 3 over time (all of it is
+processing error), with the rows each selection keeps.
+
+Run: ``.venv/bin/python bench/hexapod_coverage.py`` (``--quick``: 10 trials, no resimulation;
+``--trials N``; ``--workers K``; ``--figure bench/figures/hexapod_reversal_guard.png``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _util import print_machine, table  # noqa: E402
+from montecarlo_scaling import CONFIG  # noqa: E402  (the same twin)
+
+from dynid.config.montecarlo import parse_montecarlo_config  # noqa: E402
+from dynid.pipeline.montecarlo import run_montecarlo  # noqa: E402
+
+LOWPASS = 'lowpass = { cutoff_hz = 10.0, order = 4, filter_effort = false }'
+VARIANTS = {
+    "none": (LOWPASS, False),
+    "min_velocity 0.01": (LOWPASS + "\nmin_velocity = 0.01", False),
+    "min_velocity 0.01 + reversal_guard auto": (LOWPASS + '\nmin_velocity = 0.01\nreversal_guard = "auto"', False),
+    "the same, resimulated per trial": (LOWPASS + '\nmin_velocity = 0.01\nreversal_guard = "auto"', True),
+}
+
+
+def config_for(processing: str, resimulate: bool, trials: int, workers: int):
+    text = CONFIG.replace(LOWPASS, processing)
+    assert processing in text
+    cfg = parse_montecarlo_config(tomllib.loads(text), Path("."))
+    return dataclasses.replace(cfg, trials=trials, workers=workers, resimulate=resimulate)
+
+
+def figure(path: Path, strut: int = 2) -> None:
+    """Residual of the truth on the processed rows of one strut, noise-free forces (module docstring)."""
+    import tempfile
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from dynid._files import save_npz
+    from dynid.pipeline.data import reversal_keep
+    from dynid.pipeline.identification import _chunks, identify
+    from dynid.pipeline.montecarlo import _true_base
+    from dynid.pipeline.simulate import measure_signals, run_simulation
+
+    cfg = config_for(LOWPASS, False, 1, 1)
+    cfg = dataclasses.replace(cfg, simulate=dataclasses.replace(
+        cfg.simulate, sensors=dataclasses.replace(cfg.simulate.sensors, force_noise_std=0.0)))
+    sim = run_simulation(cfg.simulate)
+    with tempfile.TemporaryDirectory() as tmp:
+        meas, columns = measure_signals(sim.signals, cfg.seed)
+        save_npz(Path(tmp) / "log.npz", columns)
+        icfg = cfg.identify_config(Path(tmp) / "log.npz", sim.signals.actuators, meas.effort_kind, int(meas.t.size))
+        out = identify(icfg)
+    true = _true_base(out, sim.truth)
+    ds = out.train
+    W = np.concatenate([c.W for c in _chunks(out.system, out.base, ds, None)])
+    y = np.concatenate([c.y for c in _chunks(out.system, out.base, ds, None)])
+    r = (y - W @ true)[:, strut]
+    v = ds.dq[:, strut]
+    slow = np.abs(v) < 0.01
+    guard = dataclasses.replace(icfg.processing, reversal_guard="auto").reversal_guard_s()
+    keep = reversal_keep(ds.dq, ds.t, guard, (0.01,))[:, strut]
+    fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(9, 5.5))
+    a1.plot(ds.t, v, "k-", lw=0.8)
+    a1.axhspan(-0.01, 0.01, color="0.85", label="|velocity| < min_velocity = 0.01 m/s")
+    a1.set_ylabel(f"strut {strut + 1} velocity [m/s]")
+    a1.legend(loc="upper right", fontsize=8)
+    a2.plot(ds.t, r, "-", color="0.6", lw=0.8, label="every row (no selection)")
+    a2.plot(ds.t[~slow], r[~slow], ".", ms=2.5, color="tab:orange", label="kept by min_velocity")
+    a2.plot(ds.t[keep], r[keep], ".", ms=2.5, color="tab:blue",
+            label=f"kept by min_velocity + reversal_guard ({guard:.2f} s)")
+    a2.axhspan(-2.0, 2.0, color="tab:green", alpha=0.12, label="±1 std of the force noise of the Monte Carlo (2 N)")
+    a2.set_ylabel("residual of the truth [N]")
+    a2.set_xlabel("time [s]")
+    a2.legend(loc="upper right", fontsize=8)
+    rms = lambda m: float(np.sqrt(np.mean(r[m] ** 2)))  # noqa: E731
+    a2.set_title(f"noise-free forces: processing error RMS {rms(np.ones_like(slow)):.2f} N (all rows), "
+                 f"{rms(~slow):.2f} N (min_velocity), {rms(keep):.2f} N (+ guard)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"figure: {path}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="10 trials, no resimulated variant")
+    ap.add_argument("--trials", type=int, default=None)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--figure", type=Path, default=None, help="draw where the bias lives (no Monte Carlo)")
+    args = ap.parse_args(argv)
+    if args.figure is not None:
+        figure(args.figure)
+        return 0
+    trials = args.trials or (10 if args.quick else 100)
+    print_machine()
+    print(f"load average before: {os.getloadavg()[0]:.2f}")
+    rows = []
+    for label, (processing, resim) in VARIANTS.items():
+        if resim and args.quick:
+            continue
+        t0 = time.perf_counter()
+        res = run_montecarlo(config_for(processing, resim, trials, args.workers))
+        wall = time.perf_counter() - t0
+        ok = res.with_cov
+        err = np.abs(res.estimates[ok] - res.truth[ok]) / res.std[ok]
+        rows.append([label, f"{res.overall_coverage:.1f}", f"{np.median(np.median(err, axis=0)):.2f}",
+                     f"{res.ellipsoid_share:.0f}", f"{res.mean_chi2:.1f}", f"{len(res.failures)}", f"{wall:.0f}"])
+        print(f"  {label}: coverage {res.overall_coverage:.1f} %, mean chi2 {res.mean_chi2:.1f} (p = {res.n_params}), "
+              f"{wall:.0f} s", flush=True)
+    print()
+    print(f"{trials} trials of builtin:hexapod (WLS, model covariance):")
+    print(table(["row selection", "coverage %", "median |err|/std", "in ellipsoid %", "mean chi2", "failed", "s"], rows))
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
