@@ -19,7 +19,7 @@ import pytest
 from dynid._files import save_npz
 from dynid.config import _parse_processing
 from dynid.config.montecarlo import parse_montecarlo_config
-from dynid.errors import ConfigError
+from dynid.errors import ConfigError, IdentifiabilityError
 from dynid.pipeline.data import reversal_keep
 from dynid.pipeline.identification import identify
 from dynid.pipeline.montecarlo import _trial_simulation, _true_base
@@ -180,3 +180,12 @@ def test_a_stop_without_reversal_needs_the_slow_samples_guarded_too(noise_free_t
     assert chi_flips > p  # the guard around sign changes alone misses the stop
     assert chi_both < 0.25 * p
     assert n.min() > 0.1 * 1040
+
+
+@pytest.mark.parametrize("method", ["ols", "gm"])
+def test_a_selection_that_keeps_too_few_rows_is_refused_in_one_line(noise_free_twins, method):
+    icfg, _ = noise_free_twins[0]
+    cfg = dataclasses.replace(icfg, processing=dataclasses.replace(icfg.processing, reversal_guard=5.0),
+                              identification=dataclasses.replace(icfg.identification, method=method))
+    with pytest.raises(IdentifiabilityError, match=r"processing.reversal_guard; .* keeps 0 equations for 102 base"):
+        identify(cfg)

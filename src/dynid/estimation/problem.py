@@ -261,7 +261,7 @@ class ProblemBuilder:
             a[p + 1 :, p] = yj
             self._factors[j] = _qr_r(a, p + 1)[: p + 1]
             self._n_obs[j] += m
-        if self._cross is not None:
+        if self._cross is not None and W.shape[0] > 0:
             wide = np.concatenate([W, y[:, :, None]], axis=2).reshape(W.shape[0], -1)
             self._cross = _qr_r(np.vstack([self._cross, wide]), self._cross.shape[0])[: self._cross.shape[0]]
 

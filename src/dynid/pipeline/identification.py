@@ -39,7 +39,7 @@ from dynid._files import TIMING_FILE, write_timing
 from dynid._typing import FloatArray
 from dynid.config import Config
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError, InputError
+from dynid.errors import ConfigError, IdentifiabilityError, InputError
 from dynid.estimation import IdentificationResult, ProblemBuilder, RegressionProblem
 from dynid.estimation.validation import ValidationMetrics, motion_overlap, prior_comparison
 from dynid.io.output import staged_output
@@ -205,6 +205,14 @@ def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model,
             blocks.add(c.W, c.y, mask)
         worst = max(worst, float(c.inconsistency.max(initial=0.0)))
     problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta or {})
+    selection = [k for k, v in (("min_velocity", min_velocity), ("min_velocity_passive", min_velocity_passive),
+                                ("reversal_guard", reversal_guard)) if v is not None]
+    if selection and problem.n_total <= base.n_base:
+        rule = "whole samples (every actuator)" if cross or not system.channels_are_actuators(force_model) else "per equation"
+        raise IdentifiabilityError(
+            f"data: the row selection ({', '.join('processing.' + k for k in selection)}; {rule}) keeps "
+            f"{problem.n_total} equations for {base.n_base} base parameters; lower the thresholds or record a "
+            "motion with fewer slow stretches and reversals")
     return problem, worst
 
 
