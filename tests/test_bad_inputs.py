@@ -127,6 +127,10 @@ edit("identify", "covariance-gm", 'method = "ols"', 'method = "gm"\ncovariance =
 edit("identify", "decimate-zero", "[processing]\n", "[processing]\ndecimate = 0\n", "processing.decimate: must be >= 1")
 edit("identify", "min-velocity-negative", "[processing]\n", "[processing]\nmin_velocity = [0.1, -0.1]\n",
      "processing.min_velocity[1]: must be >= 0")
+edit("identify", "robot-independent-serial", 'model = "rp2.toml"', 'model = "rp2.toml"\nindependent = ["shoulder"]',
+     "is a serial robot: actuated joints and independent coordinates are for closed-loop mechanisms")
+edit("identify", "robot-independent-empty", 'model = "rp2.toml"', 'model = "rp2.toml"\nindependent = []',
+     "robot.independent: empty list")
 edit("identify", "reversal-guard-unknown", "[processing]\n", "[processing]\nreversal_guard = \"wide\"\n",
      "processing.reversal_guard")
 edit("identify", "reversal-guard-auto-without-lowpass", "lowpass = { cutoff_hz = 10.0, order = 2, filter_effort = false }",
@@ -539,6 +543,13 @@ _info("dh-nan.toml", ROBOT.replace("a = 0.3", "a = nan"), "joints[1].a: expected
 _info("robot.stl", "solid x\nendsolid x\n", "unknown robot file type '.stl'")
 _info("extras.toml", ROBOT, "unknown joint extras ['stiction']", extra=("--extras", "Ia,stiction"))
 _info("closures.urdf", URDF, "closure file not found", "nope.yaml", extra=("--closures", "nope.yaml"))
+_info("mjcf-redundant.xml", FIVEBAR.replace('<motor joint="qa2"/>', '<motor joint="qa2"/>\n    <motor joint="qb1"/>'),
+      "mechanism 'fivebar' has mobility 2", "but 3 independent coordinates were given", "e.g. ['qa1', 'qa2']")
+_info("mjcf-independent-unknown.xml", FIVEBAR, "independent coordinates ['q9'] are not joints of the model",
+      extra=("--independent", "qa1,q9"))
+_info("mjcf-independent-size.xml", FIVEBAR, "but 1 independent coordinates were given", extra=("--independent", "qa1"))
+_info("dh-independent.toml", ROBOT, "is a serial robot: actuated joints and independent coordinates are for closed-loop",
+      extra=("--independent", "shoulder"))
 case("info", "unknown-builtin", "unknown built-in robot 'pumaa560'")(lambda w: ["info", "builtin:pumaa560"])
 case("info", "missing-file", "robot file not found", "nothing.urdf")(lambda w: ["info", str(w.dir / "nothing.urdf")])
 case("info", "folder", "robot file", "is a folder, not a file")(lambda w: ["info", str(w.dir / "models.urdf")] if

@@ -10,7 +10,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from dynid import __version__
-from dynid.errors import DynidError, InputError
+from dynid.errors import ConfigError, DynidError, InputError
 
 EXIT_OK = 0
 EXIT_INPUT = 2
@@ -56,7 +56,16 @@ def _cmd_info(args: argparse.Namespace) -> int:
     from dynid.model.mechanism import Mechanism
 
     extras = tuple(e for e in args.extras.split(",") if e) if args.extras is not None else ("Ia", "fv", "fc", "offset")
-    robot = load_model(args.robot, extras=extras, closures=args.closures)
+    def joints(value: str | None, flag: str) -> list[str] | None:
+        if value is None:
+            return None
+        names = [n.strip() for n in value.split(",") if n.strip()]
+        if not names:
+            raise ConfigError(f"{flag}: no joint names (a comma-separated list, e.g. {flag} j1,j2)")
+        return names
+
+    robot = load_model(args.robot, extras=extras, closures=args.closures,
+                       actuated=joints(args.actuated, "--actuated"), independent=joints(args.independent, "--independent"))
     if isinstance(robot, Mechanism):
         return _info_mechanism(robot, args.json)
     base = robot_base_parameters(robot)
@@ -339,6 +348,11 @@ def build_parser() -> argparse.ArgumentParser:
     pi.add_argument("--json", action="store_true", help="print JSON")
     pi.add_argument("--extras", default=None, help="comma-separated joint extras (default Ia,fv,fc,offset; '' for none)")
     pi.add_argument("--closures", default=None, help="loop-closure YAML for a URDF parallel robot (default: robot.yaml beside it)")
+    pi.add_argument("--actuated", default=None, metavar="J1,J2,...",
+                    help="parallel robots: the actuated joints in actuator order (default: the file's actuators)")
+    pi.add_argument("--independent", default=None, metavar="J1,J2,...",
+                    help="parallel robots: joints whose positions are the independent coordinates (default: the actuated "
+                         "joints; a redundantly actuated robot needs as many as its mobility)")
     pi.set_defaults(func=_cmd_info)
 
     pid = sub.add_parser("identify", help="identify base parameters from logs as CONFIG.toml says")

@@ -77,6 +77,8 @@ class RobotConfig:
     drive_gains: tuple[float, ...] | None = None
     position_offset: tuple[float, ...] | None = None
     extras_given: bool = False  # extras named in the file (a mechanism then gains them on its actuated joints)
+    actuated: tuple[str, ...] | None = None  # mechanisms: actuated joints, in actuator order (default: the model's)
+    independent: tuple[str, ...] | None = None  # mechanisms: joints whose positions are the independent coordinates
 
     @property
     def has_transmission(self) -> bool:
@@ -307,7 +309,8 @@ class Config:
 # ---------------------------------------------------------------------- parsing
 def _parse_robot(t: Any, base: Path) -> RobotConfig:
     where = "robot"
-    t = _table(t, where, {"model", "extras", "gear_ratios", "couplings", "drive_gains", "position_offset"}, {"model"})
+    t = _table(t, where, {"model", "extras", "gear_ratios", "couplings", "drive_gains", "position_offset", "actuated",
+                          "independent"}, {"model"})
     model = _str(t["model"], f"{where}.model")
     if not model.startswith("builtin:"):
         model = str(_path(model, f"{where}.model", base))
@@ -344,7 +347,21 @@ def _parse_robot(t: Any, base: Path) -> RobotConfig:
         drive_gains=num_list("drive_gains", nonzero=True),
         position_offset=num_list("position_offset"),
         extras_given="extras" in t,
+        actuated=joint_name_list(t, "actuated", where),
+        independent=joint_name_list(t, "independent", where),
     )
+
+
+def joint_name_list(t: Mapping[str, Any], key: str, where: str) -> tuple[str, ...] | None:
+    """``[robot] actuated`` / ``independent``: a non-empty list of distinct joint names (None: absent)."""
+    if key not in t:
+        return None
+    names = _list(t[key], f"{where}.{key}", _str)
+    if not names:
+        raise ConfigError(f"{where}.{key}: empty list; name the joints")
+    if len(set(names)) != len(names):
+        raise ConfigError(f"{where}.{key}: {list(names)} names a joint twice")
+    return tuple(names)
 
 
 def _parse_signal(t: Any, where: str, base: Path, what: str) -> SignalConfig:

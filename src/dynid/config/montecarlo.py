@@ -78,12 +78,14 @@ class MonteCarloConfig:
     def identify_config(self, log: Path, actuators: Sequence[str], effort_kind: str, n_samples: int) -> Config:
         """The ``dynid identify`` configuration of one trial whose log is ``log`` (the columns of
         ``dynid simulate``: ``t``, ``q_<actuator>``, ``tau_<actuator>`` or ``i_<actuator>``)."""
-        return parse_config(_identify_document(self.identify, self.simulate.robot.model, log, actuators, effort_kind,
-                                               n_samples), self.base_dir, source=self.source)
+        r = self.simulate.robot
+        chart = {k: list(v) for k, v in (("actuated", r.actuated), ("independent", r.independent)) if v is not None}
+        return parse_config(_identify_document(self.identify, r.model, log, actuators, effort_kind, n_samples, chart),
+                            self.base_dir, source=self.source)
 
 
 def _identify_document(t: Mapping[str, Any], model: str, log: Path, actuators: Sequence[str], effort_kind: str,
-                       n_samples: int) -> dict[str, Any]:
+                       n_samples: int, chart: Mapping[str, Any] | None = None) -> dict[str, Any]:
     prefix = "i" if effort_kind == "current" else "tau"
     data: dict[str, Any] = {
         "file": str(log),
@@ -96,7 +98,7 @@ def _identify_document(t: Mapping[str, Any], model: str, log: Path, actuators: S
     else:
         split = max(1, min(n_samples - 1, int(DEFAULT_TRAIN_SHARE * n_samples)))
         train, held_out = {"rows": [0, split]}, {"rows": [split, n_samples]}
-    robot = {"model": model, **t.get("robot", {})}
+    robot = {"model": model, **(chart or {}), **t.get("robot", {})}  # the simulated chart unless identify names its own
     doc: dict[str, Any] = {"robot": robot, "data": {**data, **train}, "validation": held_out, "output": {"plots": False}}
     for key in ("processing", "identification"):
         if key in t:

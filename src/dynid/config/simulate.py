@@ -69,7 +69,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from dynid.config import _bool, _int, _list, _num, _num_or_list, _str, _table, read_toml
+from dynid.config import _bool, _int, _list, _num, _num_or_list, _str, _table, joint_name_list, read_toml
 from dynid.errors import ConfigError
 
 __all__ = [
@@ -96,6 +96,8 @@ class RobotSimConfig:
     perturbation_seed: int = 0
     friction: Mapping[str, Any] | None = None
     payload: Mapping[str, Any] | None = None
+    actuated: tuple[str, ...] | None = None  # mechanisms: as [robot] actuated / independent of dynid identify
+    independent: tuple[str, ...] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -331,13 +333,16 @@ def parse_simulate_config(doc: Mapping[str, Any], base_dir: Path, source: Path |
     """Validate a parsed TOML document (see module docstring)."""
     doc = _table(dict(doc), "config", {"robot", "trajectory", "control", "sensors", "simulation", "output"},
                  {"robot", "trajectory"})
-    r = _table(doc["robot"], "robot", {"model", "perturbation", "perturbation_seed", "friction", "payload"}, {"model"})
+    r = _table(doc["robot"], "robot", {"model", "perturbation", "perturbation_seed", "friction", "payload", "actuated",
+                                       "independent"}, {"model"})
     robot = RobotSimConfig(
         model=_str(r["model"], "robot.model"),
         perturbation=_num(r.get("perturbation", 0.0), "robot.perturbation"),
         perturbation_seed=_int(r.get("perturbation_seed", 0), "robot.perturbation_seed", 0),
         friction=_parse_friction(r["friction"]) if "friction" in r else None,
         payload=_parse_payload(r["payload"]) if "payload" in r else None,
+        actuated=joint_name_list(r, "actuated", "robot"),
+        independent=joint_name_list(r, "independent", "robot"),
     )
     if robot.perturbation < 0:
         raise ConfigError(f"robot.perturbation must be >= 0, got {robot.perturbation}")

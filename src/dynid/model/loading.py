@@ -175,31 +175,44 @@ def _mjcf_has_closures(path: Path) -> bool:
     return any(len(eq) > 0 for eq in root.iter("equality"))
 
 
-def load_model(spec: str, *, extras: Sequence[str] = JOINT_EXTRAS, closures: str | Path | None = None):
+def load_model(spec: str, *, extras: Sequence[str] = JOINT_EXTRAS, closures: str | Path | None = None,
+               actuated: Sequence[str] | None = None, independent: Sequence[str] | None = None):
     """A serial :class:`RobotModel` or a closed-loop :class:`~dynid.model.mechanism.Mechanism`.
 
     Closed-loop models are: ``builtin:`` mechanisms (shang2dof, rps3, hexapod, fivebar),
     MJCF files with an ``<equality>`` section (``<connect>``/``<weld>`` loop closures), and
     URDF files given with a closure YAML (``closures``, or a ``robot.yaml`` next to the URDF).
     Everything else is loaded by :func:`load_robot`.
+
+    ``actuated`` / ``independent`` (joint names, mechanisms only; ``[robot] actuated`` and
+    ``independent`` of the configs): the actuated joints in actuator order (default: the file's
+    actuators, or the built-in's) and the joints whose positions are the independent coordinates
+    (default: the actuated joints; a redundantly actuated robot needs as many as its mobility).
     """
+    chart = actuated is not None or independent is not None
     if spec.startswith("builtin:"):
         from dynid.model.robots import MECHANISMS, build_mechanism
 
         name = spec.split(":", 1)[1]
         if name in MECHANISMS:
-            return build_mechanism(name)
-        return load_robot(spec, extras=extras)
-    path = Path(spec)
-    suffix = path.suffix.lower()
-    if suffix in (".xml", ".mjcf") and path.is_file() and _mjcf_has_closures(path):
-        from dynid.model.mechanism_io import load_mechanism_mjcf
+            mech = build_mechanism(name)
+            return mech.with_chart(actuated, independent) if chart else mech
+        robot = load_robot(spec, extras=extras)
+    else:
+        path = Path(spec)
+        suffix = path.suffix.lower()
+        if suffix in (".xml", ".mjcf") and path.is_file() and _mjcf_has_closures(path):
+            from dynid.model.mechanism_io import load_mechanism_mjcf
 
-        return load_mechanism_mjcf(path)
-    if suffix == ".urdf" and (closures is not None or (path.parent / "robot.yaml").is_file()):
-        from dynid.model.mechanism_io import load_mechanism_urdf
+            return load_mechanism_mjcf(path, actuated=actuated, independent=independent)
+        if suffix == ".urdf" and (closures is not None or (path.parent / "robot.yaml").is_file()):
+            from dynid.model.mechanism_io import load_mechanism_urdf
 
-        return load_mechanism_urdf(path, closures)
-    if closures is not None:
-        raise ModelError(f"a closure file was given but {spec} is not a URDF")
-    return load_robot(spec, extras=extras)
+            return load_mechanism_urdf(path, closures, actuated=actuated, independent=independent)
+        if closures is not None:
+            raise ModelError(f"a closure file was given but {spec} is not a URDF")
+        robot = load_robot(spec, extras=extras)
+    if chart:
+        raise ModelError(f"{spec} is a serial robot: actuated joints and independent coordinates are for closed-loop "
+                         "mechanisms (every joint of a serial robot is both)")
+    return robot

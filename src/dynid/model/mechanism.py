@@ -36,7 +36,7 @@ configuration, so that the stacked matrix is square and solved per sample in bat
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 
 import numpy as np
@@ -261,7 +261,7 @@ class Mechanism:
         if n_u != mob:
             raise ModelError(
                 f"mechanism {self.name!r} has mobility {mob} (n_v {nv} - {rank} independent constraint rows) "
-                f"but {n_u} independent coordinates were given"
+                f"but {n_u} independent coordinates were given{self._chart_hint(Jc[rows], mob)}"
             )
         Sa = np.zeros((len(self.actuated), nv))
         Sa[np.arange(len(self.actuated)), list(self.actuated)] = 1.0
@@ -274,10 +274,44 @@ class Mechanism:
         A = np.vstack([Jc[rows], self._coordinate_jacobian(q, data)])
         cond = np.linalg.cond(A)
         if not np.isfinite(cond) or cond > 1e10:
+            given = (f" {[self.pin_model.names[j + 1] for j in self.independent.joints]}"
+                     if isinstance(self.independent, JointCoordinates) else "")
             raise ModelError(
-                f"the independent coordinates do not determine the motion at the reference configuration "
-                f"(condition number of [J_c; J_u] = {cond:.3g})"
+                f"the independent coordinates{given} do not determine the motion at the reference configuration "
+                f"(condition number of [J_c; J_u] = {cond:.3g}){self._chart_hint(Jc[rows], mob)}"
             )
+
+    def _chart_hint(self, Jc: FloatArray, mob: int, limit: int = 4, budget: int = 5000) -> str:
+        """``"; valid choices ...: [...], [...]"``: sets of ``mob`` joints whose positions are a
+        chart at the reference configuration (rank of ``[J_c; S]`` = n_v, condition number below
+        1e10), the actuated joints' subsets first, then any joints; at most ``budget`` sets tried."""
+        import itertools
+
+        nv = self.pin_model.nv
+        names = self.pin_model.names
+        found: list[list[str]] = []
+        tried = 0
+        pools = [list(self.actuated), [j for j in range(nv)]]
+        seen: set[tuple[int, ...]] = set()
+        for pool in pools:
+            for combo in itertools.combinations(pool, mob):
+                if combo in seen:
+                    continue
+                seen.add(combo)
+                tried += 1
+                if tried > budget or len(found) >= limit:
+                    break
+                S = np.zeros((mob, nv))
+                S[np.arange(mob), list(combo)] = 1.0
+                c = np.linalg.cond(np.vstack([Jc, S]))
+                if np.isfinite(c) and c <= 1e10:
+                    found.append([names[j + 1] for j in combo])
+            if found:
+                break
+        if not found:
+            return f"; no set of {mob} joint positions tried ({min(tried, budget)}) is a chart here"
+        return (f"; give {mob} joints as the independent coordinates ([robot] independent = [...], dynid info --independent), e.g. "
+                + ", ".join(str(f) for f in found))
 
     def _assemble(self, q0: FloatArray, data: pin.Data, tol: float = 1e-12, max_iter: int = 100) -> FloatArray:
         """Closest assembly to ``q0``: Gauss–Newton on c(q) = 0 with minimum-norm steps. When it
@@ -332,6 +366,26 @@ class Mechanism:
     @property
     def joint_names(self) -> tuple[str, ...]:
         return tuple(self.pin_model.names[1:])
+
+    def with_chart(self, actuated: Sequence[str] | None = None, independent: Sequence[str] | None = None) -> Mechanism:
+        """The same mechanism with other actuated joints (names, in actuator order) and/or other
+        independent coordinates (joint names; default: the actuated joints). Joint terms stay
+        as they are; the topology checks run again (a wrong set is a one-line :class:`ModelError`
+        that lists valid choices)."""
+        names = list(self.joint_names)
+
+        def index(refs: Sequence[str], what: str) -> tuple[int, ...]:
+            bad = [r for r in refs if r not in names]
+            if bad:
+                raise ModelError(f"{what} {bad} are not joints of {self.name!r}; joints: {names}")
+            if len(set(refs)) != len(refs):
+                raise ModelError(f"{what} {list(refs)} name a joint twice")
+            return tuple(names.index(r) for r in refs)
+
+        act = self.actuated if actuated is None else index(actuated, "actuated joints")
+        ind = (JointCoordinates(act) if independent is None and actuated is not None
+               else self.independent if independent is None else JointCoordinates(index(independent, "independent coordinates")))
+        return dataclasses.replace(self, actuated=act, independent=ind)
 
     @property
     def actuated_names(self) -> list[str]:

@@ -112,7 +112,7 @@ def _experiment(cfg: Config, system: System) -> _Experiment:
 
     path = cfg.identification.experiment
     exp = load_simulate_config(path)
-    robot = load_model(exp.robot.model)
+    robot = load_model(exp.robot.model, actuated=exp.robot.actuated, independent=exp.robot.independent)
     names = tuple(robot.parameter_names)
     ident = tuple(system.model.parameter_names)  # the model's full layout (expand_parameters of a reduced one)
     missing = [n for n in names if n not in ident]

@@ -47,7 +47,7 @@ def build_system(cfg: RobotConfig) -> System:
     drive gains, encoder offsets), for serial and parallel robots alike."""
     from dynid.model.loading import load_model
 
-    model = load_model(cfg.model, extras=cfg.extras)
+    model = load_model(cfg.model, extras=cfg.extras, actuated=cfg.actuated, independent=cfg.independent)
     if isinstance(model, Mechanism) and cfg.extras_given:
         model = with_actuator_extras(model, cfg.extras)
     system = as_system(model)

@@ -346,7 +346,7 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, rob
 
 def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None,
                     plant_params: np.ndarray | None = None) -> SimulationOutcome:
-    robot = load_model(cfg.robot.model)
+    robot = load_model(cfg.robot.model, actuated=cfg.robot.actuated, independent=cfg.robot.independent)
     if variant is not None:
         if list(variant.parameter_names) != list(robot.parameter_names):
             raise ModelError(f"the variant of {cfg.robot.model} has other parameters than the model itself")
@@ -502,7 +502,8 @@ def actuator_states(outcome: SimulationOutcome) -> tuple[np.ndarray, np.ndarray,
     velocities, accelerations (n, n_a) (accelerations at the start of each hold, under the held
     forces)."""
     motion = outcome.motion
-    robot = load_model(outcome.config.robot.model)
+    r = outcome.config.robot
+    robot = load_model(r.model, actuated=r.actuated, independent=r.independent)
     act = list(robot.actuated) if isinstance(robot, Mechanism) else slice(None)
     return motion.t, motion.q[:, act], motion.dq[:, act], motion.ddq[:, act]
 

@@ -1,0 +1,189 @@
+"""Independent coordinates and actuated joints from the configs and the CLI (issue 18, items 2 and 7).
+
+A redundantly actuated robot written outside the project (the five-bar of the built-ins with a
+third motor on a passive joint, in MJCF) has 3 actuators for 2 degrees of freedom: its default
+chart (the actuated joints) has the wrong size. The error must list valid choices; naming one in
+``[robot] independent`` (or ``dynid info --independent``) must make every command work, and the
+simulated robot must be identified from its configs alone.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dynid.cli import main
+from dynid.config import load_config, parse_config
+from dynid.config.montecarlo import parse_montecarlo_config
+from dynid.errors import ConfigError, ModelError
+from dynid.model.loading import load_model
+from dynid.pipeline.identification import identify
+
+FIVEBAR = Path(str(resources.files("dynid.model.robots") / "fivebar.xml"))
+
+
+@pytest.fixture(scope="module")
+def fivebar3(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("fivebar3")
+    text = FIVEBAR.read_text()
+    motor = '<motor name="m2" joint="qa2" gear="1"/>'
+    assert motor in text
+    path = d / "fivebar3.xml"
+    path.write_text(text.replace(motor, motor + '\n    <motor name="m3" joint="qb1" gear="1"/>'))
+    return path
+
+
+def _listed(msg: str) -> list[list[str]]:
+    """The joint-name lists after "e.g." in a chart error."""
+    return [re.findall(r"'([^']+)'", group) for group in re.findall(r"\[([^\]]*)\]", msg.split("e.g. ")[1])]
+
+
+def _chart_is_valid(mech, names) -> bool:
+    try:
+        mech.with_chart(independent=names)
+        return True
+    except ModelError:
+        return False
+
+
+def test_a_chart_of_the_wrong_size_lists_valid_choices_that_load(fivebar3):
+    with pytest.raises(ModelError) as err:
+        load_model(str(fivebar3))
+    msg = str(err.value)
+    assert "\n" not in msg and "mobility 2" in msg and "3 independent coordinates were given" in msg
+    choices = _listed(msg)
+    assert choices and all(len(c) == 2 for c in choices)
+    for names in choices:  # every listed choice is a chart: the mechanism loads with it
+        mech = load_model(str(fivebar3), independent=names)
+        assert mech.redundant and mech.dof == 2 and mech.actuated_names == ["qa1", "qa2", "qb1"]
+
+
+def test_a_singular_chart_is_refused_with_valid_choices():
+    hexapod = load_model("builtin:hexapod")
+    wrong = list(hexapod.joint_names[:6])  # the cardan angles and slider of two legs: not a chart
+    with pytest.raises(ModelError) as err:
+        hexapod.with_chart(independent=wrong)
+    msg = str(err.value)
+    assert "do not determine the motion" in msg and str(wrong) in msg
+    (suggestion,) = _listed(msg)
+    assert _chart_is_valid(hexapod, suggestion)
+    # the independent route: the Jacobian of the suggested chart stacked on the closures is regular
+    assert suggestion == hexapod.actuated_names
+
+
+def test_unknown_or_repeated_joint_names_are_refused(fivebar3):
+    with pytest.raises(ModelError, match=r"independent coordinates \['zz'\] are not joints of the model; joints: "):
+        load_model(str(fivebar3), independent=["qa1", "zz"])
+    shang = load_model("builtin:shang2dof")
+    with pytest.raises(ModelError, match="name a joint twice"):
+        shang.with_chart(independent=["qa1", "qa1"])
+    with pytest.raises(ModelError, match="serial robot"):
+        load_model("builtin:puma560", independent=["j1"])
+
+
+def test_dynid_info_takes_the_chart(fivebar3, capsys):
+    assert main(["info", str(fivebar3)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("dynid: error: ") and err.count("\n") == 1 and "--independent" in err
+    assert main(["info", str(fivebar3), "--independent", "qa1,qa2", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["n_actuators"] == 3 and info["dof"] == 2
+    assert main(["info", str(fivebar3), "--independent", ","]) == 2
+    assert "--independent: no joint names" in capsys.readouterr().err
+
+
+ROBOT = '[robot]\nmodel = "{model}"\nindependent = ["qa1", "qa2"]\n'
+
+
+def test_robot_chart_keys_parse_and_refuse_bad_values(fivebar3):
+    doc = tomllib.loads(ROBOT.format(model=fivebar3) + '[data]\nfile = "x.csv"\nsample_rate_hz = 100.0\nrows = [1, 10]\nposition = { columns = ["a"] }\n'
+                        'effort = { columns = ["b"] }\n[validation]\nrows = [0, 1]\n')
+    cfg = parse_config(doc, fivebar3.parent)
+    assert cfg.robot.independent == ("qa1", "qa2") and cfg.robot.actuated is None
+    for value, match in (([], "empty list"), (["qa1", "qa1"], "names a joint twice"), ([1, 2], r"robot.independent\[0\]")):
+        bad = dict(doc, robot={"model": str(fivebar3), "independent": value})
+        with pytest.raises(ConfigError, match=match):
+            parse_config(bad, fivebar3.parent)
+
+
+SIMULATE = """
+[trajectory]
+kind = "fourier"
+base_frequency_hz = 1.0
+harmonics = 3
+fill = 0.1
+max_velocity = 1.0
+max_acceleration = 5.0
+periods = 3
+seed = 2
+
+[control]
+rate_hz = 250
+kp = 400
+kd = 40
+
+[sensors]
+encoder_resolution = 1e-6
+force_noise_std = 0.01
+seed = 1
+"""
+
+IDENTIFY = """
+[data]
+file = "sim/log.csv"
+time = {{ column = "t", unit = "s" }}
+rows = [0, 500]
+position = {{ columns = ["q_qa1", "q_qa2", "q_qb1"], unit = "rad" }}
+effort = {{ columns = ["tau_qa1", "tau_qa2", "tau_qb1"], unit = "N*m", kind = "torque" }}
+
+[validation]
+rows = [500, 751]
+
+[processing]
+lowpass = {{ cutoff_hz = 20.0, order = 4, filter_effort = false }}
+min_velocity = 0.05
+reversal_guard = "auto"
+
+[identification]
+method = "wls"
+
+[output]
+plots = false
+"""
+
+
+def test_a_redundant_robot_from_its_own_files_is_simulated_and_identified_from_configs(fivebar3, capsys):
+    d = fivebar3.parent
+    (d / "sim.toml").write_text(ROBOT.format(model=fivebar3.name) + SIMULATE)
+    assert main(["simulate", str(d / "sim.toml"), "--out", str(d / "sim")]) == 0
+    header = (d / "sim" / "log.csv").read_text().splitlines()[0].split(",")
+    assert {"q_qa1", "q_qa2", "q_qb1", "tau_qb1"} <= set(header)
+    (d / "id.toml").write_text(ROBOT.format(model=fivebar3.name) + IDENTIFY.format())
+    assert main(["identify", str(d / "id.toml"), "--out", str(d / "id")]) == 0
+    res = json.loads((d / "id" / "result.json").read_text())
+    assert "redundant actuation" in json.dumps(res)
+    assert [c["name"] for c in res["channels"]] == ["u_qa1", "u_qa2"]  # projected on the chart's coordinates
+    # the simulated truth (the nominal model) inside the intervals: 19 base parameters, at most 3
+    # outside their 95 % intervals (binomial: P(more) < 2 %), none beyond 4.5 std
+    outcome = identify(load_config(d / "id.toml"))
+    truth = json.loads((d / "sim" / "truth.json").read_text())
+    z = (outcome.result.params - outcome.base.from_standard(np.asarray(truth["true_parameters"]))) / outcome.result.bse
+    assert outcome.system.model.independent.joints == (0, 2)  # qa1, qa2 (velocity indices)
+    assert int(np.sum(np.abs(z) > 1.96)) <= 3 and np.abs(z).max() < 4.5, np.round(z, 2)
+    capsys.readouterr()
+
+
+def test_montecarlo_passes_the_simulated_chart_to_identify(fivebar3):
+    doc = tomllib.loads(f"[simulate]\n{ROBOT.format(model=fivebar3.name).replace('[robot]', '[simulate.robot]')}"
+                        + SIMULATE.replace("[trajectory]", "[simulate.trajectory]").replace("[control]", "[simulate.control]")
+                        .replace("[sensors]", "[simulate.sensors]"))
+    cfg = parse_montecarlo_config(doc, fivebar3.parent)
+    icfg = cfg.identify_config(fivebar3.parent / "log.npz", ["qa1", "qa2", "qb1"], "torque", 1000)
+    assert icfg.robot.independent == ("qa1", "qa2")
+    assert np.all(np.array(icfg.robot.independent) == np.array(cfg.simulate.robot.independent))
