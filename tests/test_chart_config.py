@@ -176,6 +176,18 @@ def test_a_redundant_robot_from_its_own_files_is_simulated_and_identified_from_c
     z = (outcome.result.params - outcome.base.from_standard(np.asarray(truth["true_parameters"]))) / outcome.result.bse
     assert outcome.system.model.independent.joints == (0, 2)  # qa1, qa2 (velocity indices)
     assert int(np.sum(np.abs(z) > 1.96)) <= 3 and np.abs(z).max() < 4.5, np.round(z, 2)
+    # round trip (item 4): the physically consistent fit exports model.mjcf, which carries the chart
+    (d / "lmi.toml").write_text((d / "id.toml").read_text().replace('method = "wls"', 'method = "wls"\nphysical_consistency = true'))
+    assert main(["identify", str(d / "lmi.toml"), "--out", str(d / "lmi")]) == 0
+    exported = d / "lmi" / "model.mjcf"
+    assert exported.is_file()
+    capsys.readouterr()
+    assert main(["info", str(exported), "--json"]) == 0  # no --independent: the file says it
+    info = json.loads(capsys.readouterr().out)
+    assert info["n_actuators"] == 3 and info["dof"] == 2
+    again = IDENTIFY.format().replace('file = "sim/log.csv"', f'file = "{d / "sim" / "log.csv"}"')
+    (d / "again.toml").write_text(f'[robot]\nmodel = "{exported}"\n' + again)
+    assert main(["identify", str(d / "again.toml"), "--out", str(d / "again")]) == 0
     capsys.readouterr()
 
 

@@ -6,6 +6,7 @@ dynid's loaders) and compares dynamics or kinematics, not the writer's own numbe
 
 from __future__ import annotations
 
+import json
 import re
 import xml.etree.ElementTree as ET
 
@@ -333,12 +334,18 @@ def test_mjcf_read_by_pinocchio_gives_tree_inertias_terms_and_closures(exported,
 )
 def test_mjcf_read_back_by_dynid_is_an_equivalent_mechanism(exported, name):
     mech, params, path = exported[name]
-    kw = {}
-    if isinstance(mech.independent, PointCoordinates) or list(mech.independent.joints) != list(mech.actuated):
-        kw["independent"] = mech.independent  # not an MJCF notion; joint order is the same here
-    loaded = load_mechanism_mjcf(path, **kw)
+    loaded = load_mechanism_mjcf(path)  # the chart comes back from <custom> (shang2dof: a point)
     assert loaded.joint_names == mech.joint_names
     assert loaded.actuated_names == mech.actuated_names
+    a, b = loaded.independent, mech.independent
+    if isinstance(b, PointCoordinates):
+        assert isinstance(a, PointCoordinates) and a.joint == b.joint and a.axes == b.axes
+        np.testing.assert_allclose(a.placement.translation, b.placement.translation, atol=1e-15)
+        # the same coordinates by an independent route: the point's position at an assembly
+        q = _second_assembly(mech)
+        np.testing.assert_allclose(loaded.coordinates(q[None]), mech.coordinates(q[None]), atol=1e-12)
+    else:
+        assert a == b
     assert [(c.name, c.kind) for c in loaded.closures] == [(c.name, c.kind) for c in mech.closures]
     index = [mech.joint_names.index(n) for n in loaded.joint_names]
     assert np.abs(loaded.constraint_residual(mech.q_ref[index])).max() < 1e-10
@@ -363,9 +370,29 @@ def test_mjcf_records_what_it_cannot_hold(exported):
         if t.kind not in SYMMETRIC:
             assert f"term {t.name} ({t.kind}, joints" in text
             assert f"= {float(params[mech.n_body_params + k])!r}:" in text
-    assert "dynid: independent coordinates: axes [0, 1]" in text
+    chart = ET.parse(path).getroot().findall("./custom/text")
+    assert [(t.get("name"), t.get("data").split("axes=")[1]) for t in chart] == [("dynid:independent_point", "0 1")]
     hexa = exported["hexapod"][2].read_text()
     assert "term fc_alpha (coulomb)" in hexa and "shared by joints a1, a2, a3, a4, a5, a6" in hexa
+
+
+@pytest.mark.parametrize("name", MECHANISMS)
+def test_dynid_info_reads_every_exported_mechanism(exported, name, capsys):
+    from dynid.cli import main
+
+    mech, _, path = exported[name]
+    assert main(["info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["dof"] == mech.dof and info["n_actuators"] == len(mech.actuated)
+
+
+def test_a_redundant_joint_chart_survives_the_round_trip(tmp_path):
+    five = load_mechanism("builtin:fivebar")
+    redundant = five.with_chart(actuated=["qa1", "qa2", "qb1"], independent=["qa2", "qb1"])
+    path = write_mjcf(redundant, redundant.nominal_parameters(), tmp_path / "five3.xml")
+    again = load_mechanism_mjcf(path)
+    assert again.actuated_names == ["qa1", "qa2", "qb1"] and again.redundant
+    assert [again.joint_names[j] for j in again.independent.joints] == ["qa2", "qb1"]
 
 
 def test_mjcf_range_conventions(tmp_path):

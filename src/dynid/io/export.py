@@ -499,10 +499,16 @@ def write_mjcf(
       and ``armature`` [kg·m² or kg]. A term shared by several joints is written on each
       (the re-read mechanism has one term per joint, with the reader's default terms).
 
+    * the independent coordinates, where they are not the actuated joints (a redundantly
+      actuated or point-coordinate mechanism), in MJCF's user-data element ``<custom>``:
+      ``<text name="dynid:independent" data="qa1 qa2"/>`` or ``<text
+      name="dynid:independent_point" data="body=B pos=x y z axes=0 1"/>``, which
+      :func:`~dynid.model.mechanism_io.load_mechanism_mjcf` reads back (MuJoCo and pinocchio
+      ignore it).
+
     Not representable in MJCF, written as ``dynid:`` comments: asymmetric friction
-    (``viscous+/-``, ``coulomb+/-``) and ``offset`` terms, the independent coordinates
-    (a redundantly actuated or point-coordinate mechanism must be given ``independent=``
-    when re-read), task coordinates, velocity limits and the mechanism's notes.
+    (``viscous+/-``, ``coulomb+/-``) and ``offset`` terms, task coordinates, velocity limits
+    and the mechanism's notes.
     Negative damping or armature and inertias that are not physically consistent are
     written (pinocchio reads them; MuJoCo's compiler may refuse them) and flagged.
     """
@@ -593,6 +599,15 @@ def write_mjcf(
             x, y, z, w = pin.Quaternion(rel.rotation).coeffs()
             ET.SubElement(equality, "weld", name=c.name, body1=bodies[c.joint_a], body2=bodies[c.joint_b],
                           anchor=_vec(c.placement_b.translation), relpose=_vec((*rel.translation, w, x, y, z)))
+    ind = mech.independent
+    chart = None  # MJCF's <custom><text> holds the chart, which the format has no element for
+    if isinstance(ind, PointCoordinates):
+        chart = ("dynid:independent_point", f"body={bodies[ind.joint]} pos={_vec(ind.placement.translation)} "
+                                            f"axes={' '.join(str(a) for a in ind.axes)}")
+    elif list(ind.joints) != list(mech.actuated):
+        chart = ("dynid:independent", " ".join(mech.joint_names[v] for v in ind.joints))
+    if chart is not None:
+        ET.SubElement(ET.SubElement(root, "custom"), "text", name=chart[0], data=chart[1])
     actuator = ET.SubElement(root, "actuator")
     taken: set[str] = set()
     for a in mech.actuated:
@@ -609,16 +624,9 @@ def write_mjcf(
         "dynid: velocity limits have no MJCF attribute and are not written.",
     ]
     header += [f"dynid: {text}" for text in lost]
-    ind = mech.independent
-    if isinstance(ind, PointCoordinates):
-        header.append(
-            f"dynid: independent coordinates: axes {list(ind.axes)} of the point {_vec(ind.placement.translation)} "
-            f"of body {bodies[ind.joint]} (pass independent= when loading)"
-        )
-    else:
-        joints = [mech.joint_names[v] for v in ind.joints]
-        if list(ind.joints) != list(mech.actuated):
-            header.append(f"dynid: independent coordinates: joints {joints} (pass independent= when loading)")
+    if chart is not None:
+        header.append(f"dynid: independent coordinates in <custom><text name={chart[0]!r}> (read back by dynid; "
+                      "other readers ignore it)")
     if mech.task_coordinates:
         header.append(f"dynid: task coordinates: {list(mech.task_coordinates)}")
     header += [f"dynid note: {n}" for n in mech.notes]

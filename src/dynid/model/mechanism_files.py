@@ -42,6 +42,7 @@ and on any joint whose file gives a non-zero friction or armature.
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from pathlib import Path
@@ -134,6 +135,8 @@ def load_mechanism_mjcf(
     notes: list[str] = []
     if actuated is None:
         actuated = _mjcf_actuators(root, path, per_joint, notes)
+    if independent is None:
+        independent = _mjcf_chart(root, path, model)
     return _build(
         model, closures, actuated, independent, terms, (damping, coulomb, armature),
         name=model.name or path.stem, source=str(path), notes=notes, origin=path,
@@ -228,6 +231,32 @@ def _check_one_dof(model: pin.Model, path: Path, hint: str) -> None:
             hint = "a floating body is not supported (chain 1-DOF joints through massless bodies)"
         kind = "a ball joint" if short == "JointModelSpherical" else "a free joint" if short == "JointModelFreeFlyer" else short
         raise ModelError(f"{path}: joint {name!r} is {kind} ({jm.nv} DOF); mechanisms need 1-DOF joints: {hint}")
+
+
+def _mjcf_chart(root: ET.Element, path: Path, model: pin.Model) -> Independent:
+    """The independent coordinates written by :func:`dynid.io.export.write_mjcf` in
+    ``<custom><text name="dynid:independent" data="j1 j2"/>`` (joint names) or
+    ``<text name="dynid:independent_point" data="body=B pos=x y z axes=0 1"/>`` (a point of
+    body ``B`` [m, in its frame], world axes); None when the file has neither."""
+    for text in root.findall("./custom/text"):
+        name, data = text.get("name", ""), text.get("data", "")
+        if name == "dynid:independent":
+            return data.split()
+        if name != "dynid:independent_point":
+            continue
+        fields = dict(re.findall(r"(\w+)=([^=]*?)(?=\s+\w+=|$)", data.strip()))
+        try:
+            body = fields["body"].strip()
+            pos = np.array([float(v) for v in fields["pos"].split()])
+            axes = tuple(int(v) for v in fields["axes"].split())
+        except (KeyError, ValueError) as exc:
+            raise ModelError(f"{path}: <text name='dynid:independent_point' data={data!r}>: expected "
+                             f"'body=B pos=x y z axes=0 1' ({exc})") from None
+        if pos.shape != (3,) or not model.existBodyName(body):
+            raise ModelError(f"{path}: <text name='dynid:independent_point'>: {'no body ' + repr(body) if pos.shape == (3,) else 'pos needs 3 numbers'}")
+        frame = model.frames[model.getBodyId(body)]
+        return PointCoordinates(int(frame.parentJoint), frame.placement * pin.SE3(np.eye(3), pos), axes)
+    return None
 
 
 def _mjcf_equalities(root: ET.Element, path: Path) -> list[dict]:
