@@ -49,7 +49,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _util import print_machine, table  # noqa: E402
-from montecarlo_scaling import CONFIG  # noqa: E402  (the same twin)
+from montecarlo_scaling import CONFIG  # noqa: E402  (examples/montecarlo/hexapod_wls.toml without its row selection)
 
 from dynid.config.montecarlo import parse_montecarlo_config  # noqa: E402
 from dynid.pipeline.montecarlo import run_montecarlo  # noqa: E402

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
+from pathlib import Path
 import numpy as np
 import pytest
 
@@ -91,42 +92,10 @@ def test_reversal_guard_config():
         _processing({"reversal_guard": 0.1, "periodic": {"period_s": 2.0, "cutoff_hz": 5.0}})
 
 
-# the twin of bench/montecarlo_scaling.py and bench/hexapod_coverage.py, with noise-free forces
-TWIN = """
-[simulate.robot]
-model = "builtin:hexapod"
-perturbation = 0.1
-perturbation_seed = 4
-
-[simulate.trajectory]
-coordinates = "task"
-kind = "fourier"
-base_frequency_hz = 0.5
-harmonics = 3
-fill = 0.05
-max_velocity = 0.1
-max_acceleration = 1.0
-periods = 3
-seed = 4
-
-[simulate.control]
-rate_hz = 500
-kp = 2500
-kd = 100
-substeps = 2
-
-[simulate.sensors]
-encoder_resolution = 1e-6
-force_noise_std = 0.0
-log_rate_hz = 250
-seed = 4
-
-[identify.processing]
-lowpass = { cutoff_hz = 10.0, order = 4, filter_effort = false }
-
-[identify.identification]
-method = "ols"
-"""
+# the twin of examples/montecarlo/hexapod_wls.toml (bench/README §8) with noise-free forces, OLS
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "montecarlo" / "hexapod_wls.toml"
+TWIN = (EXAMPLE.read_text().replace("force_noise_std = 2.0", "force_noise_std = 0.0")
+        .replace('min_velocity = 0.01\nreversal_guard = "auto"\n', "").replace('method = "wls"', 'method = "ols"'))
 NOISE_STD = 2.0  # N, the force noise of the Monte Carlo twin
 
 
