@@ -183,6 +183,24 @@ def test_max_samples_spreads_the_rows_over_the_log(cobot):
     assert np.all(m.validation.rmse < 1.5 * COBOT_SIGMA)
 
 
+def test_reversal_guard_is_decided_on_the_whole_log_before_max_samples_thins_it(cobot):
+    from dynid.pipeline.data import reversal_keep
+    from dynid.pipeline.stribeck import sample_indices
+
+    d, _, _ = cobot
+    # short: the guard also removes the low-speed rows that carry the Stribeck hump (with 0.05 s
+    # the dFs of joints 3 and 6 are no longer determined)
+    guard = 0.01
+    m = identify(_config(d, "builtin:cobot6r", COBOT.joint_names, {**STRIBECK, "max_samples": 500},
+                         {"min_velocity": [0.005], "reversal_guard": guard}))
+    dq, t = m.train.dq, m.train.t
+    keep = reversal_keep(dq, t, guard, (0.005,)) & (np.abs(dq) >= 0.005)
+    assert 0 < keep.sum() < keep.size
+    idx = sample_indices(m.train.n_samples, 500)
+    assert m.result.n_obs.tolist() == keep[idx].sum(axis=0).tolist()
+    assert m.result.provenance["row_selection"]["reversal_guard_s"] == guard
+
+
 # ---------------------------------------------------------------------- 3-RPS parallel robot (paper 000)
 RPS3 = load_model("builtin:rps3")
 RPS3_SIGMA = 5.0  # [N]
