@@ -70,6 +70,7 @@ class Rows:
     y: FloatArray
     inconsistency: FloatArray
     joint_dq: FloatArray | None = None  # velocities of all joints (a mechanism's passive ones included)
+    Ga: FloatArray | None = None  # (n, n_a, n_u) actuator velocity map of a redundant mechanism (other views of its forces)
 
 
 class System(Protocol):
@@ -256,7 +257,8 @@ class _MechanismRows:
         self.last = (start, state.q)
         reg = actuator_regressor(self.mech, state, distribution=self.force_model, data=self.data)
         W = reg.W if self.T is None else reg.W @ self.T
-        return Rows(W=W, y=reg.outputs(tau), inconsistency=resid, joint_dq=state.dq)
+        return Rows(W=W, y=reg.outputs(tau), inconsistency=resid, joint_dq=state.dq,
+                    Ga=reg.Ga if self.mech.redundant else None)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

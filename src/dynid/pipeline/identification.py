@@ -85,6 +85,8 @@ class Chunk:
     inconsistency: FloatArray
     joint_dq: FloatArray | None = None  # velocities of all joints of a mechanism (passive row selection)
     reversal: np.ndarray | None = None  # (n, n_a) rows farther than processing.reversal_guard from a reversal
+    Ga: FloatArray | None = None  # (n, n_a, n_u) a redundant mechanism's actuator velocity map
+    tau: FloatArray | None = None  # (n, n_a) measured actuator forces (with Ga: the other view of the outputs)
 
 
 def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, *, parallel_decimate: int = 1,
@@ -123,7 +125,7 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
             b = min(a + size, n)
             r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
             yield Chunk(base.regressor(r.W), r.y, ds.dq[a:b], r.inconsistency, r.joint_dq,
-                        None if guard is None else guard[a:b])
+                        None if guard is None else guard[a:b], r.Ga, None if r.Ga is None else ds.tau[a:b])
             progress(task, b, n)
         return
     k = parallel_decimate
@@ -134,7 +136,8 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
         r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
         filt = lambda x: lowpass_sos(x, sos)[keep]  # noqa: E731
         yield Chunk(filt(base.regressor(r.W)), filt(r.y), filt(ds.dq[a:b]), r.inconsistency[keep],
-                    None if r.joint_dq is None else filt(r.joint_dq), None if guard is None else guard[a:b][keep])
+                    None if r.joint_dq is None else filt(r.joint_dq), None if guard is None else guard[a:b][keep],
+                    None if r.Ga is None else r.Ga[keep], None if r.Ga is None else filt(ds.tau[a:b]))
         progress(task, b, n)
 
 
@@ -236,28 +239,74 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
                         nominal: FloatArray | None, *, force_model: str | None = None, parallel_decimate: int = 1,
                         chunk_size: int = 20000, progress: Progress = _no_progress,
                         friction: stribeck.FrictionJoints | None = None,
-                        periodic=None) -> tuple[ValidationMetrics, ValidationMetrics | None]:
+                        periodic=None) -> tuple[ValidationMetrics, ValidationMetrics | None, OtherView | None]:
     """:func:`validate`, and in the same pass over the held-out rows the errors of the nominal
     model (base parameters ``nominal`` of the robot description's standard parameters; None:
-    not computed): the prior every identified model has to beat."""
+    not computed): the prior every identified model has to beat. For a redundantly actuated
+    mechanism also the other view of the same predictions (:class:`OtherView`, None otherwise)."""
     system = as_system(robot)
     if friction is None and tuple(result.names) != base.names:
         raise InputError("the result's parameters are not the base parameters of this robot")
     meas, pred, prior = [], [], []
+    alt: list[tuple[FloatArray, FloatArray, FloatArray | None]] = []
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
                      progress=progress, task="validate", periodic=periodic):
         meas.append(c.y)
         pred.append(c.W @ result.params if friction is None else stribeck.predict(result, friction, c.W, c.dq))
         if nominal is not None:
             prior.append(c.W @ nominal)
+        if c.Ga is not None and c.tau is not None:
+            alt.append(_other_view(c.Ga, c.tau, pred[-1], prior[-1] if nominal is not None else None, force_model))
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
     k = max(1, parallel_decimate)
     t = np.asarray(ds.t)[::k][: measured.shape[0]]
     names = system.channel_names(force_model)
-    metrics = ValidationMetrics.of(names, t, measured, predicted, ds.meta.get("source"))
-    if nominal is None:
-        return metrics, None
-    return metrics, ValidationMetrics.of(names, t, measured, np.concatenate(prior), ds.meta.get("source"))
+    src = ds.meta.get("source")
+    metrics = ValidationMetrics.of(names, t, measured, predicted, src)
+    nominal_metrics = None if nominal is None else ValidationMetrics.of(names, t, measured, np.concatenate(prior), src)
+    other = None
+    if alt and len(alt) == len(meas):
+        m_alt, p_alt = np.concatenate([a[0] for a in alt]), np.concatenate([a[1] for a in alt])
+        projected = force_model == "projected"
+        other_names = system.actuator_names if projected else system.channel_names("projected")
+        other = OtherView(
+            label=("per actuator, assuming the minimum-norm distribution tau_a = (G_a^T)^+ y of the projected "
+                   "prediction y (an assumption about how the controller shares the forces; the projected "
+                   "channels above need none)") if projected else
+                  ("projected equations G_a^T tau_a (these need no assumption about the force distribution; the "
+                   f"actuator channels above assume {force_model!r})"),
+            metrics=ValidationMetrics.of(other_names, t, m_alt, p_alt, src),
+            nominal=None if nominal is None else ValidationMetrics.of(
+                other_names, t, m_alt, np.concatenate([a[2] for a in alt]), src))
+    return metrics, nominal_metrics, other
+
+
+@dataclasses.dataclass(frozen=True)
+class OtherView:
+    """A redundantly actuated robot's held-out errors in the other form of its equations (issue 18
+    item 5): per actuator when the identification used the projected equations, projected when it
+    used actuator forces under a distribution. ``label`` says which, and what it assumes."""
+
+    label: str
+    metrics: ValidationMetrics
+    nominal: ValidationMetrics | None = None
+
+
+def _other_view(Ga: FloatArray, tau: FloatArray, predicted: FloatArray, prior: FloatArray | None,
+                force_model: str | None) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """(measured, predicted, nominal-predicted) in the other form: projected outputs y (n, n_u) ->
+    actuator forces (G_a^T)^+ y (minimum norm); actuator forces f (n, n_a) -> G_a^T f, which is the
+    projected model exactly for every distribution (G_a^T (G_a^T)^+ = I; an actuator's local terms
+    project onto themselves)."""
+    if force_model == "projected":
+        D = np.linalg.pinv(Ga.transpose(0, 2, 1))  # (n, n_a, n_u)
+        def f(y):
+            return np.einsum("nau,nu->na", D, y)
+        return tau, f(predicted), None if prior is None else f(prior)
+
+    def g(x):
+        return np.einsum("nau,na->nu", Ga, x)
+    return g(tau), g(predicted), None if prior is None else g(prior)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -275,6 +324,7 @@ class IdentifyOutcome:
     nominal_validation: ValidationMetrics | None = None  # the nominal (CAD) model on the same held-out rows
     prior: dict[str, Any] | None = None  # prior_comparison of the two
     system: Any = None  # the System identified (its parameters: the model's, or reduced by identification.structure)
+    other_view: OtherView | None = None  # redundant mechanisms: the held-out errors in the other form of the equations
 
     def summary_text(self) -> str:
         v = self.validation
@@ -287,6 +337,11 @@ class IdentifyOutcome:
         if self.nominal_validation is not None and self.prior is not None:
             lines += ["", "Nominal model (the robot description's parameters: the prior) on the same data",
                       self.nominal_validation.table(), "", self.prior["verdict"]]
+        o = self.other_view
+        if o is not None:
+            lines += ["", f"The same predictions {o.label}", o.metrics.table()]
+            if o.nominal is not None:
+                lines += ["nominal model, the same view", o.nominal.table()]
         return "\n".join(lines)
 
 
@@ -539,13 +594,14 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     if notes:
         result = result.with_notes(*notes)
     nominal = base.from_standard(system.nominal_parameters())
-    metrics, prior = validate_with_prior(result, system, base, held_out, nominal, force_model=force_model,
+    metrics, prior, other = validate_with_prior(result, system, base, held_out, nominal, force_model=force_model,
                                          parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
                                          friction=fj, periodic=periodic)
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
-                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system)
+                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
+                           other_view=other)
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
@@ -633,6 +689,11 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             "validation": outcome.validation.to_dict(),
             **({"nominal_validation": _nominal_dict(outcome.nominal_validation), "prior_comparison": outcome.prior}
                if outcome.nominal_validation is not None else {}),
+            **({"validation_other_view": {"label": outcome.other_view.label,
+                                          "identified": _nominal_dict(outcome.other_view.metrics),
+                                          **({"nominal": _nominal_dict(outcome.other_view.nominal)}
+                                             if outcome.other_view.nominal is not None else {})}}
+               if outcome.other_view is not None else {}),
             "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
             "base_parameters": {
                 "names": list(outcome.base.names),
@@ -664,4 +725,4 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
 
             plot_processing(outcome.raw_train, outcome.train, stage / "processing.png")
         write_html_report(res, outcome.validation, stage / "report.html", plot="validation.png",
-                          nominal=outcome.nominal_validation, prior=outcome.prior)
+                          nominal=outcome.nominal_validation, prior=outcome.prior, other_view=outcome.other_view)

@@ -29,11 +29,24 @@ def _prior_html(metrics: Any, nominal: Any, prior: dict) -> str:
             f"{rows}</table><p><b>{html.escape(prior['verdict'])}</b></p>")
 
 
+def _other_view_html(view: Any) -> str:
+    rows = "".join(
+        f"<tr><td>{html.escape(c)}</td><td>{a:.4g}</td><td>{p:.3g}</td>"
+        + (f"<td>{b:.4g}</td>" if view.nominal is not None else "") + "</tr>"
+        for k, (c, a, p) in enumerate(zip(view.metrics.channel_names, view.metrics.rmse, view.metrics.rel_rmse_pct))
+        for b in [view.nominal.rmse[k] if view.nominal is not None else 0.0]
+    )
+    head = "<th>RMSE nominal</th>" if view.nominal is not None else ""
+    return (f"<h2>The same predictions in the other form</h2><p>{html.escape(view.label)}</p>"
+            f"<table><tr><th>channel</th><th>RMSE identified</th><th>rel RMSE %</th>{head}</tr>{rows}</table>")
+
+
 def write_html_report(result: IdentificationResult, metrics: Any, path: str | Path, plot: str | None = None,
-                      nominal: Any = None, prior: dict | None = None) -> Path:
+                      nominal: Any = None, prior: dict | None = None, other_view: Any = None) -> Path:
     """Summary, validation table and (optionally) the validation plot in one HTML file; with
     ``nominal`` (the nominal model's validation metrics) and ``prior`` (their comparison), the
-    nominal model's errors next to the identified model's and the verdict."""
+    nominal model's errors next to the identified model's and the verdict; with ``other_view``
+    (a redundant robot's :class:`~dynid.pipeline.identification.OtherView`) that table too."""
     rows = "".join(
         f"<tr><td>{html.escape(c)}</td><td>{r:.4g}</td><td>{p:.3g}</td><td>{q:.4f}</td></tr>"
         for c, r, p, q in zip(metrics.channel_names, metrics.rmse, metrics.rel_rmse_pct, metrics.r2)
@@ -45,6 +58,7 @@ def write_html_report(result: IdentificationResult, metrics: Any, path: str | Pa
         + f"<table><tr><th>joint</th><th>RMSE [N·m]</th><th>rel RMSE %</th><th>R²</th></tr>{rows}</table>"
         + (f"<img src='{html.escape(plot)}' alt='validation plot'>" if plot else "")
         + (_prior_html(metrics, nominal, prior) if nominal is not None and prior is not None else "")
+        + (_other_view_html(other_view) if other_view is not None else "")
     )
     path = Path(path)
     path.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>dynid report</title><style>{_STYLE}</style></head><body>{body}</body></html>")
