@@ -252,3 +252,33 @@ def test_the_other_view_is_the_minimum_norm_distribution_and_projects_back():
     proj_meas, proj_pred, _ = _other_view(Ga, tau, shared, None, "min_norm")
     np.testing.assert_allclose(proj_pred, y, atol=1e-12)
     np.testing.assert_allclose(proj_meas, np.einsum("nau,na->nu", Ga, tau), atol=1e-14)
+
+
+DESIGN = """
+[design]
+harmonics = 2
+base_frequency_hz = 0.5
+samples = 16
+starts = 1
+max_iter = 5
+seed = 1
+
+[limits]
+velocity = 1.0
+acceleration = 5.0
+
+[output]
+plots = false
+"""
+
+
+def test_dynid_design_takes_the_chart(fivebar3, capsys):
+    d = fivebar3.parent
+    (d / "design0.toml").write_text(f'[robot]\nmodel = "{fivebar3.name}"\n' + DESIGN)
+    assert main(["design", str(d / "design0.toml"), "--out", str(d / "design0")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "e.g. ['qa1', 'qa2']" in err and not (d / "design0").exists()
+    (d / "design.toml").write_text(ROBOT.format(model=fivebar3.name) + DESIGN)
+    assert main(["design", str(d / "design.toml"), "--out", str(d / "design")]) == 0
+    header = (d / "design" / "trajectory.csv").read_text().splitlines()[0]
+    assert "qa1" in header and "qa2" in header  # the designed motion is in the chart's coordinates

@@ -24,7 +24,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from dynid.config import _bool, _int, _list, _num, _num_or_list, _str, _table, read_toml
+from dynid.config import _bool, _int, _list, _num, _num_or_list, _str, _table, joint_name_list, read_toml
 from dynid.errors import ConfigError
 
 __all__ = ["DesignConfig", "load_design_config", "parse_design_config"]
@@ -54,6 +54,8 @@ class DesignConfig:
     plots: bool
     source: Path | None
     raw: Mapping[str, Any]
+    actuated: tuple[str, ...] | None = None  # mechanisms: as [robot] actuated / independent of dynid identify
+    independent: tuple[str, ...] | None = None
 
 
 def _range(t: Any, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -66,7 +68,7 @@ def _range(t: Any, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
 
 def parse_design_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = None) -> DesignConfig:
     doc = _table(dict(doc), "config", {"robot", "design", "limits", "output"}, {"robot"})
-    r = _table(doc["robot"], "robot", {"model"}, {"model"})
+    r = _table(doc["robot"], "robot", {"model", "actuated", "independent"}, {"model"})
     model = _str(r["model"], "robot.model")
     if not model.startswith("builtin:"):
         p = Path(model).expanduser()
@@ -98,6 +100,8 @@ def parse_design_config(doc: Mapping[str, Any], base_dir: Path, source: Path | N
     out = _table(doc.get("output", {}), "output", {"rate_hz", "plots"})
     return DesignConfig(
         model=model,
+        actuated=joint_name_list(r, "actuated", "robot"),
+        independent=joint_name_list(r, "independent", "robot"),
         kind=kind,
         coordinates=_str(d.get("coordinates", "independent"), "design.coordinates", ("independent", "task")),
         harmonics=_int(d.get("harmonics", 5), "design.harmonics", 1),

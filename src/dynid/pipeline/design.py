@@ -69,7 +69,7 @@ def _limits(cfg: DesignConfig) -> DesignLimits:
 
 
 def run_design(cfg: DesignConfig, progress=None) -> DesignOutcome:
-    robot = load_model(cfg.model)
+    robot = load_model(cfg.model, actuated=cfg.actuated, independent=cfg.independent)
     box = (np.asarray(cfg.box[0], float), np.asarray(cfg.box[1], float)) if cfg.box is not None else None
     pb = ExcitationProblem(
         robot, coordinates=cfg.coordinates, harmonics=cfg.harmonics, base_frequency_hz=cfg.base_frequency_hz,
