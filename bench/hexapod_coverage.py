@@ -96,9 +96,7 @@ def figure(path: Path, strut: int = 2) -> None:
         out = identify(icfg)
     true = _true_base(out, sim.truth)
     ds = out.train
-    W = np.concatenate([c.W for c in _chunks(out.system, out.base, ds, None)])
-    y = np.concatenate([c.y for c in _chunks(out.system, out.base, ds, None)])
-    r = (y - W @ true)[:, strut]
+    r = np.concatenate([c.y - c.W @ true for c in _chunks(out.system, out.base, ds, None)])[:, strut]
     v = ds.dq[:, strut]
     slow = np.abs(v) < 0.01
     guard = dataclasses.replace(icfg.processing, reversal_guard="auto").reversal_guard_s()

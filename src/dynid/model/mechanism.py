@@ -291,7 +291,7 @@ class Mechanism:
         names = self.pin_model.names
         found: list[list[str]] = []
         tried = 0
-        pools = [list(self.actuated), [j for j in range(nv)]]
+        pools = [list(self.actuated), list(range(nv))]
         seen: set[tuple[int, ...]] = set()
         for pool in pools:
             for combo in itertools.combinations(pool, mob):

@@ -492,8 +492,10 @@ def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Data
         start = WLS().fit(problem)
 
     def chunks(ds: Dataset) -> Iterator[Chunk]:
+        # only the measured rows are selected (the replays reuse their masks): no guard on the replays
+        guard = pcfg.reversal_guard_s() if ds is train else None
         return _chunks(system, base, ds, force_model, parallel_decimate=parallel, chunk_size=icfg.chunk_size,
-                       reversal_guard=pcfg.reversal_guard_s(), min_velocity=pcfg.min_velocity)
+                       reversal_guard=guard, min_velocity=pcfg.min_velocity)
 
     def mask_of(c: Chunk):
         return row_mask(system, force_model, c.dq, pcfg.min_velocity, joint_dq=c.joint_dq,
