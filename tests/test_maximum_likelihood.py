@@ -114,12 +114,56 @@ def test_ml_equals_gauss_markov_at_its_cut_off(rps3_log, ml_run):
         assert step["cutoff_hz"] == fc
 
 
+TIME_COV = {"noise_covariance": (25.0 * np.eye(3)).tolist(), "position_covariance": (4e-10 * np.eye(3)).tolist()}
+
+
+@pytest.fixture(scope="module")
+def ml_time(rps3_log):
+    d, _ = rps3_log
+    return identify(parse_config(_doc(d, {"method": "ml", "cutoff_range_hz": [2.0, 32.0], **TIME_COV},
+                                      {"lowpass": {"cutoff_hz": 8.0, "filter_effort": False}}), d))
+
+
+def test_ml_in_the_time_domain_searches_the_lowpass_cut_off(rps3_log, ml_time):
+    """Without period averaging the filter is the zero-phase Butterworth low-pass: the search runs
+    over a logarithmic grid of its cut-off, every candidate scores the same samples (the ends
+    trimmed for the lowest), and the estimate at the best one is Gauss–Markov with the given
+    force covariance there: checked by running that GM through the product with the same
+    processing."""
+    from dynid.estimation.likelihood import log_cutoff_grid
+
+    d, _ = rps3_log
+    res = ml_time.result
+    profile = res.solver["profile"]
+    grid = log_cutoff_grid(2.0, 32.0, len(profile))
+    assert [r["cutoff_hz"] for r in profile] == list(grid)
+    best = min((r for r in profile if r["cost"] is not None), key=lambda r: r["cost"])
+    fc = res.solver["cutoff_hz"]
+    assert best["cutoff_hz"] == fc
+    i = grid.index(fc)
+    assert res.solver["cutoff_interval_hz"] == [grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]]
+    # positions: the lower the cut-off, the more the filter removes (signal below the band)
+    pos = [r["position_cost"] for r in profile]
+    assert pos[0] > pos[-1]
+    lp = {"lowpass": {"cutoff_hz": fc, "filter_effort": False}, "trim_samples": res.solver["trim_samples"]}
+    gm = identify(parse_config(_doc(d, {"method": "gm", "noise_covariance": TIME_COV["noise_covariance"]}, lp), d)).result
+    np.testing.assert_allclose(res.params, gm.params, rtol=1e-8, atol=1e-10 * np.abs(gm.params).max())
+    assert best["force_cost"] == pytest.approx(0.5 * gm.scale * gm.dof, rel=1e-8)
+    for ds in (ml_time.held_out, ml_time.train):
+        step = next(s for s in ds.meta["processing"] if s["step"] == "lowpass")
+        assert step["cutoff_hz"] == fc
+
+
 def test_position_cost_is_half_the_mahalanobis_sum():
     rng = np.random.default_rng(0)
     delta = rng.normal(size=(50, 2))
     cov = np.array([[2.0, 0.5], [0.5, 1.0]])
     direct = 0.5 * sum(d @ np.linalg.solve(cov, d) for d in delta)
     assert position_cost(delta, cov) == pytest.approx(direct, rel=1e-12)
+    # rows kept per channel: each sample counts with the covariance of its kept channels
+    keep = rng.random(delta.shape) > 0.4
+    direct = 0.5 * sum(d[k] @ np.linalg.solve(cov[np.ix_(k, k)], d[k]) for d, k in zip(delta, keep) if k.any())
+    assert position_cost(delta, cov, keep) == pytest.approx(direct, rel=1e-12)
 
 
 def test_noisier_positions_lower_the_cut_off():
@@ -158,8 +202,13 @@ def test_candidates_are_bin_midpoints():
 
 def test_ml_errors_name_the_problem(rps3_log, tmp_path):
     d, _ = rps3_log
-    with pytest.raises(ConfigError, match="needs \\[processing.periodic\\]"):
-        identify(parse_config(_doc(d, {"method": "ml"}, {"lowpass": {"cutoff_hz": 5.0}}), d))
+    with pytest.raises(ConfigError, match="no period averaging to estimate it from; give it as a matrix"):
+        identify(parse_config(_doc(d, {"method": "ml"}, {"lowpass": {"cutoff_hz": 5.0, "filter_effort": False}}), d))
+    with pytest.raises(ConfigError, match="set processing.lowpass \\(time domain\\) or \\[processing.periodic\\]"):
+        identify(parse_config(_doc(d, {"method": "ml", **TIME_COV}, {"derivatives": "central"}), d))
+    with pytest.raises(ConfigError, match="processing.decimate must be 1"):
+        identify(parse_config(_doc(d, {"method": "ml", **TIME_COV}, {"lowpass": {"cutoff_hz": 5.0, "filter_effort": False},
+                                                                  "decimate": 2}), d))
     with pytest.raises(ConfigError, match="filter_effort = false"):
         identify(parse_config(_doc(d, {"method": "ml"}, {"periodic": {"period_s": 2.0, "cutoff_hz": 1.75,
                                                                       "filter_effort": True}}), d))

@@ -75,41 +75,78 @@ def _need_cross(problem: RegressionProblem, who: str) -> FloatArray:
     return problem.cross
 
 
-def _blocks(problem: RegressionProblem) -> tuple[FloatArray, FloatArray]:
-    """Columns of the wide factor: ``W`` blocks (n_ch, P, p) and ``y`` columns (P, n_ch)."""
-    Rc = _need_cross(problem, "Gauss–Markov")
-    p, n = problem.n_params, problem.n_channels
-    Rw = np.stack([Rc[:, k * (p + 1): k * (p + 1) + p] for k in range(n)])
-    Ry = np.stack([Rc[:, k * (p + 1) + p] for k in range(n)], axis=1)
+def _split(problem: RegressionProblem, factor: FloatArray, n: int) -> tuple[FloatArray, FloatArray]:
+    """Columns of a wide factor of ``n`` channels: ``W`` blocks (n, P, p) and ``y`` columns (P, n)."""
+    p = problem.n_params
+    Rw = np.stack([factor[:, k * (p + 1): k * (p + 1) + p] for k in range(n)])
+    Ry = np.stack([factor[:, k * (p + 1) + p] for k in range(n)], axis=1)
     return Rw, Ry
 
 
+def _blocks(problem: RegressionProblem) -> list[tuple[np.ndarray, FloatArray, FloatArray, int]]:
+    """Every cross-channel factor as ``(channels, W blocks, y columns, samples)``: the samples
+    with every channel kept, then one per pattern of kept channels
+    (:class:`~dynid.estimation.problem.CrossBlock`)."""
+    _need_cross(problem, "Gauss–Markov")
+    out = []
+    for blk in problem.cross_blocks():
+        ch = np.asarray(blk.channels, dtype=int)
+        out.append((ch, *_split(problem, blk.factor, ch.size), blk.n_rows))
+    return out
+
+
 def residual_covariance(problem: RegressionProblem, beta: FloatArray) -> FloatArray:
-    """Cross-channel covariance of the residuals at ``beta`` (see the module docstring), (n_ch, n_ch)."""
-    Rw, Ry = _blocks(problem)
-    E = Ry - np.einsum("kPp,p->Pk", Rw, np.asarray(beta, dtype=float))
+    """Cross-channel covariance of the residuals at ``beta`` (see the module docstring), (n_ch, n_ch).
+
+    With a per-channel row selection (partial cross blocks) each pair of channels is estimated
+    from the samples that keep both: the correlation from those samples' residual products,
+    the variances from every kept row of each channel (pairwise deletion); without one this is
+    the formula of the module docstring exactly."""
+    n = problem.n_channels
+    beta = np.asarray(beta, dtype=float)
+    S = np.zeros((n, n))      # residual products over the samples keeping both channels
+    Sjj = np.zeros((n, n))    # sum of squares of channel j over the samples keeping j and k
+    for ch, Rw, Ry, _ in _blocks(problem):
+        E = Ry - np.einsum("kPp,p->Pk", Rw, beta)
+        G = E.T @ E
+        S[np.ix_(ch, ch)] += G
+        Sjj[np.ix_(ch, ch)] += np.diag(G)[:, None]
     dof = np.maximum(problem.n_obs - problem.channel_ranks(), 1).astype(float)
-    return (E.T @ E) / np.sqrt(np.outer(dof, dof))
+    var = np.diag(S) / dof
+    denom = np.sqrt(Sjj * Sjj.T)
+    corr = np.divide(S, denom, out=np.zeros((n, n)), where=denom > 0)
+    np.fill_diagonal(corr, 1.0)
+    sd = np.sqrt(var)
+    return corr * np.outer(sd, sd)
 
 
 def gls_solve(problem: RegressionProblem, cov: FloatArray, *, known_scale: bool = False) -> _Solve:
     """Generalized least squares with the channel noise covariance ``cov`` (n_ch, n_ch).
 
-    The covariance of the estimate is :math:`s^2 (A^T A)^{-1}` with the estimated scale, or
-    :math:`(A^T A)^{-1}` when ``known_scale`` (``cov`` in absolute units).
+    A sample that keeps only the channels :math:`K` (per-channel row selection) is whitened with
+    :math:`\\Sigma_{KK}` (the covariance of its kept channels). The covariance of the estimate is
+    :math:`s^2 (A^T A)^{-1}` with the estimated scale, or :math:`(A^T A)^{-1}` when
+    ``known_scale`` (``cov`` in absolute units).
     """
     with threadpool_limits(limits=1, user_api="blas"):  # small dense problems: threads only cost (bench/README.md)
         return _gls_solve(problem, cov, known_scale)
 
 
+def _whitener(cov: FloatArray) -> FloatArray:
+    """``L`` with ``cov^-1 = L L^T``."""
+    C = np.linalg.cholesky(cov)
+    return sla.solve_triangular(C, np.eye(cov.shape[0]), lower=True).T
+
+
 def _gls_solve(problem: RegressionProblem, cov: FloatArray, known_scale: bool) -> _Solve:
     n, p = problem.n_channels, problem.n_params
     cov = _check_cov(cov, n, "noise covariance")
-    Rw, Ry = _blocks(problem)
-    C = np.linalg.cholesky(cov)
-    L = sla.solve_triangular(C, np.eye(n), lower=True).T  # cov^-1 = L L^T
-    A = np.einsum("km,kPp->mPp", L, Rw).reshape(-1, p)
-    b = np.einsum("km,Pk->mP", L, Ry).reshape(-1)
+    As, bs = [], []
+    for ch, Rw, Ry, _ in _blocks(problem):
+        L = _whitener(cov[np.ix_(ch, ch)])
+        As.append(np.einsum("km,kPp->mPp", L, Rw).reshape(-1, p))
+        bs.append(np.einsum("km,Pk->mP", L, Ry).reshape(-1))
+    A, b = np.vstack(As), np.concatenate(bs)
     q, r = np.linalg.qr(A, mode="reduced")
     check_identifiable(r, problem.names)
     c = q.T @ b

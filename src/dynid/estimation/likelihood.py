@@ -24,6 +24,16 @@ reported as the midpoint with the interval of cut-offs that give the same likeli
 finer number the data cannot resolve (paper 004 Table II reports ``f_c`` to 1 mHz; with the
 window it describes, any value in the same bin interval is equivalent).
 
+**In the time domain** (no period averaging; :func:`dynid.pipeline.identification` with
+``processing.lowpass`` and no ``processing.periodic``) the filter is the zero-phase Butterworth
+low-pass, whose cost varies continuously with the cut-off: the candidates are a logarithmic
+grid over the searched range and the estimate is reported with its neighbours on the grid
+(``bin_width_hz = None``). The row selection (``processing.min_velocity``,
+``processing.reversal_guard``) and the samples trimmed at the ends are decided once, for every
+candidate, so that each cost is the likelihood of the same data: the force rows that are kept
+per actuator are whitened with the covariance of the kept actuators
+(:class:`~dynid.estimation.problem.CrossBlock`), and :math:`\\delta` counts at the same rows.
+
 Covariance of the parameters: that of the Gauss–Markov estimate at the chosen cut-off,
 conditional on it, with :math:`\\Sigma_{\\eta\\eta}` taken as known (``scale = "known"``, the
 Fisher information of :math:`J` in :math:`p`) or scaled by the residual variance factor
@@ -45,7 +55,7 @@ from dynid.estimation.linear import _result
 from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult
 
-__all__ = ["CutoffFamily", "MaximumLikelihood", "cutoff_candidates", "position_cost"]
+__all__ = ["CutoffFamily", "MaximumLikelihood", "cutoff_candidates", "log_cutoff_grid", "position_cost"]
 
 
 def cutoff_candidates(period_s: float, fs: float, low_hz: float, high_hz: float) -> tuple[float, ...]:
@@ -69,12 +79,35 @@ def cutoff_candidates(period_s: float, fs: float, low_hz: float, high_hz: float)
     return tuple(float(x) for x in c)
 
 
-def position_cost(delta: FloatArray, cov: FloatArray) -> float:
-    """:math:`\\tfrac12\\sum_k \\delta_k^T \\Sigma_{\\delta\\delta}^{-1} \\delta_k` of residuals ``delta`` (n, n_a)."""
+def log_cutoff_grid(low_hz: float, high_hz: float, n: int) -> tuple[float, ...]:
+    """``n`` cut-offs spaced logarithmically over ``[low_hz, high_hz]`` (time-domain search)."""
+    if not 0 < low_hz < high_hz:
+        raise InputError(f"the cut-off range must satisfy 0 < low < high, got [{low_hz}, {high_hz}] Hz")
+    if n < 3:
+        raise InputError(f"a cut-off search needs at least 3 candidates, got {n}")
+    return tuple(float(x) for x in np.geomspace(low_hz, high_hz, n))
+
+
+def position_cost(delta: FloatArray, cov: FloatArray, keep: FloatArray | None = None) -> float:
+    """:math:`\\tfrac12\\sum_k \\delta_k^T \\Sigma_{\\delta\\delta}^{-1} \\delta_k` of residuals ``delta`` (n, n_a).
+
+    ``keep`` (n, n_a): the rows counted per actuator; a sample with the actuators :math:`K`
+    counts with :math:`\\Sigma_{KK}` (the marginal of its kept actuators)."""
     d = np.atleast_2d(np.asarray(delta, dtype=float))
-    C = np.linalg.cholesky(cov)
-    u = sla.solve_triangular(C, d.T, lower=True)
-    return 0.5 * float(np.sum(u**2))
+    if keep is None:
+        C = np.linalg.cholesky(cov)
+        u = sla.solve_triangular(C, d.T, lower=True)
+        return 0.5 * float(np.sum(u**2))
+    keep = np.asarray(keep, dtype=bool)
+    codes = keep.astype(np.int64) @ (1 << np.arange(d.shape[1], dtype=np.int64))
+    total = 0.0
+    for code in np.unique(codes[keep.any(axis=1)]):
+        rows = codes == code
+        K = np.flatnonzero(keep[np.argmax(rows)])
+        C = np.linalg.cholesky(cov[np.ix_(K, K)])
+        u = sla.solve_triangular(C, d[np.ix_(rows, K)].T, lower=True)
+        total += float(np.sum(u**2))
+    return 0.5 * total
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,16 +119,19 @@ class CutoffFamily:
     cutoffs : tuple of float
         Candidate cut-offs [Hz], e.g. :func:`cutoff_candidates`.
     build : callable
-        ``build(fc) -> (problem, delta)``: the regression problem (with the cross-channel
-        factor) of the record filtered at ``fc`` and the position residuals ``delta``
-        (n, n_a): measured minus filtered actuator positions.
-    bin_width_hz : float
-        Spacing of the harmonics (1/T): cut-offs closer than this are indistinguishable.
+        ``build(fc) -> (problem, delta)`` or ``(problem, delta, keep)``: the regression problem
+        (with the cross-channel factor) of the record filtered at ``fc``, the position residuals
+        ``delta`` (n, n_a): measured minus filtered actuator positions, and optionally the rows
+        of ``delta`` that count (n, n_a) (:func:`position_cost`).
+    bin_width_hz : float or None
+        Spacing of the harmonics (1/T) of an exact DFT window: cut-offs closer than this are
+        indistinguishable. None: a continuous filter (time domain); the estimate is reported with
+        its neighbours among the candidates.
     """
 
     cutoffs: tuple[float, ...]
-    build: Callable[[float], tuple[RegressionProblem, FloatArray]]
-    bin_width_hz: float
+    build: Callable[[float], tuple]
+    bin_width_hz: float | None
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -135,12 +171,14 @@ class MaximumLikelihood:
         profile: list[dict] = []
         best = None
         for fc in family.cutoffs:
-            problem, delta = family.build(float(fc))
+            built = family.build(float(fc))
+            problem, delta = built[0], built[1]
+            keep = built[2] if len(built) > 2 else None
             cov_e = _check_cov(self.noise_covariance, problem.n_channels, "force covariance Sigma_eta")
             if np.shape(delta)[-1] != cov_d.shape[0]:
                 raise InputError(f"position residuals have {np.shape(delta)[-1]} channels, Sigma_dd is "
                                  f"{cov_d.shape[0]} x {cov_d.shape[0]}")
-            jd = position_cost(delta, cov_d)
+            jd = position_cost(delta, cov_d, keep)
             try:
                 s = gls_solve(problem, cov_e, known_scale=self.scale == "known")
             except IdentifiabilityError as exc:  # too few harmonics kept to excite every parameter
@@ -155,16 +193,22 @@ class MaximumLikelihood:
             raise IdentifiabilityError(f"no candidate cut-off identifies every parameter ({profile[-1]['error']})")
         _, fc, problem, s, cov_e = best
         w = family.bin_width_hz
-        interval = [fc - 0.5 * w, fc + 0.5 * w]
         costs = [r["cost"] for r in profile if r["cost"] is not None]
-        notes = [f"maximum likelihood (paper 004 Eq. 24): cut-off f_c = {fc:.4g} Hz, i.e. any value in "
-                 f"[{interval[0]:.4g}, {interval[1]:.4g}) Hz (the same DFT bins); parameter covariance "
-                 "conditional on f_c, Gauss-Markov with Sigma_eta" + (" as known" if self.scale == "known" else ", scaled")]
         valid = [r["cutoff_hz"] for r in profile if r["cost"] is not None]
+        if w is not None:
+            interval = [fc - 0.5 * w, fc + 0.5 * w]
+            where = f"i.e. any value in [{interval[0]:.4g}, {interval[1]:.4g}) Hz (the same DFT bins)"
+        else:
+            i = valid.index(fc)
+            interval = [valid[max(i - 1, 0)], valid[min(i + 1, len(valid) - 1)]]
+            where = f"between its neighbouring candidates {interval[0]:.4g} and {interval[1]:.4g} Hz"
+        notes = [f"maximum likelihood (paper 004 Eq. 24): cut-off f_c = {fc:.4g} Hz, {where}; parameter covariance "
+                 "conditional on f_c, Gauss-Markov with Sigma_eta" + (" as known" if self.scale == "known" else ", scaled")]
         if fc in (valid[0], valid[-1]) and len(family.cutoffs) > 1:
             notes.append(f"the likelihood is best at the edge of the searched cut-offs ({valid[0]:.4g}-{valid[-1]:.4g} Hz): "
                          "widen the range")
-        solver = {"algorithm": "1-D search over DFT bin midpoints; Gauss-Markov at each",
+        solver = {"algorithm": ("1-D search over DFT bin midpoints" if w is not None else
+                                "1-D search over a logarithmic grid of low-pass cut-offs") + "; Gauss-Markov at each",
                   "cutoff_hz": fc, "cutoff_interval_hz": interval, "cost": min(costs),
                   "profile": profile, "scale": self.scale,
                   "position_covariance": cov_d.tolist(), **_noise_note(cov_e)}

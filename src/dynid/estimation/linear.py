@@ -192,7 +192,8 @@ class WLS:
         if nom.shape != (problem.n_params,) or not np.all(np.isfinite(nom)):
             raise InputError(f"nominal must be {problem.n_params} finite values (one per parameter), got shape {nom.shape}")
         scale = np.where(nom != 0, np.abs(nom), 1.0)
-        scaled = problem.replace(factors=problem.factors * np.append(scale, 1.0)[None, None, :], standard=None, cross=None)
+        scaled = problem.replace(factors=problem.factors * np.append(scale, 1.0)[None, None, :], standard=None, cross=None,
+                                 cross_partial=())
         w_unscaled = whitened_solve(problem, 1.0 / sigma**2).cond  # also the identifiability check
         s = whitened_solve(scaled, 1.0 / sigma**2, check=False)
         s = dataclasses.replace(s, beta=s.beta * scale, cov=s.cov * np.outer(scale, scale), rss=problem.rss_per_channel(s.beta * scale))

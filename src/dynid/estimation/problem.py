@@ -29,7 +29,7 @@ from dynid._typing import BoolArray, FloatArray
 from dynid.errors import InputError
 from dynid.model.base_parameters import StandardMap
 
-__all__ = ["RegressionProblem", "ProblemBuilder"]
+__all__ = ["CrossBlock", "RegressionProblem", "ProblemBuilder"]
 
 
 def _qr_r(a: FloatArray, size: int) -> FloatArray:
@@ -37,6 +37,24 @@ def _qr_r(a: FloatArray, size: int) -> FloatArray:
     if r.shape[0] < size:
         r = np.vstack([r, np.zeros((size - r.shape[0], size))])
     return r
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CrossBlock:
+    """Cross-channel factor of the samples in which only the channels ``channels`` are kept.
+
+    A per-channel row selection (``processing.min_velocity``, ``processing.reversal_guard``)
+    leaves some samples with a subset :math:`K` of their channels. Gauss–Markov weights such a
+    sample by the inverse of :math:`\\Sigma_{KK}`, the covariance of its kept channels (the
+    marginal of a Gaussian is Gaussian with that block), so those samples need the wide factor
+    of their own channels: ``factor`` is the upper-triangular factor, shape
+    (|K| (p + 1), |K| (p + 1)), of the rows ``[W_k(i) | y_k(i)]`` for ``k`` in ``channels``, side
+    by side, over the ``n_rows`` samples with exactly that pattern.
+    """
+
+    channels: tuple[int, ...]
+    factor: FloatArray
+    n_rows: int
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -65,6 +83,10 @@ class RegressionProblem:
         Its Gram matrix holds every cross-channel product, which Gauss–Markov estimation with
         a full noise covariance across channels needs (see
         :func:`dynid.estimation.linear.gls_solve`); per-channel factors cannot give it.
+        With a per-channel row selection it holds the samples in which every channel is kept.
+    cross_partial : tuple of CrossBlock
+        The wide factors of the samples in which only some channels are kept, one per pattern of
+        kept channels (empty without a per-channel row selection).
     """
 
     names: tuple[str, ...]
@@ -75,6 +97,7 @@ class RegressionProblem:
     standard: StandardMap | None = None
     meta: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     cross: FloatArray | None = None
+    cross_partial: tuple[CrossBlock, ...] = ()
 
     def __post_init__(self) -> None:
         f = np.array(self.factors, dtype=float)
@@ -96,6 +119,20 @@ class RegressionProblem:
                 raise InputError(f"cross factor has shape {c.shape}, expected {(m, m)}")
             c.setflags(write=False)
             object.__setattr__(self, "cross", c)
+        blocks = []
+        for blk in self.cross_partial:
+            if self.cross is None:
+                raise InputError("partial cross-channel factors need the full one (cross)")
+            ch = tuple(int(k) for k in blk.channels)
+            if not ch or len(set(ch)) != len(ch) or min(ch) < 0 or max(ch) >= len(self.channel_names):
+                raise InputError(f"cross block channels {ch} are not distinct channels of the problem")
+            c = np.array(blk.factor, dtype=float)
+            m = len(ch) * (p + 1)
+            if c.shape != (m, m):
+                raise InputError(f"cross block of channels {ch} has shape {c.shape}, expected {(m, m)}")
+            c.setflags(write=False)
+            blocks.append(CrossBlock(ch, c, int(blk.n_rows)))
+        object.__setattr__(self, "cross_partial", tuple(blocks))
         if self.standard is not None and self.standard.B.shape[0] != p:
             raise InputError(f"standard map has {self.standard.B.shape[0]} base parameters, the problem {p}")
 
@@ -136,6 +173,16 @@ class RegressionProblem:
         r = self.z - np.einsum("jab,b->ja", self.R, beta)
         return np.sum(r**2, axis=1) + self.rss_floor
 
+    def cross_blocks(self) -> list[CrossBlock]:
+        """Every cross-channel factor: the full one (all channels) first, then the partial ones.
+
+        The full block's sample count is the rows of channel 0 not in a partial block."""
+        if self.cross is None:
+            return []
+        n_full = int(self.n_obs[0]) - sum(b.n_rows for b in self.cross_partial if 0 in b.channels)
+        full = CrossBlock(tuple(range(self.n_channels)), self.cross, n_full)
+        return [full, *self.cross_partial]
+
     def channel_ranks(self, rtol: float = 1e-10) -> np.ndarray:
         """Number of parameters acting on each channel (non-zero columns of ``R_j``)."""
         norms = np.linalg.norm(self.R, axis=1)  # (n_ch, p)
@@ -164,13 +211,17 @@ class RegressionProblem:
         cols = [index[n] for n in names] + [p]
         q = len(names)
         f = np.array([_qr_r(self.factors[j][:, cols], q + 1)[: q + 1] for j in range(self.n_channels)])
-        cross = None
+        cross, partial = None, []
         if self.cross is not None:
             wide = [j * (p + 1) + c for j in range(self.n_channels) for c in cols]
             cross = _qr_r(self.cross[:, wide], len(wide))[: len(wide)]
+            for blk in self.cross_partial:
+                wide = [i * (p + 1) + c for i in range(len(blk.channels)) for c in cols]
+                partial.append(CrossBlock(blk.channels, _qr_r(blk.factor[:, wide], len(wide))[: len(wide)], blk.n_rows))
         exprs = None if self.expressions is None else tuple(self.expressions[index[n]] for n in names)
         return RegressionProblem(names=tuple(names), channel_names=self.channel_names, factors=f, n_obs=self.n_obs,
-                                 expressions=exprs, standard=None, meta=self.meta, cross=cross)
+                                 expressions=exprs, standard=None, meta=self.meta, cross=cross,
+                                 cross_partial=tuple(partial))
 
     @classmethod
     def from_arrays(
@@ -211,6 +262,7 @@ class ProblemBuilder:
         self._n_obs = np.zeros(len(self.channel_names), dtype=np.int64)
         m = len(self.channel_names) * (p + 1)
         self._cross = np.zeros((m, m)) if cross else None
+        self._partial: dict[tuple[int, ...], list] = {}  # kept channels -> [factor, rows]
 
     def add(self, W: FloatArray, y: FloatArray, mask: BoolArray | None = None) -> None:
         """Accumulate rows.
@@ -223,8 +275,8 @@ class ProblemBuilder:
             Measured outputs.
         mask : bool array, shape (n, n_ch), optional
             Rows to use per channel (e.g. to drop near-zero-velocity samples of one joint).
-            Not with ``cross=True``: a full noise covariance across channels needs every
-            channel of every sample.
+            With ``cross=True`` the samples that keep only some channels go into the wide
+            factor of their pattern of kept channels (:class:`CrossBlock`).
         """
         W = np.asarray(W, dtype=float)
         y = np.asarray(y, dtype=float)
@@ -237,9 +289,6 @@ class ProblemBuilder:
             mask = np.asarray(mask, dtype=bool)
             if mask.shape != y.shape:
                 raise InputError(f"row mask has shape {mask.shape}, expected {y.shape}")
-            if self._cross is not None and not mask.all():
-                raise InputError("per-channel row masks cannot be combined with cross-channel factors "
-                                 "(a full noise covariance needs every channel of every sample)")
         if not (np.all(np.isfinite(W)) and np.all(np.isfinite(y))):
             raise InputError("regressor or outputs contain NaN/inf")
         # one BLAS thread: the QR of a tall, narrow block gains nothing from threads and
@@ -262,8 +311,23 @@ class ProblemBuilder:
             self._factors[j] = _qr_r(a, p + 1)[: p + 1]
             self._n_obs[j] += m
         if self._cross is not None and W.shape[0] > 0:
-            wide = np.concatenate([W, y[:, :, None]], axis=2).reshape(W.shape[0], -1)
-            self._cross = _qr_r(np.vstack([self._cross, wide]), self._cross.shape[0])[: self._cross.shape[0]]
+            aug = np.concatenate([W, y[:, :, None]], axis=2)
+            if mask is None:
+                full = slice(None)
+            else:
+                full = mask.all(axis=1)
+                codes = mask.astype(np.int64) @ (1 << np.arange(n_ch, dtype=np.int64))
+                for code in np.unique(codes[~full & mask.any(axis=1)]):
+                    rows = codes == code
+                    ch = tuple(int(k) for k in np.flatnonzero(mask[np.argmax(rows)]))
+                    wide = aug[rows][:, ch, :].reshape(int(rows.sum()), -1)
+                    m = wide.shape[1]
+                    blk = self._partial.setdefault(ch, [np.zeros((m, m)), 0])
+                    blk[0] = _qr_r(np.vstack([blk[0], wide]), m)[:m]
+                    blk[1] += int(rows.sum())
+            wide = aug[full].reshape(-1, n_ch * (p + 1))
+            if wide.shape[0]:
+                self._cross = _qr_r(np.vstack([self._cross, wide]), self._cross.shape[0])[: self._cross.shape[0]]
 
     def build(self, **kwargs: Any) -> RegressionProblem:
         return RegressionProblem(
@@ -272,5 +336,6 @@ class ProblemBuilder:
             factors=self._factors.copy(),
             n_obs=self._n_obs.copy(),
             cross=None if self._cross is None else self._cross.copy(),
+            cross_partial=tuple(CrossBlock(ch, f.copy(), n) for ch, (f, n) in sorted(self._partial.items())),
             **kwargs,
         )

@@ -16,7 +16,8 @@ forces, or motor positions and currents through a drive train. Steps:
 4. optionally Gautier's parallel decimation (each base-regressor column and each measured output
    low-passed by the same zero-phase filter, one sample in ``k`` kept; Gautier 1997) and the rows
    slower than ``processing.min_velocity`` left out (per actuator equation, or whole samples when
-   the equations are not the actuators' own: a full noise covariance, projected equations);
+   the equations are not the actuators' own: projected equations; Gauss–Markov whitens a sample
+   that keeps some actuators with the covariance of those, :class:`~dynid.estimation.problem.CrossBlock`);
 5. compression into the regression problem (never the full regressor), the estimator of
    ``[identification]`` (or the Stribeck fit, or maximum likelihood with the filter cut-off,
    paper 004 Eq. 24), validation on held-out data processed identically, the output files.
@@ -60,7 +61,7 @@ from dynid.pipeline.data import (
     to_actuator_space,
     velocity_mask,
 )
-from dynid.signals import decimation_filter, decimation_segments, lowpass_sos
+from dynid.signals import decimation_filter, decimation_segments, lowpass_sos, padlen_for
 
 __all__ = ["Chunk", "Progress", "ValidationMetrics", "IdentifyOutcome", "build_problem", "prior_comparison", "row_mask",
            "validate", "validate_with_prior", "identify", "write_outputs",
@@ -92,7 +93,7 @@ class Chunk:
 def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, *, parallel_decimate: int = 1,
             chunk_size: int = 20000, progress: Progress = _no_progress, task: str = "compress",
             periodic=None, reversal_guard: float | None = None,
-            min_velocity: tuple[float, ...] | None = None) -> Iterator[Chunk]:
+            min_velocity: tuple[float, ...] | None = None, keep: np.ndarray | None = None) -> Iterator[Chunk]:
     """Yield the rows of ``ds`` chunk by chunk, at full rate or parallel-decimated.
 
     Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
@@ -105,7 +106,9 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
 
     ``reversal_guard`` [s]: each chunk carries :func:`~dynid.pipeline.data.reversal_keep` of its
     rows, computed on the whole log (a reversal near a chunk boundary counts on both sides), around
-    the reversals and the samples slower than ``min_velocity``.
+    the reversals and the samples slower than ``min_velocity``. ``keep`` (n, n_a): a row selection
+    decided beforehand, carried the same way instead (maximum likelihood keeps one selection for
+    every candidate cut-off).
     """
     if periodic is not None and periodic.domain == "pose":
         if reversal_guard is not None:
@@ -120,6 +123,8 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     size = max(1, int(chunk_size) if system.max_chunk is None else min(int(chunk_size), system.max_chunk))
     rows = system.rows(force_model)
     guard = None if reversal_guard is None else reversal_keep(ds.dq, ds.t, reversal_guard, min_velocity)
+    if keep is not None:
+        guard = np.asarray(keep, dtype=bool)
     if parallel_decimate <= 1:
         for a in range(0, n, size):
             b = min(a + size, n)
@@ -146,8 +151,9 @@ def row_mask(system: System, force_model: str | None, dq: FloatArray, min_veloci
              min_velocity_passive: float | None = None, reversal: np.ndarray | None = None) -> FloatArray | None:
     """Rows kept by ``processing.min_velocity`` (None: all): per actuator equation where the
     equations are the actuators' own, else (projected equations of a redundant mechanism, or
-    ``whole_samples`` for a full noise covariance across channels) the whole samples in which every
-    actuator is at least that fast, broadcast to the channels.
+    ``whole_samples``) the whole samples in which every actuator is at least that fast, broadcast to
+    the channels. A full noise covariance across channels (Gauss–Markov) takes per-equation rows:
+    each sample is whitened with the covariance of the channels it keeps.
 
     ``min_velocity_passive`` (mechanisms): the whole samples in which a passive joint with Coulomb
     friction (:meth:`~dynid.model.system.ClosedLoopSystem.passive_friction_joints`) is slower are
@@ -190,15 +196,16 @@ def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str 
 
 def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model, min_velocity, parallel_decimate,
               chunk_size, progress, meta, cross, periodic, min_velocity_passive=None,
-              blocks=None, reversal_guard: float | None = None) -> tuple[RegressionProblem, float]:
+              blocks=None, reversal_guard: float | None = None,
+              keep: np.ndarray | None = None) -> tuple[RegressionProblem, float]:
     """:func:`build_problem` and the largest inconsistency of redundant actuator positions; ``blocks``
     (a :class:`~dynid.estimation.block_covariance.BlockBuilder`) also gets every chunk and its rows."""
     builder = ProblemBuilder(base.names, system.channel_names(force_model), cross=cross)
     worst = 0.0
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
                      progress=progress, periodic=periodic, reversal_guard=reversal_guard,
-                     min_velocity=min_velocity):
-        mask = row_mask(system, force_model, c.dq, min_velocity, whole_samples=cross, joint_dq=c.joint_dq,
+                     min_velocity=min_velocity, keep=keep):
+        mask = row_mask(system, force_model, c.dq, min_velocity, joint_dq=c.joint_dq,
                         min_velocity_passive=min_velocity_passive, reversal=c.reversal)
         if mask is not None and mask.ndim == 1:
             builder.add(c.W[mask], c.y[mask])
@@ -211,7 +218,7 @@ def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model,
     selection = [k for k, v in (("min_velocity", min_velocity), ("min_velocity_passive", min_velocity_passive),
                                 ("reversal_guard", reversal_guard)) if v is not None]
     if selection and problem.n_total <= base.n_base:
-        rule = "whole samples (every actuator)" if cross or not system.channels_are_actuators(force_model) else "per equation"
+        rule = "whole samples (every actuator)" if not system.channels_are_actuators(force_model) else "per equation"
         raise IdentifiabilityError(
             f"data: the row selection ({', '.join('processing.' + k for k in selection)}; {rule}) keeps "
             f"{problem.n_total} equations for {base.n_base} base parameters; lower the thresholds or record a "
@@ -440,6 +447,90 @@ def _maximum_likelihood(cfg: Config, system: System, base: BaseParameters, train
     return result, dataclasses.replace(pc, cutoff_hz=result.solver["cutoff_hz"]), worst[0]
 
 
+ML_TIME_CANDIDATES = 13  # logarithmic grid over the searched range: neighbours 12 % apart at the default 4:1
+
+
+def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, train_a: Dataset,
+                             force_model: str | None, progress: Progress, meta: dict):
+    """Maximum likelihood with the cut-off of the zero-phase Butterworth low-pass (paper 004 Eq. 24
+    in the time domain; :mod:`dynid.estimation.likelihood`). Every candidate cut-off keeps the same
+    samples: the ends trimmed for the lowest one, and the row selection (``min_velocity``,
+    ``reversal_guard``; ``"auto"`` is the settling time of the *lowest* candidate, the longest
+    smear) decided once on the log filtered at ``processing.lowpass``. Returns the result, the
+    processing at the chosen cut-off (with that trim and a guard in seconds) and the largest
+    inconsistency."""
+    from dynid.estimation.likelihood import CutoffFamily, MaximumLikelihood, log_cutoff_grid
+    from dynid.signals import zero_phase_settling_time
+
+    pcfg, icfg = cfg.processing, cfg.identification
+    lp = pcfg.lowpass
+    if lp is None:
+        raise ConfigError("identification.method = 'ml' estimates the cut-off of the position filter: set "
+                          "processing.lowpass (time domain) or [processing.periodic] (paper 004 §3)")
+    if lp.filter_effort:
+        raise ConfigError("identification.method = 'ml' models the efforts as measured: set "
+                          "processing.lowpass.filter_effort = false (paper 004 §3.3)")
+    if pcfg.derivatives != "central":
+        raise ConfigError("identification.method = 'ml' differentiates the filtered positions: "
+                          "processing.derivatives must be 'central'")
+    if pcfg.decimate > 1:
+        raise ConfigError("identification.method = 'ml' in the time domain scores every sample: "
+                          "processing.decimate must be 1")
+    if pcfg.min_velocity_passive is not None:
+        raise ConfigError("identification.method = 'ml' keeps one row selection for every cut-off; "
+                          "processing.min_velocity_passive depends on the filtered passive joints: leave it out")
+    if not system.channels_are_actuators(force_model):
+        raise ConfigError("identification.method = 'ml' models the measured actuator forces with one noise covariance; "
+                          "the projected equations G_a^T tau_a of a redundantly actuated mechanism weight them by the "
+                          "configuration: choose identification.force_model = 'min_norm' or 'min_norm_local_friction'")
+    for key in ("noise_covariance", "position_covariance"):
+        if getattr(icfg, key) == "periodic":
+            raise ConfigError(f"identification.{key}: without [processing.periodic] there is no period averaging to "
+                              "estimate it from; give it as a matrix (time-domain maximum likelihood)")
+    channels = system.channel_names(force_model)
+    cov_e, cov_d = ml_covariances(icfg, [], tuple(channels), tuple(system.actuator_names))
+    fs = 1.0 / float(np.median(np.diff(train_a.t))) if train_a.is_uniform() else (
+        float(pcfg.resample) if isinstance(pcfg.resample, float) else train_a.fs)
+    low, high = icfg.cutoff_range_hz or (0.5 * lp.cutoff_hz, 2.0 * lp.cutoff_hz)
+    high = min(high, 0.5 * fs * (1 - 1e-9))
+    cutoffs = log_cutoff_grid(low, high, ML_TIME_CANDIDATES)
+    trim = pcfg.trim_samples if pcfg.trim_samples is not None else padlen_for(lp.order, low, fs)
+    fixed = dataclasses.replace(pcfg, trim_samples=trim)
+    raw, _ = preprocess(train_a, dataclasses.replace(fixed, lowpass=None), "data")
+    ref, steps = preprocess(train_a, fixed, "data")
+    guard = None
+    if pcfg.reversal_guard is not None:
+        guard = zero_phase_settling_time(lp.order, low) if pcfg.reversal_guard == "auto" else float(pcfg.reversal_guard)
+        keep = reversal_keep(ref.dq, ref.t, guard, pcfg.min_velocity)
+    else:
+        keep = velocity_mask(ref.dq, pcfg.min_velocity)
+    if keep is not None and keep.ndim == 1:
+        keep = np.broadcast_to(keep[:, None], ref.dq.shape)
+    meta["processing"] = steps
+    worst = [0.0]
+
+    def build(fc: float):
+        progress("cut-off search", cutoffs.index(fc), len(cutoffs))
+        at = dataclasses.replace(fixed, lowpass=dataclasses.replace(lp, cutoff_hz=fc))
+        ds, _ = preprocess(train_a, at, "data")
+        problem, w = _compress(system, base, ds, force_model=force_model, min_velocity=None, parallel_decimate=1,
+                               chunk_size=icfg.chunk_size, progress=_no_progress, meta=meta, cross=True,
+                               periodic=None, keep=keep)
+        worst[0] = max(worst[0], w)
+        return problem, raw.q - ds.q, keep
+
+    result = MaximumLikelihood(noise_covariance=cov_e, position_covariance=cov_d).fit(
+        CutoffFamily(cutoffs, build, None))
+    progress("cut-off search", len(cutoffs), len(cutoffs))
+    fc = result.solver["cutoff_hz"]
+    at_fc = dataclasses.replace(fixed, lowpass=dataclasses.replace(lp, cutoff_hz=fc),
+                                reversal_guard=guard if guard is not None else pcfg.reversal_guard)
+    result = dataclasses.replace(result, solver={**result.solver, "trim_samples": int(trim),
+                                                 "reversal_guard_s": guard,
+                                                 "rows_kept_per_actuator": None if keep is None else keep.sum(axis=0).tolist()})
+    return result, at_fc, worst[0]
+
+
 def _stribeck_fit(cfg: Config, system: System, base: BaseParameters, train: Dataset, force_model: str | None,
                   periodic, progress: Progress, meta: dict):
     """The Stribeck fit on at most ``max_samples`` rows spread over the processed log (the pose
@@ -549,7 +640,11 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
     }
     periodic, fj = pcfg.periodic, None
-    if icfg.method == "ml":
+    if icfg.method == "ml" and pcfg.periodic is None:
+        result, pcfg, worst = _maximum_likelihood_time(cfg, system, base, train_a, force_model, progress, meta)
+        train, _ = preprocess(train_a, pcfg, "data")  # both logs as processed at the estimated f_c
+        held_out, _ = preprocess(valid_a, pcfg, "validation")
+    elif icfg.method == "ml":
         result, periodic, worst = _maximum_likelihood(cfg, system, base, train_a, force_model, progress, meta)
         at_fc = dataclasses.replace(pcfg, periodic=periodic)  # both logs as processed at the estimated f_c
         train, _ = preprocess(train_a, at_fc, "data")
@@ -569,7 +664,7 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         result = configured_estimator(icfg, steps, tuple(channels), tuple(names), nominal).fit(problem)
         result = with_covariance(result, blocks, icfg.covariance)
     if pcfg.selects_rows:
-        whole = icfg.method == "gm" or not system.channels_are_actuators(force_model)
+        whole = not system.channels_are_actuators(force_model)
         selection = {"rows_kept_per_joint": result.n_obs.tolist()}
         if pcfg.min_velocity is not None:
             selection.update(min_velocity=list(pcfg.min_velocity),
