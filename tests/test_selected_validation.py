@@ -148,3 +148,20 @@ def test_a_channel_without_selected_rows_is_null_in_json_not_nan():
     whole = ValidationMetrics.of(("a", "b"), t, measured, predicted, "x")
     assert whole.kept is None and "rows_per_joint" not in whole.to_dict()
     np.testing.assert_allclose(whole.rmse, np.sqrt(np.mean((measured - predicted) ** 2, axis=0)), rtol=1e-15)
+
+
+def test_a_selection_that_keeps_no_held_out_row_of_a_channel_is_not_compared():
+    from dynid.pipeline.identification import _selected_prior
+
+    t = np.arange(3.0)
+    measured = np.ones((3, 2))
+    kept = np.array([[True, False]] * 3)
+    ident = ValidationMetrics.of(("P1", "P2"), t, measured, measured + 0.1, "x", kept=kept)
+    nominal = ValidationMetrics.of(("P1", "P2"), t, measured, measured + 0.2, "x", kept=kept)
+    out = _selected_prior(ident, nominal, True, "row-selected held-out")
+    assert not out["comparable"] and out["empty_channels"] == ["P2"] and "keeps no held-out row of P2" in out["verdict"]
+    json.dumps(out, allow_nan=False)
+    kept[0, 1] = True
+    ok = _selected_prior(ValidationMetrics.of(("P1", "P2"), t, measured, measured + 0.1, "x", kept=kept),
+                         ValidationMetrics.of(("P1", "P2"), t, measured, measured + 0.2, "x", kept=kept), True, "held-out")
+    assert ok["beats_nominal"] and ok["channels_better"] == 2

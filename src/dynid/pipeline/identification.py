@@ -430,11 +430,24 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     selected = outcome.selected
     if selected is not None:  # the same overlap (the same log), and the verdict on the selected rows
         sel = dataclasses.replace(selected.metrics, overlap=validation.overlap)
-        sp = None if selected.nominal is None or prior is None else prior_comparison(
+        sp = None if selected.nominal is None or prior is None else _selected_prior(
             sel, selected.nominal, prior["comparable"], f"row-selected {validation.label}")
         selected = dataclasses.replace(selected, metrics=sel, prior=sp)
     return dataclasses.replace(outcome, validation=validation, prior=prior, selected=selected,
                                elapsed_s=time.perf_counter() - t0)
+
+
+def _selected_prior(sel: ValidationMetrics, nominal: ValidationMetrics, comparable: bool, label: str) -> dict[str, Any]:
+    """:func:`prior_comparison` on the selected rows; when the selection keeps no held-out row of
+    a channel, no comparison, and the verdict says which channels (a held-out log that never
+    moves an actuator fast enough, or never far from a reversal)."""
+    empty = [c for c, k in zip(sel.channel_names, sel.rows_per_channel) if k == 0]
+    if not empty:
+        return prior_comparison(sel, nominal, comparable, label)
+    return {"comparable": False, "beats_nominal": False, "empty_channels": empty,
+            "verdict": (f"not compared on the {label} rows: the row selection keeps no held-out row of "
+                        f"{', '.join(empty)} (the held-out log is never fast enough there, or never far enough from a "
+                        "reversal)")}
 
 
 def _check_config(cfg: Config, system: System) -> str | None:
