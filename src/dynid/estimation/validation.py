@@ -39,6 +39,14 @@ class ValidationMetrics:
     predicted: FloatArray
     source: dict[str, Any]
     overlap: dict[str, Any] | None = None  # how close the validation motion comes to the training motion
+    kept: np.ndarray | None = None  # (n, channels) bool: the errors are over these rows of each channel only
+
+    @property
+    def rows_per_channel(self) -> np.ndarray:
+        """Rows each channel's errors are computed over (all ``n_samples`` unless ``kept``)."""
+        if self.kept is None:
+            return np.full(len(self.channel_names), self.n_samples)
+        return self.kept.sum(axis=0)
 
     @property
     def in_sample(self) -> bool:
@@ -61,23 +69,35 @@ class ValidationMetrics:
                 "predicts new motion: validate on another trajectory")
 
     @classmethod
-    def of(cls, channel_names, t: FloatArray, measured: FloatArray, predicted: FloatArray, source) -> ValidationMetrics:
-        """Errors of ``predicted`` against ``measured`` (n, channels) per channel."""
-        err = measured - predicted
-        centred = measured - measured.mean(axis=0)
+    def of(cls, channel_names, t: FloatArray, measured: FloatArray, predicted: FloatArray, source,
+           kept: np.ndarray | None = None) -> ValidationMetrics:
+        """Errors of ``predicted`` against ``measured`` (n, channels) per channel; with ``kept``
+        ((n, channels) bool) over the kept rows of each channel only (NaN for a channel without
+        any), the arrays themselves stay whole."""
+        if kept is None:
+            w = np.ones(measured.shape, dtype=bool)
+        else:
+            w = np.broadcast_to(np.asarray(kept, dtype=bool), measured.shape)
+        n = w.sum(axis=0)
+        err = np.where(w, measured - predicted, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
+            mean = np.sum(np.where(w, measured, 0.0), axis=0) / n
+            centred = np.where(w, measured - mean, 0.0)
             r2 = 1.0 - np.sum(err**2, axis=0) / np.sum(centred**2, axis=0)
+            rmse = np.sqrt(np.sum(err**2, axis=0) / n)
+            rms = np.sqrt(np.sum(np.where(w, measured, 0.0) ** 2, axis=0) / n)
         return cls(
             channel_names=tuple(channel_names),
             n_samples=int(measured.shape[0]),
-            rmse=np.sqrt(np.mean(err**2, axis=0)),
-            rms_measured=np.sqrt(np.mean(measured**2, axis=0)),
-            max_abs_error=np.max(np.abs(err), axis=0),
+            rmse=rmse,
+            rms_measured=rms,
+            max_abs_error=np.where(n > 0, np.max(np.abs(err), axis=0, initial=0.0), np.nan),
             r2=r2,
             t=t,
             measured=measured,
             predicted=predicted,
             source=dict(source) if isinstance(source, dict) else {"source": str(source)},
+            kept=None if kept is None else np.array(w),
         )
 
     @property
@@ -86,14 +106,18 @@ class ValidationMetrics:
             return 100.0 * self.rmse / self.rms_measured
 
     def to_dict(self) -> dict[str, Any]:
+        def finite(x) -> list:  # JSON has no NaN: a channel without rows (or without variance) gets null
+            return [float(v) if np.isfinite(v) else None for v in np.asarray(x, float)]
+
         return {
             "joints": list(self.channel_names),
             "n_samples": self.n_samples,
-            "rmse_per_joint": self.rmse.tolist(),
-            "rel_rmse_pct_per_joint": [float(x) if np.isfinite(x) else None for x in self.rel_rmse_pct],
-            "max_abs_error_per_joint": self.max_abs_error.tolist(),
-            "r2_per_joint": self.r2.tolist(),
-            "rms_measured_per_joint": self.rms_measured.tolist(),
+            **({"rows_per_joint": self.rows_per_channel.tolist()} if self.kept is not None else {}),
+            "rmse_per_joint": finite(self.rmse),
+            "rel_rmse_pct_per_joint": finite(self.rel_rmse_pct),
+            "max_abs_error_per_joint": finite(self.max_abs_error),
+            "r2_per_joint": finite(self.r2),
+            "rms_measured_per_joint": finite(self.rms_measured),
             "source": self.source,
             "kind": self.label,
             "motion_overlap": self.overlap,
@@ -104,7 +128,9 @@ class ValidationMetrics:
         rows = [("joint", "RMSE", "rel RMSE %", "max |err|", "R^2")]
         for c, r, p, m, q in zip(self.channel_names, self.rmse, self.rel_rmse_pct, self.max_abs_error, self.r2):
             rows.append((c, f"{r:.4g}", f"{p:.3g}", f"{m:.4g}", f"{q:.4f}"))
-        w = [max(len(r[i]) for r in rows) for i in range(5)]
+        if self.kept is not None:
+            rows = [(*r, k) for r, k in zip(rows, ("rows", *(str(int(x)) for x in self.rows_per_channel)))]
+        w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
         lines = ["  ".join([r[0].ljust(w[0])] + [c.rjust(x) for c, x in zip(r[1:], w[1:])]) for r in rows]
         lines.insert(1, "-" * len(lines[0]))
         return "\n".join(lines)

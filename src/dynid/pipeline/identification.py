@@ -20,7 +20,8 @@ forces, or motor positions and currents through a drive train. Steps:
    that keeps some actuators with the covariance of those, :class:`~dynid.estimation.problem.CrossBlock`);
 5. compression into the regression problem (never the full regressor), the estimator of
    ``[identification]`` (or the Stribeck fit, or maximum likelihood with the filter cut-off,
-   paper 004 Eq. 24), validation on held-out data processed identically, the output files.
+   paper 004 Eq. 24), validation on held-out data processed identically (with a row selection
+   also on the held-out rows it keeps, :class:`SelectedRows`), the output files.
 """
 
 from __future__ import annotations
@@ -63,8 +64,8 @@ from dynid.pipeline.data import (
 )
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos, padlen_for
 
-__all__ = ["Chunk", "Progress", "ValidationMetrics", "IdentifyOutcome", "build_problem", "prior_comparison", "row_mask",
-           "validate", "validate_with_prior", "identify", "write_outputs",
+__all__ = ["Chunk", "Progress", "ValidationMetrics", "IdentifyOutcome", "RowSelection", "SelectedRows", "build_problem",
+           "prior_comparison", "row_mask", "validate", "validate_with_prior", "identify", "write_outputs",
            "write_files", "OUTPUT_FILES"]
 
 Progress = Callable[[str, int, int], None]
@@ -246,19 +247,30 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
                         nominal: FloatArray | None, *, force_model: str | None = None, parallel_decimate: int = 1,
                         chunk_size: int = 20000, progress: Progress = _no_progress,
                         friction: stribeck.FrictionJoints | None = None,
-                        periodic=None) -> tuple[ValidationMetrics, ValidationMetrics | None, OtherView | None]:
+                        periodic=None, selection: RowSelection | None = None,
+                        ) -> tuple[ValidationMetrics, ValidationMetrics | None, OtherView | None, SelectedRows | None]:
     """:func:`validate`, and in the same pass over the held-out rows the errors of the nominal
     model (base parameters ``nominal`` of the robot description's standard parameters; None:
     not computed): the prior every identified model has to beat. For a redundantly actuated
-    mechanism also the other view of the same predictions (:class:`OtherView`, None otherwise)."""
+    mechanism also the other view of the same predictions (:class:`OtherView`, None otherwise).
+    With ``selection`` (the training's row selection) also both models' errors on the held-out
+    rows that selection keeps (:class:`SelectedRows`, None otherwise)."""
     system = as_system(robot)
     if friction is None and tuple(result.names) != base.names:
         raise InputError("the result's parameters are not the base parameters of this robot")
-    meas, pred, prior = [], [], []
+    meas, pred, prior, kept = [], [], [], []
     alt: list[tuple[FloatArray, FloatArray, FloatArray | None]] = []
+    guard = None if selection is None else selection.reversal_guard
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
-                     progress=progress, task="validate", periodic=periodic):
+                     progress=progress, task="validate", periodic=periodic, reversal_guard=guard,
+                     min_velocity=None if selection is None else selection.min_velocity):
         meas.append(c.y)
+        if selection is not None:
+            mask = row_mask(system, force_model, c.dq, selection.min_velocity, whole_samples=selection.whole_samples,
+                            joint_dq=c.joint_dq, min_velocity_passive=selection.min_velocity_passive,
+                            reversal=c.reversal)
+            kept.append(np.ones(c.y.shape, dtype=bool) if mask is None
+                        else np.broadcast_to(mask if mask.ndim == 2 else mask[:, None], c.y.shape))
         pred.append(c.W @ result.params if friction is None else stribeck.predict(result, friction, c.W, c.dq))
         if nominal is not None:
             prior.append(c.W @ nominal)
@@ -285,7 +297,47 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
             metrics=ValidationMetrics.of(other_names, t, m_alt, p_alt, src),
             nominal=None if nominal is None else ValidationMetrics.of(
                 other_names, t, m_alt, np.concatenate([a[2] for a in alt]), src))
-    return metrics, nominal_metrics, other
+    selected = None
+    if selection is not None:
+        mask = np.concatenate(kept)
+        selected = SelectedRows(
+            rule=selection.rule,
+            metrics=ValidationMetrics.of(names, t, measured, predicted, src, kept=mask),
+            nominal=None if nominal is None else ValidationMetrics.of(names, t, measured, np.concatenate(prior), src,
+                                                                      kept=mask))
+    return metrics, nominal_metrics, other, selected
+
+
+@dataclasses.dataclass(frozen=True)
+class RowSelection:
+    """The training's row selection (``processing.min_velocity``, ``min_velocity_passive``,
+    ``reversal_guard`` in seconds) as :func:`row_mask` applies it; ``whole_samples`` for a full
+    noise covariance across channels; ``rule`` says it in words."""
+
+    min_velocity: tuple[float, ...] | None
+    min_velocity_passive: float | None
+    reversal_guard: float | None
+    whole_samples: bool
+    rule: str
+
+
+@dataclasses.dataclass(frozen=True)
+class SelectedRows:
+    """The held-out errors on the rows the training's row selection keeps (applied to the
+    processed held-out log exactly as to the training log), for the identified model and, on
+    the same rows, the nominal one: how well the model predicts where it claims to be valid.
+    The all-row errors stay the headline; these do not replace them. ``prior``: the
+    :func:`~dynid.estimation.validation.prior_comparison` of the two (set by :func:`identify`)."""
+
+    rule: str
+    metrics: ValidationMetrics
+    nominal: ValidationMetrics | None = None
+    prior: dict[str, Any] | None = None
+
+    def heading(self) -> str:
+        rows = ", ".join(f"{c} {int(k)}" for c, k in zip(self.metrics.channel_names, self.metrics.rows_per_channel))
+        return (f"On the {self.metrics.label} rows the training's row selection keeps ({self.rule}): {rows} of "
+                f"{self.metrics.n_samples} rows")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -332,6 +384,7 @@ class IdentifyOutcome:
     prior: dict[str, Any] | None = None  # prior_comparison of the two
     system: Any = None  # the System identified (its parameters: the model's, or reduced by identification.structure)
     other_view: OtherView | None = None  # redundant mechanisms: the held-out errors in the other form of the equations
+    selected: SelectedRows | None = None  # with a row selection: the errors on the held-out rows it keeps
 
     def summary_text(self) -> str:
         v = self.validation
@@ -344,6 +397,13 @@ class IdentifyOutcome:
         if self.nominal_validation is not None and self.prior is not None:
             lines += ["", "Nominal model (the robot description's parameters: the prior) on the same data",
                       self.nominal_validation.table(), "", self.prior["verdict"]]
+        sel = self.selected
+        if sel is not None:
+            lines += ["", sel.heading(), sel.metrics.table()]
+            if sel.nominal is not None:
+                lines += ["nominal model, the same rows", sel.nominal.table()]
+                if sel.prior is not None:
+                    lines += ["", sel.prior["verdict"]]
         o = self.other_view
         if o is not None:
             lines += ["", f"The same predictions {o.label}", o.metrics.table()]
@@ -374,7 +434,27 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
     prior = outcome.prior
     if outcome.nominal_validation is not None and prior is not None:  # the verdict names the kind of data
         prior = prior_comparison(validation, outcome.nominal_validation, prior["comparable"], validation.label)
-    return dataclasses.replace(outcome, validation=validation, prior=prior, elapsed_s=time.perf_counter() - t0)
+    selected = outcome.selected
+    if selected is not None:  # the same overlap (the same log), and the verdict on the selected rows
+        sel = dataclasses.replace(selected.metrics, overlap=validation.overlap)
+        sp = None if selected.nominal is None or prior is None else _selected_prior(
+            sel, selected.nominal, prior["comparable"], f"row-selected {validation.label}")
+        selected = dataclasses.replace(selected, metrics=sel, prior=sp)
+    return dataclasses.replace(outcome, validation=validation, prior=prior, selected=selected,
+                               elapsed_s=time.perf_counter() - t0)
+
+
+def _selected_prior(sel: ValidationMetrics, nominal: ValidationMetrics, comparable: bool, label: str) -> dict[str, Any]:
+    """:func:`prior_comparison` on the selected rows; when the selection keeps no held-out row of
+    a channel, no comparison, and the verdict says which channels (a held-out log that never
+    moves an actuator fast enough, or never far from a reversal)."""
+    empty = [c for c, k in zip(sel.channel_names, sel.rows_per_channel) if k == 0]
+    if not empty:
+        return prior_comparison(sel, nominal, comparable, label)
+    return {"comparable": False, "beats_nominal": False, "empty_channels": empty,
+            "verdict": (f"not compared on the {label} rows: the row selection keeps no held-out row of "
+                        f"{', '.join(empty)} (the held-out log is never fast enough there, or never far enough from a "
+                        "reversal)")}
 
 
 def _check_config(cfg: Config, system: System) -> str | None:
@@ -691,14 +771,23 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     if notes:
         result = result.with_notes(*notes)
     nominal = base.from_standard(system.nominal_parameters())
-    metrics, prior, other = validate_with_prior(result, system, base, held_out, nominal, force_model=force_model,
-                                         parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
-                                         friction=fj, periodic=periodic)
+    rows_rule = None
+    if pcfg.selects_rows and icfg.method != "ml":  # the cut-off search of "ml" selects no rows
+        rule = [f"min_velocity {list(pcfg.min_velocity)}"] if pcfg.min_velocity is not None else []
+        if pcfg.min_velocity_passive is not None:
+            rule.append(f"min_velocity_passive {pcfg.min_velocity_passive:g}")
+        if pcfg.reversal_guard is not None:
+            rule.append(f"reversal_guard {pcfg.reversal_guard_s():.3g} s")
+        rows_rule = RowSelection(pcfg.min_velocity, pcfg.min_velocity_passive, pcfg.reversal_guard_s(),
+                                 icfg.method == "gm", ", ".join(rule))
+    metrics, prior, other, selected = validate_with_prior(
+        result, system, base, held_out, nominal, force_model=force_model, parallel_decimate=parallel,
+        chunk_size=icfg.chunk_size, progress=progress, friction=fj, periodic=periodic, selection=rows_rule)
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
-                           other_view=other)
+                           other_view=other, selected=selected)
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
@@ -776,6 +865,17 @@ def _nominal_dict(v: ValidationMetrics) -> dict[str, Any]:
                               "r2_per_joint")}
 
 
+def _selected_dict(sel: SelectedRows) -> dict[str, Any]:
+    """:class:`SelectedRows` for result.json."""
+    d = sel.metrics.to_dict()
+    ident = {k: d[k] for k in ("joints", "n_samples", "rows_per_joint", "rmse_per_joint", "rel_rmse_pct_per_joint",
+                               "max_abs_error_per_joint", "r2_per_joint", "kind")}
+    return {"rule": sel.rule, "identified": ident,
+            **({"nominal": {**_nominal_dict(sel.nominal), "rows_per_joint": ident["rows_per_joint"]}}
+               if sel.nominal is not None else {}),
+            **({"prior_comparison": sel.prior} if sel.prior is not None else {})}
+
+
 def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     """Write the output files into an existing folder (see :func:`write_outputs`)."""
     res = outcome.result
@@ -791,6 +891,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
                                           **({"nominal": _nominal_dict(outcome.other_view.nominal)}
                                              if outcome.other_view.nominal is not None else {})}}
                if outcome.other_view is not None else {}),
+            **({"validation_selected_rows": _selected_dict(outcome.selected)} if outcome.selected is not None else {}),
             "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
             "base_parameters": {
                 "names": list(outcome.base.names),
@@ -822,4 +923,5 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
 
             plot_processing(outcome.raw_train, outcome.train, stage / "processing.png")
         write_html_report(res, outcome.validation, stage / "report.html", plot="validation.png",
-                          nominal=outcome.nominal_validation, prior=outcome.prior, other_view=outcome.other_view)
+                          nominal=outcome.nominal_validation, prior=outcome.prior, other_view=outcome.other_view,
+                          selected=outcome.selected)

@@ -41,12 +41,27 @@ def _other_view_html(view: Any) -> str:
             f"<table><tr><th>channel</th><th>RMSE identified</th><th>rel RMSE %</th>{head}</tr>{rows}</table>")
 
 
+def _selected_html(sel: Any) -> str:
+    m, n = sel.metrics, sel.nominal
+    rows = "".join(
+        f"<tr><td>{html.escape(c)}</td><td>{int(k)}</td><td>{a:.4g}</td>"
+        + (f"<td>{n.rmse[i]:.4g}</td><td>{'yes' if a < n.rmse[i] else '<b>no</b>'}</td>" if n is not None else "") + "</tr>"
+        for i, (c, k, a) in enumerate(zip(m.channel_names, m.rows_per_channel, m.rmse)))
+    head = "<th>RMSE nominal</th><th>identified better</th>" if n is not None else ""
+    verdict = f"<p><b>{html.escape(sel.prior['verdict'])}</b></p>" if sel.prior is not None else ""
+    return (f"<h2>On the rows the row selection keeps</h2><p>{html.escape(sel.heading())}</p>"
+            f"<table><tr><th>channel</th><th>rows</th><th>RMSE identified</th>{head}</tr>{rows}</table>{verdict}")
+
+
 def write_html_report(result: IdentificationResult, metrics: Any, path: str | Path, plot: str | None = None,
-                      nominal: Any = None, prior: dict | None = None, other_view: Any = None) -> Path:
+                      nominal: Any = None, prior: dict | None = None, other_view: Any = None,
+                      selected: Any = None) -> Path:
     """Summary, validation table and (optionally) the validation plot in one HTML file; with
     ``nominal`` (the nominal model's validation metrics) and ``prior`` (their comparison), the
     nominal model's errors next to the identified model's and the verdict; with ``other_view``
-    (a redundant robot's :class:`~dynid.pipeline.identification.OtherView`) that table too."""
+    (a redundant robot's :class:`~dynid.pipeline.identification.OtherView`) that table too; with
+    ``selected`` (:class:`~dynid.pipeline.identification.SelectedRows`) both models' errors on the
+    held-out rows the training's row selection keeps."""
     rows = "".join(
         f"<tr><td>{html.escape(c)}</td><td>{r:.4g}</td><td>{p:.3g}</td><td>{q:.4f}</td></tr>"
         for c, r, p, q in zip(metrics.channel_names, metrics.rmse, metrics.rel_rmse_pct, metrics.r2)
@@ -58,6 +73,7 @@ def write_html_report(result: IdentificationResult, metrics: Any, path: str | Pa
         + f"<table><tr><th>joint</th><th>RMSE [N·m]</th><th>rel RMSE %</th><th>R²</th></tr>{rows}</table>"
         + (f"<img src='{html.escape(plot)}' alt='validation plot'>" if plot else "")
         + (_prior_html(metrics, nominal, prior) if nominal is not None and prior is not None else "")
+        + (_selected_html(selected) if selected is not None else "")
         + (_other_view_html(other_view) if other_view is not None else "")
     )
     path = Path(path)
