@@ -311,8 +311,9 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
 @dataclasses.dataclass(frozen=True)
 class RowSelection:
     """The training's row selection (``processing.min_velocity``, ``min_velocity_passive``,
-    ``reversal_guard`` in seconds) as :func:`row_mask` applies it; ``whole_samples`` for a full
-    noise covariance across channels; ``rule`` says it in words."""
+    ``reversal_guard`` in seconds) as :func:`row_mask` applies it; ``whole_samples``: broadcast to
+    every channel (Gauss–Markov no longer needs it: it whitens the kept channels of each sample);
+    ``rule`` says it in words."""
 
     min_velocity: tuple[float, ...] | None
     min_velocity_passive: float | None
@@ -772,14 +773,14 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         result = result.with_notes(*notes)
     nominal = base.from_standard(system.nominal_parameters())
     rows_rule = None
-    if pcfg.selects_rows and icfg.method != "ml":  # the cut-off search of "ml" selects no rows
+    if pcfg.selects_rows and not (icfg.method == "ml" and pcfg.periodic is not None):  # periodic ml: no rows selected
         rule = [f"min_velocity {list(pcfg.min_velocity)}"] if pcfg.min_velocity is not None else []
         if pcfg.min_velocity_passive is not None:
             rule.append(f"min_velocity_passive {pcfg.min_velocity_passive:g}")
         if pcfg.reversal_guard is not None:
             rule.append(f"reversal_guard {pcfg.reversal_guard_s():.3g} s")
         rows_rule = RowSelection(pcfg.min_velocity, pcfg.min_velocity_passive, pcfg.reversal_guard_s(),
-                                 icfg.method == "gm", ", ".join(rule))
+                                 False, ", ".join(rule))  # per equation, Gauss-Markov included
     metrics, prior, other, selected = validate_with_prior(
         result, system, base, held_out, nominal, force_model=force_model, parallel_decimate=parallel,
         chunk_size=icfg.chunk_size, progress=progress, friction=fj, periodic=periodic, selection=rows_rule)
