@@ -69,7 +69,11 @@ iterations and rises again (strut 3 stays near 8 N against 2 N of noise), and 20
 are halved steps (bench/README, control-loop identification time). Simulated states are
 taken at the processed log's instants (linear interpolation between control instants; exact
 at them), and the simulated rows go through exactly the processing of the measured rows
-(parallel decimation, ``min_velocity`` selection from the measured velocities).
+(parallel decimation, ``min_velocity`` selection from the measured velocities). DIDIM's rows
+start the loop-closure position solve from the simulation's own joint positions, which already
+satisfy it (residual below the solve's 1e-10 tolerance at the control instants: no Gauss–Newton
+iteration; the rows then differ from those solved from the actuator positions at that level: the
+DIDIM estimate on the hexapod twin by 1e-9 of its standard deviations).
 
 Processing: use parallel decimation (``processing.decimate_method = "parallel"``), as Gautier
 and Janot do. On the shang2dof twin (500 Hz augmented PD, Kp = 35000) the full-rate DIDIM
@@ -180,7 +184,9 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
     """Actuator positions, velocities, accelerations (n, n_a) of the experiment replayed with
     the standard parameters ``standard`` (identified robot's layout), at the instants ``t``;
     ``process(ts, q, dq, ddq)``, when given, processes the states at the control instants first
-    (IV: :func:`_instrument_processing`)."""
+    (IV: :func:`_instrument_processing`). Without it, also all the joint positions of the
+    simulation at ``t`` (the starting points of the rows' position solve: exact at the control
+    instants, so no Gauss–Newton there), else None."""
     from dynid.pipeline.simulate import actuator_states, run_simulation
 
     outcome = run_simulation(exp.cfg, plant=standard[exp.index])  # standard: the model's full layout
@@ -193,7 +199,11 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
         raise ConfigError(f"identification.experiment: the simulated experiment covers {ts[0]:g}-{ts[-1]:g} s, the "
                           f"processed log {t[0]:g}-{t[-1]:g} s (the experiment's duration must cover the log)")
     interp = lambda x: np.column_stack([np.interp(t, ts, x[:, k]) for k in range(x.shape[1])])  # noqa: E731
-    return interp(q), interp(dq), interp(ddq)
+    joint_q = None
+    if process is None and getattr(outcome, "motion", None) is not None:
+        qj = np.asarray(outcome.motion.q, dtype=float)
+        joint_q = interp(qj) if np.all(np.isfinite(qj)) else None
+    return interp(q), interp(dq), interp(ddq), joint_q
 
 
 def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_old, beta_new, t, k: int,
@@ -321,7 +331,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         measured = itertools.repeat((None, None))
     for k in range(1, icfg.max_iterations + 1):
         progress(f"{method.upper()} iterations", k - 1, icfg.max_iterations)
-        beta_used, step, (qs, dqs, ddqs) = _simulate_or_halve(exp, base, nominal_std, beta_prev, beta, t, k,
+        beta_used, step, (qs, dqs, ddqs, joint_qs) = _simulate_or_halve(exp, base, nominal_std, beta_prev, beta, t, k,
                                                              standard_of, system.expand_parameters, process)
         sim = train.replace(q=qs, dq=dqs, ddq=ddqs)
         if method == "iv":
@@ -345,7 +355,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
                                expressions=base.expressions())
         else:
             mb = ProblemBuilder(base.names, channels)
-            for (_, mask), cs in zip(measured, chunks(sim)):
+            for (_, mask), cs in zip(measured, chunks(sim, joint_qs)):
                 # the equations at the simulated configuration (projected equations of a redundant
                 # mechanism: G_a(q_s)^T tau_a), the measured forces
                 if mask is not None and mask.ndim == 1:
