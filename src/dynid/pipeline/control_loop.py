@@ -63,10 +63,13 @@ measurement noise:
 Both iterate until no parameter moves by more than ``tolerance`` of its standard deviation, or
 ``max_iterations``; the history is in ``result.solver["iterations"]`` (for DIDIM with the output
 error of each iterate, ``output_error_rmse_per_channel``: the RMS of the measured forces minus
-those simulated with it, the criterion the method minimizes). On the hexapod twin of
+those simulated with it, the criterion the method is built on; its fixed point neglects
+:math:`\partial q_s / \partial\beta` and is not a stationary point of it, so a step control
+that demands a falling output error stops short of that fixed point: tried, not kept, see
+bench/README, control-loop identification time). On the hexapod twin of
 ``bench/control_loop_time.py`` the iteration does not contract: the output error falls for four
-iterations and rises again (strut 3 stays near 8 N against 2 N of noise), and 20 of 30 replays
-are halved steps (bench/README, control-loop identification time). Simulated states are
+iterations and rises again (strut 3 stays near 8 N against 2 N of noise), and 18 of 28 replays
+are failed halved steps (bench/README). Simulated states are
 taken at the processed log's instants (linear interpolation between control instants; exact
 at them), and the simulated rows go through exactly the processing of the measured rows
 (parallel decimation, ``min_velocity`` selection from the measured velocities). DIDIM's rows
