@@ -215,3 +215,31 @@ def test_rnea_route_equals_the_regressor_for_every_force_model(name):
         by_rnea = actuator_forces(mech, pi, state, distribution=dist, model=model, data=data)
         scale = np.abs(by_regressor).max()
         np.testing.assert_allclose(by_rnea, by_regressor, rtol=0, atol=1e-9 * scale, err_msg=str(dist))
+
+
+def test_actuator_states_start_from_known_joint_positions():
+    """Starting points that already satisfy the loop closures and the actuator positions (a
+    simulation's joint positions, as DIDIM passes them) are taken as they are, and give the
+    velocities and accelerations of the Gauss-Newton route; starting points 1e-4 away converge
+    to the same positions (Gauss-Newton stops once a step is below tol = 1e-10, and converges
+    quadratically, so the two agree far below 10 tol); a wrong shape is refused."""
+    from dynid.errors import InputError
+    from dynid.model import load_model
+    from dynid.model.closed_loop import random_consistent_states
+    from dynid.model.loop_kinematics import actuator_states
+
+    mech = load_model("builtin:hexapod")
+    rng = np.random.default_rng(0)
+    st = random_consistent_states(mech, 12, rng)
+    act = list(mech.actuated)
+    qa, dqa, ddqa = st.q[:, act], st.dq[:, act], st.ddq[:, act]
+    ref, _ = actuator_states(mech, qa, dqa, ddqa, tol=1e-10)
+    same, resid = actuator_states(mech, qa, dqa, ddqa, tol=1e-10, q_start=ref.q)
+    np.testing.assert_array_equal(same.q, ref.q)
+    np.testing.assert_array_equal(same.dq, ref.dq)
+    np.testing.assert_array_equal(same.ddq, ref.ddq)
+    assert np.all(resid < 1e-10)
+    near, _ = actuator_states(mech, qa, dqa, ddqa, tol=1e-10, q_start=ref.q + 1e-4 * rng.standard_normal(ref.q.shape))
+    assert np.max(np.abs(near.q - ref.q)) < 1e-9
+    with pytest.raises(InputError, match="starting joint positions"):
+        actuator_states(mech, qa, dqa, ddqa, q_start=ref.q[:, :3])

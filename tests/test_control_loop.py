@@ -24,7 +24,7 @@ from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.errors import ConfigError
 from dynid.estimation import WLS, ProblemBuilder
-from dynid.estimation.instrumental import InstrumentBuilder, iv_solve
+from dynid.estimation.instrumental import InstrumentBuilder, iv_solve, iv_solve_truncated
 from dynid.pipeline import identify
 from dynid.pipeline.simulate import run_simulation, write_simulation
 
@@ -69,6 +69,41 @@ def test_iv_removes_the_errors_in_variables_bias():
     assert np.all(np.abs(est - beta) < 4.5 * sd)  # false alarm < 1e-5 per parameter
     assert np.all(np.abs(ls.params - 0.8 * beta) < 4.5 * ls.bse)  # the attenuation, as the theory says
     assert np.all(np.abs(ls.params - beta) > 10 * ls.bse)  # far outside its own intervals
+
+
+def test_truncated_iv_holds_the_directions_the_instruments_do_not_determine():
+    """b2 = b0 + 1e-7 xi in the instruments and the regressor (plus regressor noise): Z^T W has one
+    singular value near 1e-7 of the others. With rtol = 0 the truncated solve is :func:`iv_solve`;
+    with rtol = 1e-4 the estimate moves from the start only along the two determined directions (the
+    held one keeps the start's component exactly), and there it is the truth within its standard
+    deviations."""
+    rng = np.random.default_rng(2)
+    n = 5000
+    z = rng.standard_normal((n, 1, 3))
+    z[:, :, 2] = z[:, :, 0] + 1e-7 * rng.standard_normal((n, 1))
+    beta = np.array([1.0, -2.0, 0.5])
+    y = z @ beta + 0.1 * rng.standard_normal((n, 1))
+    W = z + 0.05 * rng.standard_normal(z.shape)
+    ib = InstrumentBuilder(["b0", "b1", "b2"], ["c"])
+    ib.add(z, W, y)
+    problem, sigma = ib.build(), np.array([0.1])
+    start = np.array([0.7, -1.0, 0.8])
+    full, _, full_cond = iv_solve(problem, sigma)
+    same, _, same_cond, rank = iv_solve_truncated(problem, sigma, start, 0.0)
+    w = 1.0 / sigma**2
+    d = np.sqrt(np.diag(np.einsum("j,jik->ik", w, problem.ZZ)))
+    # the same solution by another factorization: equal up to the rounding of a system of condition cond
+    assert rank == 3 and 0.5 < same_cond / full_cond < 2
+    assert np.linalg.norm(d * (same - full)) < 100 * np.finfo(float).eps * full_cond * np.linalg.norm(d * full)
+    est, cov, cond, rank = iv_solve_truncated(problem, sigma, start, 1e-4)
+    assert rank == 2 and cond < 1e3
+    # the held direction: in the solve's scaled coordinates, the last right singular vector
+    vt = np.linalg.svd(np.einsum("j,jik->ik", w, problem.ZW) / np.outer(d, d))[2]
+    assert abs(vt[-1] @ (d * (est - start))) < 1e-9 * np.linalg.norm(d * start)
+    # the determined directions: b1 and b0 + b2, at the truth within 4.5 sd (false alarm < 1e-5 each)
+    for a in (np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 1.0])):
+        sd = np.sqrt(a @ cov @ a)
+        assert abs(a @ (est - beta)) < 4.5 * sd
 
 
 _SIM = {
@@ -207,6 +242,7 @@ def test_iv_runs_through_the_loop(twin):
     iv = identify(_config(twin, "iv", experiment="train.toml", max_iterations=2))
     r = iv.result
     assert r.method == "IV" and r.solver["start"] == "wls" and len(r.solver["iterations"]) <= 2
+    assert 0 < r.solver["instrumented_directions"] <= len(r.params)
     assert r.cov_params is not None and np.all(np.isfinite(r.bse)) and np.all(r.bse > 0)
     assert "instruments" in " ".join(r.notes)
 

@@ -38,7 +38,7 @@ from dynid.errors import IdentifiabilityError, InputError
 from dynid.estimation.results import IdentificationResult
 from dynid.stats import condition_number
 
-__all__ = ["InstrumentBuilder", "InstrumentalProblem", "fixed_point_covariance", "iv_result", "iv_solve"]
+__all__ = ["InstrumentBuilder", "InstrumentalProblem", "fixed_point_covariance", "iv_result", "iv_solve", "iv_solve_truncated"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,6 +130,50 @@ def iv_solve(problem: InstrumentalProblem, sigma: FloatArray) -> tuple[FloatArra
     Ainv = np.linalg.inv(As) / np.outer(d, d)
     cov = Ainv @ S @ Ainv.T
     return beta, 0.5 * (cov + cov.T), cond
+
+
+def iv_solve_truncated(problem: InstrumentalProblem, sigma: FloatArray, start: FloatArray,
+                       rtol: float) -> tuple[FloatArray, FloatArray, float, int]:
+    """The weighted IV estimate on the directions the instruments determine; the others keep
+    ``start``'s values.
+
+    With the columns scaled as in :func:`iv_solve` (``x = d * beta``, ``d`` the weighted
+    instruments' column norms), ``A = U diag(s) V^T`` the SVD of the scaled
+    :math:`\\sum_j w_j Z_j^T W_j` and :math:`r = b - A x_0` the normal equations' residual at the
+    start, the estimate is the truncated-SVD solution
+    :math:`x = x_0 + V_k \\mathrm{diag}(1/s_k) U_k^T r` over the directions with
+    ``s_i >= rtol * s_max`` (all of them: :func:`iv_solve`'s estimate). Along the other right
+    singular vectors the instruments and the regressor are (nearly) uncorrelated, so the IV
+    normal equations there hold noise divided by a vanishing singular value; the estimate
+    stays at ``start`` along them. The covariance is the IV sandwich of that solution,
+    :math:`P S P^T` with :math:`P = V_k \\mathrm{diag}(1/s_k) U_k^T` (Janot 2014 Eq. 24 with the
+    pseudo-inverse): conditional on the held directions, which carry no variance.
+
+    Returns the estimate, its covariance, the condition number of the kept directions
+    (``s_max / s_min`` over them) and their number.
+    """
+    s_ = np.asarray(sigma, dtype=float)
+    if s_.shape != (len(problem.channel_names),) or np.any(~np.isfinite(s_)) or np.any(s_ <= 0):
+        raise IdentifiabilityError(f"channel noise levels must be positive and finite, got {s_}", problem.names)
+    x0 = np.asarray(start, dtype=float)
+    if x0.shape != (problem.n_params,) or not np.all(np.isfinite(x0)):
+        raise InputError(f"start must be {problem.n_params} finite values, got shape {x0.shape}")
+    w = 1.0 / s_**2
+    A = np.einsum("j,jik->ik", w, problem.ZW)
+    b = np.einsum("j,ji->i", w, problem.Zy)
+    S = np.einsum("j,jik->ik", w, problem.ZZ)
+    d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    As, Ss = A / np.outer(d, d), S / np.outer(d, d)
+    if not np.all(np.isfinite(As)):
+        raise IdentifiabilityError("the instruments' cross products are not finite", problem.names)
+    U, sv, Vt = np.linalg.svd(As)
+    if not sv[0] > 0:
+        raise IdentifiabilityError("the instruments do not determine the parameters (Z^T W is zero)", problem.names)
+    keep = sv >= rtol * sv[0]
+    P = (Vt[keep].T / sv[keep]) @ U[:, keep].T
+    x = d * x0 + P @ (b / d - As @ (d * x0))
+    cov = (P @ Ss @ P.T) / np.outer(d, d)
+    return x / d, 0.5 * (cov + cov.T), float(sv[0] / sv[keep][-1]), int(keep.sum())
 
 
 def iv_result(problem: InstrumentalProblem, beta: FloatArray, cov: FloatArray, sigma: FloatArray, cond: float, *,

@@ -388,6 +388,7 @@ def actuator_states(
     max_iter: int = 30,
     max_cond: float = 1e8,
     sample_offset: int = 0,
+    q_start: FloatArray | None = None,
 ) -> tuple[KinematicState, FloatArray]:
     """States of all joints from measured actuator positions, velocities and accelerations.
 
@@ -407,6 +408,12 @@ def actuator_states(
     over-determined and the fit residual tells how consistent they are.
 
     ``sample_offset`` is added to the sample numbers of error messages (chunked logs).
+
+    ``q_start`` (n, n_v): a starting point per sample instead (the joint positions of a
+    simulation, :mod:`dynid.pipeline.control_loop`); a starting point whose residual
+    :math:`[c(q); S_a q - q_a]` is already below ``tol`` is taken as it is (no Jacobian), so a
+    simulated motion costs one residual per sample, and the positions then differ from the
+    Gauss–Newton solution at the level of ``tol``.
 
     Returns
     -------
@@ -432,10 +439,18 @@ def actuator_states(
     q = np.array(mech.q_ref if q0 is None else q0, dtype=float)
     Q = np.empty((n, mech.nv))
     resid = np.empty(n)
+    if q_start is not None:
+        q_start = np.asarray(q_start, dtype=float)
+        if q_start.shape != (n, mech.nv) or not np.all(np.isfinite(q_start)):
+            raise InputError(f"starting joint positions must be finite, shape ({n}, {mech.nv}); got {q_start.shape}")
     for i in range(n):
+        if q_start is not None:
+            q = q_start[i].copy()
         for it in range(max_iter + 1):
             c = mech._constraint_residual(q, data)[rows]
             ea = q[act] - qa[i]
+            if q_start is not None and it == 0 and max(np.linalg.norm(c, np.inf), np.linalg.norm(ea, np.inf)) < tol:
+                break
             A = np.vstack([mech._constraint_jacobian(q, data, exact=True)[rows], Sa])
             F = np.concatenate([c, ea])
             step, *_ = np.linalg.lstsq(A, F, rcond=None)

@@ -119,7 +119,7 @@ class _SerialRows:
     def __init__(self, robot: RobotModel) -> None:
         self.robot, self.data, self.buf = robot, robot.create_data(), None
 
-    def __call__(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, tau: FloatArray, start: int = 0) -> Rows:
+    def __call__(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, tau: FloatArray, start: int = 0, joint_q: FloatArray | None = None) -> Rows:
         n = q.shape[0]
         shape = (n, self.robot.dof, self.robot.n_standard_params)
         if self.buf is None or self.buf.shape[0] < n:
@@ -252,8 +252,11 @@ class _MechanismRows:
         k = start - a
         return Q[k] if 0 <= k < Q.shape[0] else Q[-1]
 
-    def __call__(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, tau: FloatArray, start: int = 0) -> Rows:
-        state, resid = actuator_states(self.mech, q, dq, ddq, q0=self._guess(start), sample_offset=start)
+    def __call__(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, tau: FloatArray, start: int = 0,
+                 joint_q: FloatArray | None = None) -> Rows:
+        """``joint_q``: all joint positions where known (a simulated motion): the starting points
+        of the position solve (:func:`~dynid.model.loop_kinematics.actuator_states`)."""
+        state, resid = actuator_states(self.mech, q, dq, ddq, q0=self._guess(start), sample_offset=start, q_start=joint_q)
         self.last = (start, state.q)
         reg = actuator_regressor(self.mech, state, distribution=self.force_model, data=self.data)
         W = reg.W if self.T is None else reg.W @ self.T

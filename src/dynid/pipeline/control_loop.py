@@ -15,6 +15,28 @@ measurement noise:
   normal equations, :math:`\\hat\\beta = (Z^T W)^{-1} Z^T y` with Gautier's per-channel weights
   and the IV covariance (:mod:`dynid.estimation.instrumental`). Start: the WLS estimate
   (``start = "wls"``, the paper's IDIM-LS start) or the nominal model.
+
+  The instruments must be correlated with the measured regressor, and that regressor is built
+  from *filtered* positions: the replayed motion goes through the same processing
+  (``processing.lowpass`` on the positions at the simulation's rate, the same derivatives) before
+  the rows are built; the exact simulated accelerations carry the closed loop's response above
+  the cut-off (the zero-order hold, Coulomb switching), which the measured rows do not, and on
+  the hexapod twin of ``bench/control_loop_time.py`` that alone made :math:`Z^T W` singular at
+  the first replay (condition 8.5e14, now 1.6e13).
+
+  Directions of the base parameters that the experiment barely excites are not determined by
+  the instruments: along them the replayed and the measured regressors are uncorrelated and
+  the IV normal equations hold noise over a vanishing singular value (the hexapod twin's 102
+  base parameters: the singular values of the column-scaled :math:`Z^T W` fall continuously
+  from 1 to 1e-13 of the largest; the correlation of the two regressors along the singular
+  directions is at least 0.88 down to 2e-3, 0.5 at 2.5e-4, 0.1 to 0.2 below 1e-9). The
+  estimate is the truncated-SVD IV solution over the directions above 1e-3 of the largest
+  singular value (:func:`dynid.estimation.instrumental.iv_solve_truncated`); the others keep
+  the iterate's values, so from ``start = "nominal"`` they stay at the nominal model's (30 of
+  102 directions are estimated on that twin). ``result.solver["instrumented_directions"]``
+  records the number, a note the rest; the standard errors are conditional on the held
+  directions. Without it the first IV step is noise along them and the next replay is not the
+  experiment (the regressors' correlation falls to 0.01 along every direction but the first).
 * **DIDIM** (Gautier, Janot & Vandanjon, "A new closed-loop output error method for
   parameter identification of robot dynamics", IEEE TCST 21(2), 2013, Eqs. 14–20): the measured
   forces are regressed on the simulated regressor alone, :math:`y = W(q_s(\\beta_k))\\beta_{k+1}`
@@ -41,13 +63,20 @@ measurement noise:
 Both iterate until no parameter moves by more than ``tolerance`` of its standard deviation, or
 ``max_iterations``; the history is in ``result.solver["iterations"]`` (for DIDIM with the output
 error of each iterate, ``output_error_rmse_per_channel``: the RMS of the measured forces minus
-those simulated with it, the criterion the method minimizes). On the hexapod twin of
+those simulated with it, the criterion the method is built on; its fixed point neglects
+:math:`\\partial q_s / \\partial\\beta` and is not a stationary point of it, so a step control
+that demands a falling output error stops short of that fixed point: tried, not kept, see
+bench/README, control-loop identification time). On the hexapod twin of
 ``bench/control_loop_time.py`` the iteration does not contract: the output error falls for four
-iterations and rises again (strut 3 stays near 8 N against 2 N of noise), and 20 of 30 replays
-are halved steps (bench/README, control-loop identification time). Simulated states are
+iterations and rises again (strut 3 stays near 8 N against 2 N of noise), and 18 of 28 replays
+are failed halved steps (bench/README). Simulated states are
 taken at the processed log's instants (linear interpolation between control instants; exact
 at them), and the simulated rows go through exactly the processing of the measured rows
-(parallel decimation, ``min_velocity`` selection from the measured velocities).
+(parallel decimation, ``min_velocity`` selection from the measured velocities). DIDIM's rows
+start the loop-closure position solve from the simulation's own joint positions, which already
+satisfy it (residual below the solve's 1e-10 tolerance at the control instants: no Gauss–Newton
+iteration; the rows then differ from those solved from the actuator positions at that level: the
+DIDIM estimate on the hexapod twin by 1e-9 of its standard deviations).
 
 Processing: use parallel decimation (``processing.decimate_method = "parallel"``), as Gautier
 and Janot do. On the shang2dof twin (500 Hz augmented PD, Kp = 35000) the full-rate DIDIM
@@ -90,13 +119,16 @@ from dynid.config import Config
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, DynidError, InputError
 from dynid.estimation import IdentificationResult, ProblemBuilder
-from dynid.estimation.instrumental import InstrumentBuilder, fixed_point_covariance, iv_result, iv_solve
+from dynid.estimation.instrumental import InstrumentBuilder, fixed_point_covariance, iv_result, iv_solve_truncated
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System
 
 __all__ = ["control_loop_estimate"]
 
 _HALVINGS = 4
+# IV: directions of the base parameters whose singular value of the (column-scaled, weighted)
+# Z^T W is below this fraction of the largest are held at the iterate's values (module docstring)
+_IV_RTOL = 1e-3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,24 +158,59 @@ def _experiment(cfg: Config, system: System) -> _Experiment:
     return _Experiment(exp, names, np.array([ident.index(n) for n in names]))
 
 
-def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, ...]:
+def _instrument_processing(pcfg):
+    """IV: the replayed motion through the processing of the measured positions (module
+    docstring): ``processing.lowpass`` on the positions (and on measured velocities), then the
+    same derivatives, at the simulation's rate. Returns ``process(ts, q, dq, ddq)``."""
+    from dynid.signals import central_difference, lowpass
+
+    lp = pcfg.lowpass
+
+    def process(ts, q, dq, ddq):
+        if lp is not None:
+            fs = 1.0 / float(np.median(np.diff(ts)))
+            if not lp.cutoff_hz < fs / 2:
+                raise ConfigError(f"processing.lowpass.cutoff_hz = {lp.cutoff_hz} Hz is not below half the experiment's "
+                                  f"control rate ({fs / 2:g} Hz): the replayed motion cannot be filtered like the log")
+            q = lowpass(q, lp.cutoff_hz, fs, lp.order)
+            if pcfg.derivatives != "central":
+                dq, ddq = lowpass(dq, lp.cutoff_hz, fs, lp.order), lowpass(ddq, lp.cutoff_hz, fs, lp.order)
+        if pcfg.derivatives == "central":
+            dq = central_difference(q, ts)
+            ddq = central_difference(dq, ts)
+        return q, dq, ddq
+
+    return process
+
+
+def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, process=None) -> tuple[np.ndarray, ...]:
     """Actuator positions, velocities, accelerations (n, n_a) of the experiment replayed with
-    the standard parameters ``standard`` (identified robot's layout), at the instants ``t``."""
+    the standard parameters ``standard`` (identified robot's layout), at the instants ``t``;
+    ``process(ts, q, dq, ddq)``, when given, processes the states at the control instants first
+    (IV: :func:`_instrument_processing`). Without it, also all the joint positions of the
+    simulation at ``t`` (the starting points of the rows' position solve: exact at the control
+    instants, so no Gauss–Newton there), else None."""
     from dynid.pipeline.simulate import actuator_states, run_simulation
 
     outcome = run_simulation(exp.cfg, plant=standard[exp.index])  # standard: the model's full layout
     ts, q, dq, ddq = actuator_states(outcome)
+    if process is not None and np.all(np.isfinite(q)) and np.all(np.isfinite(dq)) and np.all(np.isfinite(ddq)):
+        q, dq, ddq = process(ts, q, dq, ddq)
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(dq)) and np.all(np.isfinite(ddq))):
         raise FloatingPointError("the simulated motion is not finite")
     if t[0] < ts[0] - 1e-9 or t[-1] > ts[-1] + 1e-9:
         raise ConfigError(f"identification.experiment: the simulated experiment covers {ts[0]:g}-{ts[-1]:g} s, the "
                           f"processed log {t[0]:g}-{t[-1]:g} s (the experiment's duration must cover the log)")
     interp = lambda x: np.column_stack([np.interp(t, ts, x[:, k]) for k in range(x.shape[1])])  # noqa: E731
-    return interp(q), interp(dq), interp(ddq)
+    joint_q = None
+    if process is None and getattr(outcome, "motion", None) is not None:
+        qj = np.asarray(outcome.motion.q, dtype=float)
+        joint_q = interp(qj) if np.all(np.isfinite(qj)) else None
+    return interp(q), interp(dq), interp(ddq), joint_q
 
 
 def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_old, beta_new, t, k: int,
-                       standard_of=None, expand=lambda pi: pi):
+                       standard_of=None, expand=lambda pi: pi, process=None):
     """Simulate at ``beta_new``; on failure halve the step from ``beta_old`` (see module doc)."""
     step = 1.0
     last = None
@@ -151,7 +218,7 @@ def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_ol
         beta = beta_new if beta_old is None else beta_old + step * (beta_new - beta_old)
         standard = standard_of(beta) if standard_of is not None and step == 1.0 else base.to_standard(beta, reference)
         try:
-            return beta, step, _simulated_states(exp, expand(standard), t)
+            return beta, step, _simulated_states(exp, expand(standard), t, process)
         except ConfigError:
             raise
         except (DynidError, FloatingPointError, RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
@@ -254,6 +321,9 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
     standard_of = None
     beta_prev = None
     t = np.asarray(train.t, dtype=float)
+    # IV: instruments processed like the measured regressor; DIDIM: the exact simulated states
+    # (its simulated forces W(q_s) beta_k are the replay's own forces; module docstring)
+    process = _instrument_processing(cfg.processing) if method == "iv" else None
     # the measured rows do not change from one iteration to the next: computed once (forward
     # kinematics of every sample, the regressor). IV keeps them (its normal equations use them at
     # every iteration: the decimated base regressor, n/k x n_a x p doubles), DIDIM only their row
@@ -264,8 +334,8 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         measured = itertools.repeat((None, None))
     for k in range(1, icfg.max_iterations + 1):
         progress(f"{method.upper()} iterations", k - 1, icfg.max_iterations)
-        beta_used, step, (qs, dqs, ddqs) = _simulate_or_halve(exp, base, nominal_std, beta_prev, beta, t, k,
-                                                             standard_of, system.expand_parameters)
+        beta_used, step, (qs, dqs, ddqs, joint_qs) = _simulate_or_halve(exp, base, nominal_std, beta_prev, beta, t, k,
+                                                             standard_of, system.expand_parameters, process)
         sim = train.replace(q=qs, dq=dqs, ddq=ddqs)
         if method == "iv":
             builder = InstrumentBuilder(base.names, channels)
@@ -275,13 +345,20 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
             if sigma is None:
                 sigma = _sigma(problem.rss_per_channel(beta_used), problem.n_obs, base.n_base)
             for _ in range(3):  # weights from the IV residuals (Janot 2014: weighted IV)
-                new, cov, cond = iv_solve(problem, sigma)
+                # the directions the instruments do not determine stay at the iterate's values
+                new, cov, cond, rank = iv_solve_truncated(problem, sigma, beta_used, _IV_RTOL)
                 sigma = _sigma(problem.rss_per_channel(new), problem.n_obs, base.n_base)
-            result = iv_result(problem, new, cov, sigma, cond, method="IV", solver={}, provenance=dict(meta),
-                               notes=(), expressions=base.expressions())
+            held = base.n_base - rank
+            result = iv_result(problem, new, cov, sigma, cond, method="IV", provenance=dict(meta),
+                               solver={"instrument_rtol": _IV_RTOL, "instrumented_directions": rank},
+                               notes=() if not held else (
+                                   f"{held} of {base.n_base} directions of the base parameters are not determined by "
+                                   f"the instruments (singular value of Z^T W below {_IV_RTOL:g} of the largest): held "
+                                   f"at the start's values; the standard errors are conditional on them",),
+                               expressions=base.expressions())
         else:
             mb = ProblemBuilder(base.names, channels)
-            for (_, mask), cs in zip(measured, chunks(sim)):
+            for (_, mask), cs in zip(measured, chunks(sim, joint_qs)):
                 # the equations at the simulated configuration (projected equations of a redundant
                 # mechanism: G_a(q_s)^T tau_a), the measured forces
                 if mask is not None and mask.ndim == 1:
@@ -309,6 +386,8 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         moved = float(np.max(np.abs(new - beta_used) / np.maximum(bse, 1e-300)))
         entry = {"iteration": k, "step": step, "max_change_in_std": moved,
                  "rmse_per_channel": np.sqrt(result.rss_per_channel / np.maximum(result.n_obs, 1)).tolist()}
+        if method == "iv":
+            entry["instrumented_directions"] = rank
         if method == "didim":  # the output error of the iterate itself: its simulated forces W(q_s) beta_k
             entry["output_error_rmse_per_channel"] = np.sqrt(problem.rss_per_channel(beta_used)
                                                              / np.maximum(problem.n_obs, 1)).tolist()

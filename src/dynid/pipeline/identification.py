@@ -94,7 +94,8 @@ class Chunk:
 def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, *, parallel_decimate: int = 1,
             chunk_size: int = 20000, progress: Progress = _no_progress, task: str = "compress",
             periodic=None, reversal_guard: float | None = None,
-            min_velocity: tuple[float, ...] | None = None, keep: np.ndarray | None = None) -> Iterator[Chunk]:
+            min_velocity: tuple[float, ...] | None = None, keep: np.ndarray | None = None,
+            joint_q: FloatArray | None = None) -> Iterator[Chunk]:
     """Yield the rows of ``ds`` chunk by chunk, at full rate or parallel-decimated.
 
     Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
@@ -110,6 +111,9 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     the reversals and the samples slower than ``min_velocity``. ``keep`` (n, n_a): a row selection
     decided beforehand, carried the same way instead (maximum likelihood keeps one selection for
     every candidate cut-off).
+
+    ``joint_q`` (n, n_v): all joint positions of a mechanism where known (a simulated motion,
+    :mod:`dynid.pipeline.control_loop`), the starting points of its position solve.
     """
     if periodic is not None and periodic.domain == "pose":
         if reversal_guard is not None:
@@ -129,7 +133,7 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     if parallel_decimate <= 1:
         for a in range(0, n, size):
             b = min(a + size, n)
-            r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
+            r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
             yield Chunk(base.regressor(r.W), r.y, ds.dq[a:b], r.inconsistency, r.joint_dq,
                         None if guard is None else guard[a:b], r.Ga, None if r.Ga is None else ds.tau[a:b])
             progress(task, b, n)
@@ -139,7 +143,7 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     if n <= 2 * k:
         raise InputError(f"{n} samples are too few to decimate by {k}")
     for a, b, keep in decimation_segments(n, k, margin, max(size, 4 * margin)):
-        r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a)
+        r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
         filt = lambda x: lowpass_sos(x, sos)[keep]  # noqa: E731
         yield Chunk(filt(base.regressor(r.W)), filt(r.y), filt(ds.dq[a:b]), r.inconsistency[keep],
                     None if r.joint_dq is None else filt(r.joint_dq), None if guard is None else guard[a:b][keep],
@@ -663,11 +667,11 @@ def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Data
 
         start = WLS().fit(problem)
 
-    def chunks(ds: Dataset) -> Iterator[Chunk]:
+    def chunks(ds: Dataset, joint_q=None) -> Iterator[Chunk]:
         # only the measured rows are selected (the replays reuse their masks): no guard on the replays
         guard = pcfg.reversal_guard_s() if ds is train else None
         return _chunks(system, base, ds, force_model, parallel_decimate=parallel, chunk_size=icfg.chunk_size,
-                       reversal_guard=guard, min_velocity=pcfg.min_velocity)
+                       reversal_guard=guard, min_velocity=pcfg.min_velocity, joint_q=joint_q)
 
     def mask_of(c: Chunk):
         return row_mask(system, force_model, c.dq, pcfg.min_velocity, joint_dq=c.joint_dq,
