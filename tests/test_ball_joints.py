@@ -154,11 +154,11 @@ def test_regressor_times_parameters_is_rnea_through_the_closures(stewart):
 
 def test_ball_damping_gives_per_hinge_viscous_terms(tmp_path):
     path = tmp_path / "s.xml"
-    path.write_text(stewart_xml(damping=0.03).replace('damping="0.03"', 'damping="0.03" frictionloss="0.1"'))
+    path.write_text(stewart_xml(damping=0.03).replace('damping="0.03"', 'damping="0.03" frictionloss="0.1" range="0 0.5"'))
     mech = load_mechanism_mjcf(path)
     ball = {k: v for k, v in mech.nominal_terms.items() if "platform_ball" in k}
     assert ball == pytest.approx({f"fv_platform_ball_{x}": 0.03 for x in "xyz"})
-    assert any("ball joint platform_ball: frictionloss not modelled" in n for n in mech.notes)
+    assert any("ball joint platform_ball: frictionloss and range not modelled" in n for n in mech.notes)
 
 
 def test_export_round_trip_keeps_the_ball(stewart, tmp_path):

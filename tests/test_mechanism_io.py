@@ -222,6 +222,9 @@ _QB2 = '<joint name="qb2" type="hinge" axis="0 1 0" range="-2.8 2.8" damping="0.
         ([(_QB2, '<joint name="qb2" type="ball"/>')], r"are fewer than the mobility 3: the mechanism is under-actuated"),
         ([(_QB2, '<joint name="qb2" type="ball"/><joint name="qc2" axis="1 0 0"/>')],
          "body 'dist2' has a ball joint and other joints; give each joint its own body"),
+        ([(_QB2, '<joint name="qb2" class="sph"/>'), ("<worldbody>", '<default><default class="sph"><joint type="ball"/>'
+                                                                       "</default></default><worldbody>")],
+         r"joint 'qb2' is a ball joint \(3 DOF\).*<default> class: write type=\"ball\" on the joint itself"),
         ([(_QB2, '<joint name="qb2" type="ball"/>'), ('name="dist2"', 'name="qb2_bx"')],
          r"ball joint 'qb2' becomes hinges .* but \['qb2_bx'\] already exist in the file"),
         ([(_QB2, '<freejoint name="fj"/>')], r"joint 'fj' is a free joint \(6 DOF\).*floating body is not supported"),

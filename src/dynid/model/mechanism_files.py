@@ -130,7 +130,8 @@ def load_mechanism_mjcf(
             failure = exc
     if failure is not None:
         raise ModelError(f"{path}: cannot parse MJCF ({parse_failure(failure, native)})")
-    _check_one_dof(model, path, "use three hinges through two massless bodies")
+    _check_one_dof(model, path, "its type comes from a <default> class: write type=\"ball\" on the joint itself, "
+                   "which dynid reads as three hinges")
     if len(constraints) != len(equalities):
         raise ModelError(f"{path}: pinocchio read {len(constraints)} of the {len(equalities)} <equality> closures")
     closures = _mjcf_closures(model, constraints, equalities)
@@ -259,8 +260,9 @@ def _balls_as_hinges(root: ET.Element, path: Path, notes: list[str]) -> list[Bal
     MuJoCo's ``qpos0`` of a ball is the identity) it is the file's pose. A ball's
     ``damping`` [N·m·s/rad] is MuJoCo's viscous friction per degree of freedom and goes to
     each hinge (terms ``fv_<ball>_x`` ... on the chart's angle rates, equal to the relative
-    angular velocity's components at the reference); ``frictionloss`` and ``armature`` have
-    no equivalent here and are noted, not used."""
+    angular velocity's components at the reference); ``frictionloss``, ``armature`` and
+    ``range`` (a cone of rotation angles in MuJoCo) have no equivalent here and are noted, not
+    used."""
     bodies = {b.get("name") for b in root.iter("body")}
     joints = {j.get("name") for j in root.iter("joint")}
     out = []
@@ -296,6 +298,7 @@ def _balls_as_hinges(root: ET.Element, path: Path, notes: list[str]) -> list[Bal
         parent.insert(k, outer)
         middle.append(body)
         lost = [key for key in ("frictionloss", "armature") if float(ball.get(key, "0") or 0) != 0.0]
+        lost += ["range"] if ball.get("range") is not None else []
         if lost:
             notes.append(f"ball joint {name}: {' and '.join(lost)} not modelled (no such term on ball joints)")
         out.append(BallJoint(name, bname, hinges))
