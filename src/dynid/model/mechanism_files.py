@@ -297,12 +297,19 @@ def _balls_as_hinges(root: ET.Element, path: Path, notes: list[str]) -> list[Bal
         parent.remove(body)
         parent.insert(k, outer)
         middle.append(body)
-        lost = [key for key in ("frictionloss", "armature") if float(ball.get(key, "0") or 0) != 0.0]
-        lost += ["range"] if ball.get("range") is not None else []
+        lost = [key for key in ("frictionloss", "armature", "range") if _given(ball.get(key))]
         if lost:
             notes.append(f"ball joint {name}: {' and '.join(lost)} not modelled (no such term on ball joints)")
         out.append(BallJoint(name, bname, hinges))
     return out
+
+
+def _given(value: str | None) -> bool:
+    """An attribute that says something: present and not all zeros (text that is not numbers counts)."""
+    try:
+        return value is not None and any(float(v) != 0.0 for v in value.split())
+    except ValueError:
+        return True
 
 
 def _hinge_attrs(ball: ET.Element, name: str, axis: str) -> dict[str, str]:
