@@ -523,7 +523,7 @@ _info("mjcf-negative-mass.xml", FIVEBAR.replace('mass="0.35"', 'mass="-0.35"', 1
 _info("mjcf-triangle.xml", FIVEBAR.replace('diaginertia="0.006 0.006 0.0002"', 'diaginertia="0.006 0.0001 0.0002"', 1),
       "body 'dist1': the principal moments of inertia", "break the triangle inequality")
 _info("mjcf-ball.xml", FIVEBAR.replace('<joint name="qb1" type="hinge" axis="0 1 0"/>', '<joint name="qb1" type="ball"/>'),
-      "joint 'qb1' is a ball joint (3 DOF); mechanisms need 1-DOF joints")
+      "actuated joints ['qa1', 'qa2'] are fewer than the mobility 3: the mechanism is under-actuated")
 _info("mjcf-serial-ball.xml", FIVEBAR.split("  <equality>")[0].replace('<joint name="qb1" type="hinge" axis="0 1 0"/>',
                                                                         '<joint name="qb1" type="ball"/>') + "</mujoco>\n",
       "mjcf-serial-ball.xml: joint 'qb1' is a ball joint (3 DOF); a serial robot needs 1-DOF joints")

@@ -217,7 +217,16 @@ _QB2 = '<joint name="qb2" type="hinge" axis="0 1 0" range="-2.8 2.8" damping="0.
         ([('joint="qa2"', 'joint="nope"')], r"actuator 'm2' drives 'nope', which is not a joint"),
         ([('<motor name="m1" joint="qa1" gear="1"/>', '<motor name="m1" tendon="t1"/>')], "drives no joint"),
         ([("<actuator>", "<!-- <actuator>"), ("</actuator>", "</actuator> -->")], "no <actuator> drives a joint"),
-        ([(_QB2, '<joint name="qb2" type="ball"/>')], r"joint 'qb2' is a ball joint \(3 DOF\).*<connect> closure instead"),
+        # a ball joint is three hinges (tests/test_ball_joints.py): here the distal link, ball at one end and a
+        # point closure at the other, spins freely about its axis
+        ([(_QB2, '<joint name="qb2" type="ball"/>')], r"are fewer than the mobility 3: the mechanism is under-actuated"),
+        ([(_QB2, '<joint name="qb2" type="ball"/><joint name="qc2" axis="1 0 0"/>')],
+         "body 'dist2' has a ball joint and other joints; give each joint its own body"),
+        ([(_QB2, '<joint name="qb2" class="sph"/>'), ("<worldbody>", '<default><default class="sph"><joint type="ball"/>'
+                                                                       "</default></default><worldbody>")],
+         r"joint 'qb2' is a ball joint \(3 DOF\).*<default> class: write type=\"ball\" on the joint itself"),
+        ([(_QB2, '<joint name="qb2" type="ball"/>'), ('name="dist2"', 'name="qb2_bx"')],
+         r"ball joint 'qb2' becomes hinges .* but \['qb2_bx'\] already exist in the file"),
         ([(_QB2, '<freejoint name="fj"/>')], r"joint 'fj' is a free joint \(6 DOF\).*floating body is not supported"),
         ([(_QB2, _QB2 + '<joint name="qc2" axis="1 0 0"/>')], "joint 'Composite_qb2' combines several joints of one body"),
         ([(CONNECT, CONNECT + '<joint joint1="qa1" joint2="qa2"/>')], r"<equality><joint> .* is not supported"),

@@ -504,7 +504,11 @@ def write_mjcf(
       ``<text name="dynid:independent" data="qa1 qa2"/>`` or ``<text
       name="dynid:independent_point" data="body=B pos=x y z axes=0 1"/>``, which
       :func:`~dynid.model.mechanism_io.load_mechanism_mjcf` reads back (MuJoCo and pinocchio
-      ignore it).
+      ignore it);
+    * ball joints (:class:`~dynid.model.mechanism.BallJoint`) as their three hinges and two
+      massless bodies, with ``<custom><text name="dynid:ball" data="ball body hx hy hz"/>``
+      so that dynid reads them back as a ball (parameter names, chart check, no default
+      friction).
 
     Not representable in MJCF, written as ``dynid:`` comments: asymmetric friction
     (``viscous+/-``, ``coulomb+/-``) and ``offset`` terms, task coordinates, velocity limits
@@ -606,8 +610,11 @@ def write_mjcf(
                                             f"axes={' '.join(str(a) for a in ind.axes)}")
     elif list(ind.joints) != list(mech.actuated):
         chart = ("dynid:independent", " ".join(mech.joint_names[v] for v in ind.joints))
+    custom = ET.SubElement(root, "custom") if chart is not None or mech.ball_joints else None
     if chart is not None:
-        ET.SubElement(ET.SubElement(root, "custom"), "text", name=chart[0], data=chart[1])
+        ET.SubElement(custom, "text", name=chart[0], data=chart[1])
+    for b in mech.ball_joints:  # its three hinges are written as such; the record keeps the ball's name and body
+        ET.SubElement(custom, "text", name="dynid:ball", data=" ".join((b.name, b.body, *b.hinges)))
     actuator = ET.SubElement(root, "actuator")
     taken: set[str] = set()
     for a in mech.actuated:
@@ -627,6 +634,9 @@ def write_mjcf(
     if chart is not None:
         header.append(f"dynid: independent coordinates in <custom><text name={chart[0]!r}> (read back by dynid; "
                       "other readers ignore it)")
+    if mech.ball_joints:
+        header.append(f"dynid: ball joints {[b.name for b in mech.ball_joints]} written as three hinges through two "
+                      "massless bodies, recorded in <custom><text name='dynid:ball'> (read back by dynid)")
     if mech.task_coordinates:
         header.append(f"dynid: task coordinates: {list(mech.task_coordinates)}")
     header += [f"dynid note: {n}" for n in mech.notes]

@@ -5,7 +5,8 @@ A parallel robot is described, as in DESIGN.md ("Closed-loop mechanisms"), by
 * a pinocchio kinematic tree with **all** bodies and all joints, active and passive
   (1-DOF joints only: a universal joint is two revolutes with the cardan ring between
   them, a platform pose is a chain of six 1-DOF joints with massless intermediate bodies,
-  a spherical joint at a cut is the loop closure itself);
+  a spherical joint at a cut is the loop closure itself, any other is three revolute joints
+  through two massless bodies, :class:`BallJoint`);
 * loop-closure constraints :math:`c(q) = 0` (:class:`LoopClosure`: point coincidence
   ``"3d"`` = MJCF ``<connect>``, or frame coincidence ``"6d"`` = ``<weld>``);
 * the actuated joints;
@@ -59,6 +60,7 @@ from dynid.model.robot import BODY_PARAMS, inertia_from_parameters
 
 __all__ = [
     "TERM_KINDS",
+    "BallJoint",
     "JointCoordinates",
     "JointTerm",
     "LoopClosure",
@@ -68,6 +70,24 @@ __all__ = [
 ]
 
 _NONNEG_KINDS = ("inertia", "viscous", "coulomb", "viscous+", "viscous-", "coulomb+")
+
+
+BALL_MARGIN_DEG = 10.0
+"""How close [deg] the middle angle of a ball joint's chart may come to ±90° (its singularity)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class BallJoint:
+    r"""A spherical (ball) joint as three orthogonal revolute joints ``hinges = (x, y, z)`` in a
+    chain through two massless bodies: the relative rotation is
+    :math:`R_x(q_x) R_y(q_y) R_z(q_z)` (Cardan angles), an exact chart of SO(3) away from
+    :math:`q_y = \pm 90°`, where the ``x`` and ``z`` axes align (gimbal lock). ``body`` is
+    the body the ball joint carries, whose parameters are named after it (``m_<body>``)
+    rather than after the last hinge."""
+
+    name: str
+    body: str
+    hinges: tuple[str, str, str]
 
 
 def _skew(p: FloatArray) -> FloatArray:
@@ -117,6 +137,11 @@ class Mechanism:
     symmetric_zero : sequence of str
         Standard parameters that the papers' symmetric-body simplification fixes at zero
         (structure ``"paper"``, :mod:`dynid.model.reduction`).
+    ball_joints : sequence of BallJoint
+        Spherical joints modelled as three hinges through two massless bodies (the MJCF
+        reader's ``<joint type="ball">``): the hinges' bodies must be massless but the last;
+        that one's parameters are named after ``body``; a configuration within
+        ``BALL_MARGIN_DEG`` of the chart's singularity is refused (one-line ModelError).
     """
 
     pin_model: pin.Model
@@ -135,6 +160,7 @@ class Mechanism:
     position_guess: object = None
     identical_chains: tuple = ()
     symmetric_zero: tuple[str, ...] = ()
+    ball_joints: tuple[BallJoint, ...] = ()
 
     # derived
     bodies: tuple[int, ...] = dataclasses.field(init=False)
@@ -215,7 +241,9 @@ class Mechanism:
                 raise ModelError(f"body of joint {m.names[j]!r} is declared massless but has non-zero inertia")
         bodies = tuple(j for j in range(1, m.njoints) if j not in self.massless)
         set_(self, "bodies", bodies)
-        pnames = [f"{p}_{m.names[j]}" for j in bodies for p in BODY_PARAMS] + tnames
+        set_(self, "ball_joints", tuple(self.ball_joints))
+        set_(self, "_ball_middle", self._check_balls())
+        pnames = [f"{p}_{self.body_label(j)}" for j in bodies for p in BODY_PARAMS] + tnames
         set_(self, "parameter_names", tuple(pnames))
         set_(self, "symmetric_zero", tuple(self.symmetric_zero))
         if set(self.symmetric_zero) - set(pnames):
@@ -230,6 +258,50 @@ class Mechanism:
         set_(self, "independent", indep)
         self._check_topology()
 
+    # ------------------------------------------------------------------ ball joints
+    def _check_balls(self) -> tuple[tuple[str, int], ...]:
+        """(ball name, q index of its middle hinge) per ball joint, after checking that its
+        hinges are a chain of 1-DOF revolute joints whose first two bodies are massless."""
+        m = self.pin_model
+        names = list(m.names)
+        out = []
+        for b in self.ball_joints:
+            missing = [h for h in b.hinges if h not in names]
+            if len(b.hinges) != 3 or missing:
+                raise ModelError(f"ball joint {b.name!r}: hinges {list(b.hinges)} are not three joints of the model")
+            ids = [names.index(h) for h in b.hinges]
+            if m.parents[ids[1]] != ids[0] or m.parents[ids[2]] != ids[1]:
+                raise ModelError(f"ball joint {b.name!r}: hinges {list(b.hinges)} are not a chain")
+            if any(j not in self.massless for j in ids[:2]):
+                raise ModelError(f"ball joint {b.name!r}: the bodies of hinges {list(b.hinges[:2])} must be massless")
+            if not all(m.joints[j].shortname().startswith("JointModelR") for j in ids):
+                raise ModelError(f"ball joint {b.name!r}: hinges {list(b.hinges)} must be revolute joints")
+            out.append((b.name, int(m.joints[ids[1]].idx_q)))
+        return tuple(out)
+
+    def body_label(self, joint: int) -> str:
+        """The name in the parameter names (``m_<label>``) of the body of pinocchio joint
+        ``joint``: the joint's name, or the body's for the last hinge of a ball joint."""
+        name = self.pin_model.names[joint]
+        return next((b.body for b in self.ball_joints if b.hinges[2] == name), name)
+
+    def check_ball_charts(self, q: FloatArray, what: str = "configuration") -> None:
+        """Refuse configurations ``q`` (n_v,) or (n, n_v) where a ball joint's middle angle is
+        within ``BALL_MARGIN_DEG`` of ±90° (its three-hinge chart is singular there)."""
+        if not self._ball_middle:
+            return
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        limit = np.sin(np.radians(BALL_MARGIN_DEG))
+        for name, iq in self._ball_middle:
+            bad = np.flatnonzero(np.abs(np.cos(q[:, iq])) < limit)
+            if bad.size:
+                i = int(bad[0])
+                raise ModelError(
+                    f"{what}{f' sample {i}' if q.shape[0] > 1 else ''}: ball joint {name!r} is at "
+                    f"{np.degrees(q[i, iq]):.1f} deg on its middle hinge {self.pin_model.names[iq + 1]!r}, within "
+                    f"{BALL_MARGIN_DEG:g} deg of the singularity of its three-hinge chart (gimbal lock at ±90 deg)"
+                )
+
     # ------------------------------------------------------------------ set-up checks
     def _check_topology(self) -> None:
         """Assemble the loops, find independent constraint rows and check the mobility."""
@@ -240,6 +312,7 @@ class Mechanism:
         if q0.shape != (nv,):
             raise ModelError(f"q_guess must have shape ({nv},), got {q0.shape}")
         q = self._assemble(q0, data)
+        self.check_ball_charts(q, f"reference configuration of {self.name!r}")
         object.__setattr__(self, "q_ref", q)
         object.__setattr__(self, "constraint_rows", np.arange(sum(c.rows for c in self.closures)))
         Jc = self._constraint_jacobian(q, data)
@@ -654,6 +727,7 @@ class Mechanism:
                     )
                 q = q - np.linalg.solve(A, F)
             out[i] = q
+        self.check_ball_charts(out, "solve_positions")
         return out
 
     def states(
@@ -688,10 +762,12 @@ class Mechanism:
             :math:`J_u \\ddot q_0 = -\\dot J_u \\dot q` (batched over samples, see
             :mod:`dynid.model.loop_kinematics`).
         """
+        self.check_ball_charts(q, "states")
         return loop_kinematics.states(self, q, du, ddu, max_cond=max_cond, data=data)
 
     def kinematic_state(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, *, max_cond: float = 1e8) -> KinematicState:
         """Wrap given joint positions, velocities and accelerations (e.g. from a constrained
         simulation) with the velocity map :math:`G(q)`; nothing is recomputed but G.
         ``q`` must be assembled (:math:`c(q) \\approx 0`), as for :meth:`states`."""
+        self.check_ball_charts(q, "kinematic_state")
         return loop_kinematics.kinematic_state(self, q, dq, ddq, max_cond=max_cond)

@@ -10,6 +10,8 @@ with a closure YAML in the format of Gepetto's *example-parallel-robots*. (The b
   Actuated joints come from ``<actuator>`` (``<motor joint=...>``, ``<position ...>``, ...).
   Joint ``damping`` [N·m·s/rad or N·s/m], ``frictionloss`` [N·m or N] and ``armature``
   [kg·m² or kg] become nominal values of viscous, Coulomb and inertia joint terms.
+  A ``<joint type="ball">`` is rewritten, before pinocchio reads the file, as three hinges
+  through two massless bodies (:func:`_balls_as_hinges`, :class:`~dynid.model.mechanism.BallJoint`).
 * **URDF + YAML** (:func:`load_mechanism_urdf`): keys ``closed_loop`` (pairs of frame
   names), ``type`` (``6d``/``3d`` per pair) and ``name_mot`` (actuated joints). URDF
   ``<dynamics>`` damping/friction become nominal viscous/Coulomb values.
@@ -43,6 +45,7 @@ and on any joint whose file gives a non-zero friction or armature.
 from __future__ import annotations
 
 import re
+import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from pathlib import Path
@@ -54,7 +57,7 @@ import scipy.linalg as sla
 from dynid._typing import FloatArray
 from dynid.errors import ModelError, existing_file, read_file_text
 from dynid.model._xml import check_mjcf_inertials, native_stderr, parse_failure, parse_xml_file, urdf_without_dynamics
-from dynid.model.mechanism import JointCoordinates, JointTerm, LoopClosure, Mechanism, PointCoordinates
+from dynid.model.mechanism import BallJoint, JointCoordinates, JointTerm, LoopClosure, Mechanism, PointCoordinates
 
 __all__ = ["ACTUATOR_TAGS", "load_mechanism_mjcf", "load_mechanism_urdf"]
 
@@ -82,7 +85,8 @@ def load_mechanism_mjcf(
     ----------
     path : str or Path
         MJCF file; every body needs an ``<inertial>`` (pinocchio's parser), all bodies must
-        hang from one root body under ``<worldbody>``, and joints must be hinges or slides.
+        hang from one root body under ``<worldbody>``, and joints must be hinges, slides or
+        balls (three hinges, see :func:`_balls_as_hinges`).
     actuated : sequence of str or int, optional
         Actuated joints (names, or velocity indices), in actuator order. Default: the
         joints driven by the ``<actuator>`` elements, in file order.
@@ -112,15 +116,22 @@ def load_mechanism_mjcf(
     equalities = _mjcf_equalities(root, path)
     if not equalities:
         raise ModelError(f"{path}: no loop closures (<equality><connect>/<weld>) found: is it a serial robot? use load_robot")
-    with native_stderr() as native:
+    notes: list[str] = []
+    balls = _balls_as_hinges(root, path, notes)
+    with native_stderr() as native, tempfile.TemporaryDirectory() as tmp:
+        parsed = path
+        if balls:  # pinocchio reads MJCF from a file: the rewritten tree goes to a temporary copy
+            parsed = Path(tmp) / path.name
+            parsed.write_text(ET.tostring(root, encoding="unicode"))
         try:
-            model, constraints = pin.buildModelAndLegacyConstraintsFromMJCF(str(path))
+            model, constraints = pin.buildModelAndLegacyConstraintsFromMJCF(str(parsed))
             failure = None
         except (RuntimeError, ValueError, OSError) as exc:
             failure = exc
     if failure is not None:
         raise ModelError(f"{path}: cannot parse MJCF ({parse_failure(failure, native)})")
-    _check_one_dof(model, path, "use a <connect> closure instead")
+    _check_one_dof(model, path, "its type comes from a <default> class: write type=\"ball\" on the joint itself, "
+                   "which dynid reads as three hinges")
     if len(constraints) != len(equalities):
         raise ModelError(f"{path}: pinocchio read {len(constraints)} of the {len(equalities)} <equality> closures")
     closures = _mjcf_closures(model, constraints, equalities)
@@ -132,7 +143,6 @@ def load_mechanism_mjcf(
     model.armature = np.zeros(model.nv)
     model.damping = np.zeros(model.nv)
     model.friction = np.zeros(model.nv)
-    notes: list[str] = []
     if actuated is None:
         actuated = _mjcf_actuators(root, path, per_joint, notes)
     if independent is None:
@@ -140,6 +150,7 @@ def load_mechanism_mjcf(
     return _build(
         model, closures, actuated, independent, terms, (damping, coulomb, armature),
         name=model.name or path.stem, source=str(path), notes=notes, origin=path,
+        balls=balls + _mjcf_written_balls(root, path),
     )
 
 
@@ -231,6 +242,95 @@ def _check_one_dof(model: pin.Model, path: Path, hint: str) -> None:
             hint = "a floating body is not supported (chain 1-DOF joints through massless bodies)"
         kind = "a ball joint" if short == "JointModelSpherical" else "a free joint" if short == "JointModelFreeFlyer" else short
         raise ModelError(f"{path}: joint {name!r} is {kind} ({jm.nv} DOF); mechanisms need 1-DOF joints: {hint}")
+
+
+_ORIENTATION = ("quat", "axisangle", "xyaxes", "zaxis", "euler")
+BALL_AXES = ("x", "y", "z")
+
+
+def _balls_as_hinges(root: ET.Element, path: Path, notes: list[str]) -> list[BallJoint]:
+    """Rewrite (in place) each ``<joint type="ball">`` of a body B as three hinges about B's
+    x, y and z axes through B's joint point, in a chain through two massless bodies.
+
+    The body ``<ball>_bx`` takes B's place (B's ``pos`` and orientation) and carries the
+    hinge ``<ball>_x``; ``<ball>_by`` (at its origin) carries ``<ball>_y``; B itself (now at
+    the origin of ``<ball>_by``) carries ``<ball>_z``. The relative rotation of B is then
+    :math:`R_x R_y R_z` about the joint point, which is every rotation away from the middle
+    angle ±90° (:class:`~dynid.model.mechanism.BallJoint`): at the reference (all angles 0,
+    MuJoCo's ``qpos0`` of a ball is the identity) it is the file's pose. A ball's
+    ``damping`` [N·m·s/rad] is MuJoCo's viscous friction per degree of freedom and goes to
+    each hinge (terms ``fv_<ball>_x`` ... on the chart's angle rates, equal to the relative
+    angular velocity's components at the reference); ``frictionloss``, ``armature`` and
+    ``range`` (a cone of rotation angles in MuJoCo) have no equivalent here and are noted, not
+    used."""
+    bodies = {b.get("name") for b in root.iter("body")}
+    joints = {j.get("name") for j in root.iter("joint")}
+    out = []
+    parents = {child: parent for parent in root.iter() for child in parent}
+    for body in list(root.iter("body")):
+        balls = [j for j in body.findall("joint") if j.get("type") == "ball"]
+        if not balls:
+            continue
+        bname = body.get("name") or "?"
+        if len(body.findall("joint")) > 1 or body.find("freejoint") is not None:
+            raise ModelError(f"{path}: body {bname!r} has a ball joint and other joints; give each joint its own body")
+        ball = balls[0]
+        name = ball.get("name") or f"{bname}_ball"
+        hinges = tuple(f"{name}_{a}" for a in BALL_AXES)
+        mids = (f"{name}_bx", f"{name}_by")
+        taken = [n for n in hinges if n in joints] + [n for n in mids if n in bodies]
+        if taken:
+            raise ModelError(f"{path}: ball joint {name!r} becomes hinges {list(hinges)} through bodies {list(mids)}, "
+                             f"but {taken} already exist in the file: rename them")
+        parent = parents[body]
+        k = list(parent).index(body)
+        outer = ET.Element("body", name=mids[0])
+        for key in ("pos", *_ORIENTATION):
+            if body.get(key) is not None:
+                outer.set(key, body.attrib.pop(key))
+        middle = ET.SubElement(outer, "body", name=mids[1])
+        for el, hinge, axis in ((outer, hinges[0], "1 0 0"), (middle, hinges[1], "0 1 0")):
+            ET.SubElement(el, "inertial", pos="0 0 0", mass="0", diaginertia="0 0 0")
+            ET.SubElement(el, "joint", _hinge_attrs(ball, hinge, axis))
+        body.remove(ball)
+        body.insert(0, ET.Element("joint", _hinge_attrs(ball, hinges[2], "0 0 1")))
+        parent.remove(body)
+        parent.insert(k, outer)
+        middle.append(body)
+        lost = [key for key in ("frictionloss", "armature", "range") if _given(ball.get(key))]
+        if lost:
+            notes.append(f"ball joint {name}: {' and '.join(lost)} not modelled (no such term on ball joints)")
+        out.append(BallJoint(name, bname, hinges))
+    return out
+
+
+def _given(value: str | None) -> bool:
+    """An attribute that says something: present and not all zeros (text that is not numbers counts)."""
+    try:
+        return value is not None and any(float(v) != 0.0 for v in value.split())
+    except ValueError:
+        return True
+
+
+def _hinge_attrs(ball: ET.Element, name: str, axis: str) -> dict[str, str]:
+    attrs = {"name": name, "type": "hinge", "axis": axis, "pos": ball.get("pos", "0 0 0")}
+    if ball.get("damping") is not None:
+        attrs["damping"] = ball.get("damping")
+    return attrs
+
+
+def _mjcf_written_balls(root: ET.Element, path: Path) -> list[BallJoint]:
+    """Ball joints written by :func:`dynid.io.export.write_mjcf` as three hinges, recorded in
+    ``<custom><text name="dynid:ball" data="<ball> <body> <hinge x> <hinge y> <hinge z>"/>``."""
+    out = []
+    for text in root.findall("./custom/text"):
+        if text.get("name") == "dynid:ball":
+            words = text.get("data", "").split()
+            if len(words) != 5:
+                raise ModelError(f"{path}: <text name='dynid:ball' data={text.get('data')!r}>: expected "
+                                 "'ball body hinge_x hinge_y hinge_z'")
+            out.append(BallJoint(words[0], words[1], tuple(words[2:])))
+    return out
 
 
 def _mjcf_chart(root: ET.Element, path: Path, model: pin.Model) -> Independent:
@@ -527,11 +627,16 @@ def _velocity_indices(model: pin.Model, refs: JointRefs, what: str, origin: Path
     return [int(v) for v in out]
 
 
-def _default_terms(model: pin.Model, actuated: list[int], values: tuple[dict, dict, dict]) -> list[JointTerm]:
+def _default_terms(model: pin.Model, actuated: list[int], values: tuple[dict, dict, dict],
+                   ball_hinges: set[str] = frozenset()) -> list[JointTerm]:
     damping, coulomb, armature = values
     terms = []
     for j in range(1, model.njoints):
         n, v = model.names[j], model.joints[j].idx_v
+        if n in ball_hinges and v not in actuated:  # ball joints: no friction unless the file gives damping
+            if damping.get(n, 0.0):
+                terms.append(JointTerm(f"fv_{n}", "viscous", (v,)))
+            continue
         if v in actuated or armature.get(n, 0.0):
             terms.append(JointTerm(f"Ia_{n}", "inertia", (v,)))
         terms.append(JointTerm(f"fv_{n}", "viscous", (v,)))
@@ -540,7 +645,7 @@ def _default_terms(model: pin.Model, actuated: list[int], values: tuple[dict, di
     return terms
 
 
-def _build(model, closures, actuated, independent, terms, values, *, name, source, notes, origin) -> Mechanism:
+def _build(model, closures, actuated, independent, terms, values, *, name, source, notes, origin, balls=()) -> Mechanism:
     act = _velocity_indices(model, actuated, "actuated joints", origin)
     # an MJCF file written at an assembled configuration (``ref`` on each joint, as dynid's
     # export does) says so in its qpos0; start the assembly there
@@ -560,19 +665,25 @@ def _build(model, closures, actuated, independent, terms, values, *, name, sourc
     else:
         indep = JointCoordinates(tuple(_velocity_indices(model, independent, "independent coordinates", origin)))
     if terms is None:
-        terms = _default_terms(model, act, values)
+        terms = _default_terms(model, act, values, {h for b in balls for h in b.hinges})
     tnames = {t.name for t in terms}
     in_file = {f"{p}_{n}": float(v) for p, table in zip(("fv", "fc", "Ia"), values) for n, v in table.items() if v}
     nominal = {k: v for k, v in in_file.items() if k in tnames}
     if len(nominal) < len(in_file):
         notes.append(f"file values without a joint term are not used: {[k for k in in_file if k not in tnames]}")
     massless = [j for j in range(1, model.njoints) if not np.any(model.inertias[j].toDynamicParameters())]
-    if massless:
-        notes.append(f"bodies of joints {[model.names[j] for j in massless]} have no inertia in the file: no parameters")
+    chart = {h for b in balls for h in b.hinges[:2]}
+    plain = [model.names[j] for j in massless if model.names[j] not in chart]
+    if plain:
+        notes.append(f"bodies of joints {plain} have no inertia in the file: no parameters")
+    for b in balls:
+        notes.append(f"ball joint {b.name} (body {b.body}): hinges {', '.join(b.hinges)} through two massless bodies, "
+                     f"exact away from {b.hinges[1]} = ±90 deg (refused within 10 deg)")
     try:
         return Mechanism(
             model, tuple(closures), actuated=tuple(act), independent=indep, terms=tuple(terms),
             massless=tuple(massless), nominal_terms=nominal, q_guess=q, name=name, source=source, notes=tuple(notes),
+            ball_joints=tuple(balls),
         )
     except ModelError as exc:
         raise ModelError(f"{source}: {exc}") from None

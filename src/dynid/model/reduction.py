@@ -228,7 +228,7 @@ def reduce_mechanism(mech: Mechanism, structure: str, chains=None) -> ParameterR
     # regrouping of the base parameters then lumps the chain ends' masses into the platform (Steiner), as
     # papers 002/004 do (Table 1: p6-p10 are the platform's with the six slider masses)
     for j in sorted(mech.bodies, key=lambda j: (j in rep, body_pos[j])):
-        r, label = rep.get(j, (j, mech.pin_model.names[j]))
+        r, label = rep.get(j, (j, mech.body_label(j)))
         if r in cols:
             T_cols[cols[r] // 10].append(body_pos[j])
             continue
