@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -220,54 +221,7 @@ def test_dynid_info_on_the_stewart_file(stewart, capsys):
     assert any("ball joint platform_ball" in n for n in info["notes"])
 
 
-SIMULATE = """[robot]
-model = "stewart.xml"
-
-[trajectory]
-kind = "fourier"
-base_frequency_hz = 0.5
-harmonics = 3
-fill = 0.5
-max_velocity = 0.3
-max_acceleration = 3.0
-periods = 3
-seed = 2
-
-[control]
-rate_hz = 250
-kp = 4000
-kd = 400
-
-[sensors]
-encoder_resolution = 1e-7
-force_noise_std = 0.1
-seed = 1
-"""
-
-IDENTIFY = """[robot]
-model = "stewart.xml"
-
-[data]
-file = "sim/log.csv"
-time = { column = "t", unit = "s" }
-rows = [0, 1000]
-position = { columns = ["q_s1", "q_s2", "q_s3", "q_s4", "q_s5", "q_s6"], unit = "m" }
-effort = { columns = ["tau_s1", "tau_s2", "tau_s3", "tau_s4", "tau_s5", "tau_s6"], unit = "N", kind = "torque" }
-
-[validation]
-rows = [1000, 1501]
-
-[processing]
-lowpass = { cutoff_hz = 10.0, order = 4, filter_effort = false }
-min_velocity = 0.005
-reversal_guard = "auto"
-
-[identification]
-method = "wls"
-
-[output]
-plots = false
-"""
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "own_robot" / "stewart"
 
 
 def test_stewart_from_its_mjcf_is_simulated_and_identified_from_configs(tmp_path):
@@ -277,16 +231,19 @@ def test_stewart_from_its_mjcf_is_simulated_and_identified_from_configs(tmp_path
     from dynid.config import load_config
     from dynid.pipeline.identification import identify
 
-    text = stewart_xml()
-    for i in range(1, 7):  # actuator strokes for the trajectory design
-        text = text.replace(f'<joint name="s{i}" type="slide"', f'<joint name="s{i}" type="slide" range="-0.08 0.08"')
+    # the walk-through's files (examples/own_robot/stewart): this test's robot with actuator strokes
+    text = (EXAMPLE / "stewart.xml").read_text()
+    mine = stewart_xml()
+    for i in range(1, 7):
+        mine = mine.replace(f'<joint name="s{i}" type="slide"', f'<joint name="s{i}" type="slide" range="-0.08 0.08"')
+    assert text.split("-->", 1)[1].strip() == mine.split('<mujoco model="stewart">', 1)[1].strip()
     (tmp_path / "stewart.xml").write_text(text)
-    (tmp_path / "sim.toml").write_text(SIMULATE)
+    (tmp_path / "sim.toml").write_text((EXAMPLE / "simulate.toml").read_text())
     assert main(["simulate", str(tmp_path / "sim.toml"), "--out", str(tmp_path / "sim"), "-q"]) == 0
     log = np.loadtxt(tmp_path / "sim" / "log.csv", delimiter=",", skiprows=1)
     q = load_mechanism_mjcf(tmp_path / "stewart.xml").solve_positions(log[::10, 1:7])
     assert np.degrees(np.abs(q[:, 3:6]).max(axis=0)).min() > 3.0  # the ball turns about all three axes (27, 5.7, 20 deg)
-    (tmp_path / "id.toml").write_text(IDENTIFY)
+    (tmp_path / "id.toml").write_text((EXAMPLE / "identify.toml").read_text() + "\n[output]\nplots = false\n")
     outcome = identify(load_config(tmp_path / "id.toml"))
     assert "mx_platform" in outcome.base.names
     truth = json.loads((tmp_path / "sim" / "truth.json").read_text())

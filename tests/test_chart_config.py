@@ -28,14 +28,19 @@ from dynid.pipeline.identification import identify
 FIVEBAR = Path(str(resources.files("dynid.model.robots") / "fivebar.xml"))
 
 
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "own_robot" / "planar3"
+
+
 @pytest.fixture(scope="module")
 def fivebar3(tmp_path_factory) -> Path:
+    """The walk-through's redundant planar robot (examples/own_robot/planar3/planar3.xml): the
+    built-in five-bar with a third motor on the elbow qb1."""
     d = tmp_path_factory.mktemp("fivebar3")
-    text = FIVEBAR.read_text()
-    motor = '<motor name="m2" joint="qa2" gear="1"/>'
-    assert motor in text
+    text = (EXAMPLE / "planar3.xml").read_text()
+    assert text.replace('<mujoco model="planar3">', '<mujoco model="fivebar">').count('<motor ') == 3
+    assert 'joint="qb1"' in text and FIVEBAR.is_file()
     path = d / "fivebar3.xml"
-    path.write_text(text.replace(motor, motor + '\n    <motor name="m3" joint="qb1" gear="1"/>'))
+    path.write_text(text)
     return path
 
 
@@ -112,50 +117,18 @@ def test_robot_chart_keys_parse_and_refuse_bad_values(fivebar3):
             parse_config(bad, fivebar3.parent)
 
 
-SIMULATE = """
-[trajectory]
-kind = "fourier"
-base_frequency_hz = 1.0
-harmonics = 3
-fill = 0.1
-max_velocity = 1.0
-max_acceleration = 5.0
-periods = 3
-seed = 2
+def _example_body(name: str) -> str:
+    """The walk-through's config ``name`` without its comment and [robot] table (the tests put the
+    robot file of their own folder there)."""
+    text = (EXAMPLE / name).read_text()
+    robot = ROBOT.format(model="planar3.xml")
+    assert robot in text
+    return text.split(robot, 1)[1]
 
-[control]
-rate_hz = 250
-kp = 400
-kd = 40
 
-[sensors]
-encoder_resolution = 1e-6
-force_noise_std = 0.01
-seed = 1
-"""
+SIMULATE = _example_body("simulate.toml")
 
-IDENTIFY = """
-[data]
-file = "sim/log.csv"
-time = {{ column = "t", unit = "s" }}
-rows = [0, 500]
-position = {{ columns = ["q_qa1", "q_qa2", "q_qb1"], unit = "rad" }}
-effort = {{ columns = ["tau_qa1", "tau_qa2", "tau_qb1"], unit = "N*m", kind = "torque" }}
-
-[validation]
-rows = [500, 751]
-
-[processing]
-lowpass = {{ cutoff_hz = 20.0, order = 4, filter_effort = false }}
-min_velocity = 0.05
-reversal_guard = "auto"
-
-[identification]
-method = "wls"
-
-[output]
-plots = false
-"""
+IDENTIFY = _example_body("identify.toml").replace("{", "{{").replace("}", "}}") + "\n[output]\nplots = false\n"
 
 
 def test_a_redundant_robot_from_its_own_files_is_simulated_and_identified_from_configs(fivebar3, capsys):
