@@ -152,12 +152,11 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
 
 
 def row_mask(system: System, force_model: str | None, dq: FloatArray, min_velocity: tuple[float, ...] | None,
-             whole_samples: bool = False, joint_dq: FloatArray | None = None,
+             joint_dq: FloatArray | None = None,
              min_velocity_passive: float | None = None, reversal: np.ndarray | None = None) -> FloatArray | None:
     """Rows kept by ``processing.min_velocity`` (None: all): per actuator equation where the
-    equations are the actuators' own, else (projected equations of a redundant mechanism, or
-    ``whole_samples``) the whole samples in which every actuator is at least that fast, broadcast to
-    the channels. A full noise covariance across channels (Gauss–Markov) takes per-equation rows:
+    equations are the actuators' own, else (projected equations of a redundant mechanism) the
+    whole samples in which every actuator is at least that fast, broadcast to the channels. A full noise covariance across channels (Gauss–Markov) takes per-equation rows:
     each sample is whitened with the covariance of the channels it keeps.
 
     ``min_velocity_passive`` (mechanisms): the whole samples in which a passive joint with Coulomb
@@ -170,7 +169,7 @@ def row_mask(system: System, force_model: str | None, dq: FloatArray, min_veloci
     mask = velocity_mask(dq, min_velocity)
     if reversal is not None:
         mask = reversal if mask is None else mask & reversal
-    if mask is not None and (whole_samples or not system.channels_are_actuators(force_model)):
+    if mask is not None and not system.channels_are_actuators(force_model):
         mask = mask.all(axis=1)
     if min_velocity_passive is None or joint_dq is None:
         return mask
@@ -270,7 +269,7 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
                      min_velocity=None if selection is None else selection.min_velocity):
         meas.append(c.y)
         if selection is not None:
-            mask = row_mask(system, force_model, c.dq, selection.min_velocity, whole_samples=selection.whole_samples,
+            mask = row_mask(system, force_model, c.dq, selection.min_velocity,
                             joint_dq=c.joint_dq, min_velocity_passive=selection.min_velocity_passive,
                             reversal=c.reversal)
             kept.append(np.ones(c.y.shape, dtype=bool) if mask is None
@@ -315,14 +314,12 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
 @dataclasses.dataclass(frozen=True)
 class RowSelection:
     """The training's row selection (``processing.min_velocity``, ``min_velocity_passive``,
-    ``reversal_guard`` in seconds) as :func:`row_mask` applies it; ``whole_samples``: broadcast to
-    every channel (Gauss–Markov no longer needs it: it whitens the kept channels of each sample);
-    ``rule`` says it in words."""
+    ``reversal_guard`` in seconds) as :func:`row_mask` applies it (per equation, Gauss–Markov
+    included); ``rule`` says it in words."""
 
     min_velocity: tuple[float, ...] | None
     min_velocity_passive: float | None
     reversal_guard: float | None
-    whole_samples: bool
     rule: str
 
 
@@ -784,7 +781,7 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         if pcfg.reversal_guard is not None:
             rule.append(f"reversal_guard {pcfg.reversal_guard_s():.3g} s")
         rows_rule = RowSelection(pcfg.min_velocity, pcfg.min_velocity_passive, pcfg.reversal_guard_s(),
-                                 False, ", ".join(rule))  # per equation, Gauss-Markov included
+                                 ", ".join(rule))
     metrics, prior, other, selected = validate_with_prior(
         result, system, base, held_out, nominal, force_model=force_model, parallel_decimate=parallel,
         chunk_size=icfg.chunk_size, progress=progress, friction=fj, periodic=periodic, selection=rows_rule)
