@@ -386,3 +386,50 @@ def test_mjcf_connect_closes_at_qpos0_by_construction(tmp_path):
     assert np.allclose(mech.q_ref, 0.0) and np.abs(mech.constraint_residual(mech.q_ref)).max() < 1e-12
     pa, pb = c.placement_a.translation, c.placement_b.translation
     assert np.allclose(sorted([pa[0], pb[0]]), [1.46, 2.0]) and np.allclose([pa[2], pb[2]], 0.36)
+
+
+FOURBAR_OFFSET = """<mujoco model="fourbar_offset">
+  <worldbody>
+    <body name="base">
+      <inertial pos="0 0 0" mass="0" diaginertia="0 0 0"/>
+      <body name="crank">
+        <joint name="ja" type="hinge" axis="0 0 1"/>
+        <inertial pos="0.5 0 0" mass="1" diaginertia="0.01 0.1 0.1"/>
+        <body name="coupler" pos="1 0 0">
+          <joint name="jb" type="hinge" axis="0 0 1" pos="0.2 0 0"/>
+          <inertial pos="0.8 0 0" mass="1" diaginertia="0.01 0.1 0.1"/>
+        </body>
+      </body>
+      <body name="rocker" pos="2.5 -1 0">
+        <joint name="jc" type="hinge" axis="0 0 1"/>
+        <inertial pos="0 0.5 0" mass="1" diaginertia="0.1 0.01 0.1"/>
+      </body>
+    </body>
+  </worldbody>
+  <equality><connect body1="coupler" body2="rocker" anchor="1.5 0 0"/></equality>
+  <actuator><motor joint="ja"/></actuator>
+</mujoco>
+"""
+
+
+def test_connect_anchor_is_in_body1_frame_when_its_joint_has_pos(tmp_path):
+    """MuJoCo: a <connect> anchor is in body1's frame. pinocchio 4 puts it in the frame of body1's
+    joint, which sits at the joint's ``pos`` (0.2 m along x here): the loop would close 0.2 m
+    further out, a rocker 0.2 m longer than the file's. The loader corrects it: at the reference
+    the closure point is body1's origin (1, 0, 0) + anchor (1.5, 0, 0) = (2.5, 0, 0) on both sides,
+    and the rocker's arm is the file's 1 m."""
+    path = tmp_path / "fourbar.xml"
+    path.write_text(FOURBAR_OFFSET)
+    model, constraints = pin.buildModelAndLegacyConstraintsFromMJCF(str(path))
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    raw = data.oMi[int(constraints[0].joint1_id)] * constraints[0].joint1_placement
+    assert np.allclose(raw.translation, [2.7, 0, 0])  # pinocchio's own reading (if this fails, pinocchio changed)
+    mech = load_mechanism_mjcf(path)
+    c = mech.closures[0]
+    d = mech.pin_model.createData()
+    pin.forwardKinematics(mech.pin_model, d, np.zeros(mech.nv))
+    for j, P in ((c.joint_a, c.placement_a), (c.joint_b, c.placement_b)):
+        np.testing.assert_allclose((d.oMi[j] * P).translation, [2.5, 0, 0], atol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(c.placement_b.translation), 1.0, atol=1e-14)
+    assert np.abs(mech.constraint_residual(mech.q_ref)).max() < 1e-12

@@ -61,6 +61,8 @@ from dynid.model.robot import BODY_PARAMS, inertia_from_parameters
 __all__ = [
     "TERM_KINDS",
     "BallJoint",
+    "add_ball_joint",
+    "add_universal_joint",
     "JointCoordinates",
     "JointTerm",
     "LoopClosure",
@@ -92,6 +94,51 @@ class BallJoint:
 
 def _skew(p: FloatArray) -> FloatArray:
     return np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
+
+
+_AXIS_JOINTS = {"x": pin.JointModelRX, "y": pin.JointModelRY, "z": pin.JointModelRZ}
+
+
+def add_ball_joint(model: pin.Model, parent: int, placement: pin.SE3, name: str, inertia: pin.Inertia,
+                   *, body: str | None = None) -> BallJoint:
+    r"""Add a spherical (ball) joint and the body it carries to a pinocchio model under
+    construction (the Python builders' counterpart of MJCF ``<joint type="ball">``).
+
+    The joint is three revolute joints ``<name>_x``, ``<name>_y``, ``<name>_z`` about the axes of
+    the joint frame ``placement`` (in the frame of joint ``parent``), chained through two massless
+    bodies; the last carries ``inertia`` (expressed in the joint frame). The relative rotation is
+    :math:`R_x R_y R_z`, exact away from the middle angle ±90° (:class:`BallJoint`; pinocchio's
+    ``JointModelSpherical`` gives the same poses, ``tests/test_ball_joints.py``). Pass the
+    returned record in ``Mechanism(..., ball_joints=...)``: its two intermediate bodies then count
+    as massless and the body's parameters are named after ``body`` (default ``name``).
+    The pinocchio joint that carries the body is ``model.getJointId(ball.hinges[2])``.
+    """
+    hinges = tuple(f"{name}_{a}" for a in "xyz")
+    taken = [h for h in hinges if model.existJointName(h)]
+    if taken:
+        raise ModelError(f"ball joint {name!r}: joints {taken} already exist in the model")
+    j = parent
+    for k, (h, a) in enumerate(zip(hinges, "xyz")):
+        j = model.addJoint(j, _AXIS_JOINTS[a](), placement if k == 0 else pin.SE3.Identity(), h)
+        model.appendBodyToJoint(j, inertia if k == 2 else pin.Inertia.Zero(), pin.SE3.Identity())
+    return BallJoint(name, body or name, hinges)  # type: ignore[arg-type]
+
+
+def add_universal_joint(model: pin.Model, parent: int, placement: pin.SE3, name: str, inertia: pin.Inertia,
+                        *, axes: str = "xy", cross: pin.Inertia | None = None) -> tuple[int, int]:
+    """Add a universal (Cardan) joint and the body it carries: revolute ``<name>_<axes[0]>`` about
+    that axis of the joint frame ``placement``, carrying the cross (``cross``: its inertia; none by
+    default), then revolute ``<name>_<axes[1]>`` carrying ``inertia``.
+
+    Returns ``(cross_joint, body_joint)``, pinocchio joint indices; with no ``cross`` inertia, list
+    ``cross_joint`` in ``Mechanism(..., massless=...)`` (a massless body has no parameters)."""
+    if len(axes) != 2 or axes[0] == axes[1] or any(a not in _AXIS_JOINTS for a in axes):
+        raise ModelError(f"universal joint {name!r}: axes {axes!r} must be two different letters of 'xyz'")
+    first = model.addJoint(parent, _AXIS_JOINTS[axes[0]](), placement, f"{name}_{axes[0]}")
+    model.appendBodyToJoint(first, pin.Inertia.Zero() if cross is None else cross, pin.SE3.Identity())
+    second = model.addJoint(first, _AXIS_JOINTS[axes[1]](), pin.SE3.Identity(), f"{name}_{axes[1]}")
+    model.appendBodyToJoint(second, inertia, pin.SE3.Identity())
+    return first, second
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -139,7 +186,9 @@ class Mechanism:
         (structure ``"paper"``, :mod:`dynid.model.reduction`).
     ball_joints : sequence of BallJoint
         Spherical joints modelled as three hinges through two massless bodies (the MJCF
-        reader's ``<joint type="ball">``): the hinges' bodies must be massless but the last;
+        reader's ``<joint type="ball">``, the URDF reader's ``SPHERICAL`` joints,
+        :func:`add_ball_joint`): the hinges' bodies must be massless but the last (the first
+        two count as ``massless`` without being listed there);
         that one's parameters are named after ``body``; a configuration within
         ``BALL_MARGIN_DEG`` of the chart's singularity is refused (one-line ModelError).
     """
@@ -191,7 +240,10 @@ class Mechanism:
         set_(self, "closures", tuple(self.closures))
         set_(self, "actuated", tuple(int(a) for a in self.actuated))
         set_(self, "terms", tuple(self.terms))
-        set_(self, "massless", tuple(sorted(int(j) for j in self.massless)))
+        # the two intermediate bodies of a ball joint are massless by construction (checked below)
+        names = list(m.names)
+        ball_mids = {names.index(h) for b in self.ball_joints for h in tuple(b.hinges)[:2] if h in names}
+        set_(self, "massless", tuple(sorted({int(j) for j in self.massless} | ball_mids)))
         set_(self, "notes", tuple(self.notes))
         set_(self, "task_coordinates", tuple(self.task_coordinates))
         missing = [n for n in self.task_coordinates if n not in m.names[1:]]
@@ -238,6 +290,10 @@ class Mechanism:
             if not 1 <= j < m.njoints:
                 raise ModelError(f"massless body index {j} does not exist")
             if np.any(np.abs(m.inertias[j].toDynamicParameters()) > 0.0):
+                ball = next((b.name for b in self.ball_joints if m.names[j] in tuple(b.hinges)[:2]), None)
+                if ball is not None:
+                    raise ModelError(f"ball joint {ball!r}: the body of its hinge {m.names[j]!r} must be massless "
+                                     "(the ball's body hangs from its last hinge)")
                 raise ModelError(f"body of joint {m.names[j]!r} is declared massless but has non-zero inertia")
         bodies = tuple(j for j in range(1, m.njoints) if j not in self.massless)
         set_(self, "bodies", bodies)

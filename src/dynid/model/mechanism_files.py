@@ -14,14 +14,19 @@ with a closure YAML in the format of Gepetto's *example-parallel-robots*. (The b
   through two massless bodies (:func:`_balls_as_hinges`, :class:`~dynid.model.mechanism.BallJoint`).
 * **URDF + YAML** (:func:`load_mechanism_urdf`): keys ``closed_loop`` (pairs of frame
   names), ``type`` (``6d``/``3d`` per pair) and ``name_mot`` (actuated joints). URDF
-  ``<dynamics>`` damping/friction become nominal viscous/Coulomb values.
+  ``<dynamics>`` damping/friction become nominal viscous/Coulomb values. URDF has no spherical
+  joint: as in the Gepetto examples, the URDF writes a placeholder joint (its axis is
+  ignored) and the YAML's ``joint_name`` / ``joint_type: SPHERICAL`` say which; each is read
+  as three hinges through two massless links, like an MJCF ball (:func:`_urdf_balls_as_hinges`).
+  A universal joint is what URDF writes anyway: two revolute joints through a link (the cross).
 
 Closure check at load. Every loader assembles the loops by Gauss-Newton from the model's
 reference configuration (MJCF ``qpos0``, i.e. the joints' ``ref``; URDF: zero) and refuses a
 loop that does not close, naming the closure with the largest residual [m, rad]. What can
 fail differs by format: a body-based MJCF ``<connect>`` closes at ``qpos0`` by construction
-(MuJoCo semantics, which pinocchio follows: ``anchor`` is given in ``body1``'s frame and the
-point on ``body2`` is computed at ``qpos0``), so an anchor away from ``body2``'s far end gives a
+(MuJoCo semantics: ``anchor`` is given in ``body1``'s frame and the point on ``body2`` is
+computed at ``qpos0``; pinocchio 4 reads the anchor in body1's *joint* frame, which
+:func:`_mjcf_closures` corrects where the two differ), so an anchor away from ``body2``'s far end gives a
 loop that closes with a link of another length, never an error; a ``<weld>`` with an explicit
 ``relpose`` and a URDF+YAML closure (both frames given by the file) can fail. Closing does not
 have to happen *at* the reference configuration: the Gepetto examples are not assembled at
@@ -169,8 +174,10 @@ def load_mechanism_urdf(
     urdf_path : str or Path
     yaml_path : str or Path, optional
         Closure file with ``closed_loop`` (list of pairs of frame names), ``type`` (``6d``
-        or ``3d`` per pair, case-insensitive) and ``name_mot`` (actuated joint names).
-        Default: ``robot.yaml`` next to the URDF.
+        or ``3d`` per pair, case-insensitive) and ``name_mot`` (actuated joint names); optional
+        ``joint_name`` / ``joint_type``: joints of the URDF (written there as revolute,
+        continuous or fixed placeholders) that are spherical (``SPHERICAL``), read as three
+        hinges (:func:`_urdf_balls_as_hinges`). Default: ``robot.yaml`` next to the URDF.
     actuated, independent, terms
         As in :func:`load_mechanism_mjcf` (``actuated`` overrides ``name_mot``).
 
@@ -182,6 +189,11 @@ def load_mechanism_urdf(
     urdf_path = _existing(urdf_path, "robot file")
     yaml_path = _existing(urdf_path.parent / "robot.yaml" if yaml_path is None else yaml_path, "closure file")
     xml, dynamics = urdf_without_dynamics(urdf_path)
+    pairs, kinds, motors, spherical = _read_closure_yaml(yaml_path, need_motors=actuated is None)
+    notes: list[str] = []
+    balls: list[BallJoint] = []
+    if spherical:
+        xml, balls, dynamics = _urdf_balls_as_hinges(xml, spherical, dynamics, urdf_path, yaml_path, notes)
     with native_stderr() as native:
         try:
             model = pin.buildModelFromXML(_continuous_as_revolute(xml))
@@ -190,9 +202,9 @@ def load_mechanism_urdf(
             failure = exc
     if failure is not None:
         raise ModelError(f"{urdf_path}: cannot parse URDF ({parse_failure(failure, native)})")
-    pairs, kinds, motors = _read_closure_yaml(yaml_path, need_motors=actuated is None)
     closures = [_frame_closure(model, a, b, kind, yaml_path, urdf_path) for (a, b), kind in zip(pairs, kinds)]
-    _check_one_dof(model, urdf_path, "a spherical joint at a cut is a '3d' closure")
+    _check_one_dof(model, urdf_path, "a spherical joint at a cut is a '3d' closure; elsewhere name it in the YAML's "
+                   "joint_name with joint_type SPHERICAL")
     if actuated is None:
         actuated = motors
     damping = {n: d for n, (d, _) in dynamics.items()}
@@ -200,7 +212,7 @@ def load_mechanism_urdf(
     name = urdf_path.parent.name if urdf_path.stem == "robot" else urdf_path.stem
     return _build(
         model, closures, actuated, independent, terms, (damping, coulomb, {}),
-        name=name, source=f"{urdf_path} + {yaml_path.name}", notes=[], origin=yaml_path,
+        name=name, source=f"{urdf_path} + {yaml_path.name}", notes=notes, origin=yaml_path, balls=balls,
     )
 
 
@@ -333,6 +345,67 @@ def _mjcf_written_balls(root: ET.Element, path: Path) -> list[BallJoint]:
     return out
 
 
+def _urdf_balls_as_hinges(xml: str, spherical: list[str], dynamics: dict[str, tuple[float, float]], urdf_path: Path,
+                          yaml_path: Path, notes: list[str]) -> tuple[str, list[BallJoint], dict[str, tuple[float, float]]]:
+    """URDF text with each joint named in ``spherical`` (the YAML's ``joint_name``) replaced by
+    three revolute joints ``<j>_x``, ``<j>_y``, ``<j>_z`` about the axes of that joint's frame
+    (its ``<origin>``, which is the child link's frame at zero), through two massless links
+    ``<j>_bx``, ``<j>_by``: the same chart as an MJCF ball (:func:`_balls_as_hinges`), at the
+    file's pose when all three angles are zero. The placeholder's type (revolute, continuous or
+    fixed) and axis are ignored. Its ``<dynamics damping>`` goes to each hinge (viscous per
+    angle rate); ``friction`` (Coulomb) is noted and not used. The ball's parameters are named
+    after the child link. Returns the text, the balls and the dynamics table without the
+    placeholders (with the hinges' damping)."""
+    root = ET.fromstring(xml)
+    joints = {j.get("name"): j for j in root.findall("joint")}
+    links = {link.get("name") for link in root.findall("link")}
+    missing = [n for n in spherical if n not in joints]
+    if missing:
+        raise ModelError(f"{yaml_path}: joint_name {missing} are not joints of {urdf_path.name}; joints: {sorted(joints)}")
+    dynamics = dict(dynamics)
+    out = []
+    for name in spherical:
+        joint = joints[name]
+        kind = joint.get("type")
+        if kind not in ("revolute", "continuous", "fixed"):
+            raise ModelError(f"{urdf_path}: joint {name!r} is declared SPHERICAL in {yaml_path.name} but is a {kind!r} joint; "
+                             "write the placeholder as revolute, continuous or fixed")
+        hinges = tuple(f"{name}_{a}" for a in BALL_AXES)
+        mids = (f"{name}_bx", f"{name}_by")
+        taken = [n for n in hinges if n in joints] + [n for n in mids if n in links]
+        if taken:
+            raise ModelError(f"{urdf_path}: spherical joint {name!r} becomes joints {list(hinges)} through links {list(mids)}, "
+                             f"but {taken} already exist in the file: rename them")
+        parent, child = joint.find("parent"), joint.find("child")
+        if parent is None or child is None:
+            raise ModelError(f"{urdf_path}: joint {name!r} lacks <parent> or <child>")
+        chain = [parent.get("link"), *mids, child.get("link")]
+        k = list(root).index(joint)
+        root.remove(joint)
+        for n, (hinge, axis) in enumerate(zip(hinges, ("1 0 0", "0 1 0", "0 0 1"))):
+            el = ET.Element("joint", name=hinge, type="revolute")
+            origin = joint.find("origin")
+            if n == 0 and origin is not None:
+                el.append(origin)
+            ET.SubElement(el, "parent", link=chain[n])
+            ET.SubElement(el, "child", link=chain[n + 1])
+            ET.SubElement(el, "axis", xyz=axis)
+            ET.SubElement(el, "limit", lower=repr(-np.pi), upper=repr(np.pi), effort="1000", velocity="100")
+            root.insert(k + n, el)
+        for mid in mids:
+            link = ET.SubElement(root, "link", name=mid)
+            inertial = ET.SubElement(link, "inertial")
+            ET.SubElement(inertial, "mass", value="0")
+            ET.SubElement(inertial, "inertia", ixx="0", ixy="0", ixz="0", iyy="0", iyz="0", izz="0")
+        damping, friction = dynamics.pop(name, (0.0, 0.0))
+        if damping:
+            dynamics.update({h: (damping, 0.0) for h in hinges})
+        if friction:
+            notes.append(f"ball joint {name}: friction (Coulomb) not modelled (no such term on ball joints)")
+        out.append(BallJoint(name, chain[-1], hinges))
+    return ET.tostring(root, encoding="unicode"), out, dynamics
+
+
 def _mjcf_chart(root: ET.Element, path: Path, model: pin.Model) -> Independent:
     """The independent coordinates written by :func:`dynid.io.export.write_mjcf` in
     ``<custom><text name="dynid:independent" data="j1 j2"/>`` (joint names) or
@@ -373,8 +446,10 @@ def _mjcf_equalities(root: ET.Element, path: Path) -> list[dict]:
             if el.get("body1") is None:
                 raise ModelError(f"{path}: <{el.tag}> {el.get('name', '')!r} needs body1 (site-based closures are not supported)")
             body2 = el.get("body2") or "world"
+            relpose = el.get("relpose")
+            explicit = relpose is not None and _given(" ".join(relpose.split()[3:]))  # a zero quaternion: from qpos0
             out.append({"kind": _EQUALITY_KINDS[el.tag], "name": el.get("name") or f"{el.get('body1')}-{body2}",
-                        "body1": el.get("body1"), "body2": body2})
+                        "body1": el.get("body1"), "body2": body2, "relpose": el.tag == "weld" and explicit})
     return out
 
 
@@ -384,12 +459,34 @@ def _body_joint(model: pin.Model, body: str) -> int | None:
     return int(model.frames[model.getFrameId(body, pin.FrameType.BODY)].parentJoint)
 
 
+def _body_frame(model: pin.Model, body: str) -> pin.SE3:
+    """Placement of MJCF body ``body`` in the frame of its pinocchio joint (not the identity when
+    the body's joint has a ``pos``: pinocchio puts the joint frame at the joint's position)."""
+    if body == "world" or not model.existFrame(body, pin.FrameType.BODY):
+        return pin.SE3.Identity()
+    return pin.SE3(model.frames[model.getFrameId(body, pin.FrameType.BODY)].placement)
+
+
 def _mjcf_closures(model: pin.Model, constraints, equalities: list[dict]) -> list[LoopClosure]:
     """One :class:`LoopClosure` per pinocchio constraint, named after its XML element.
 
     pinocchio orders the constraints by name and leaves ``cm.name`` empty, so each is
     matched to the first unused element of the same type and joints.
+
+    MuJoCo gives a ``<connect>`` anchor and a ``<weld>`` relpose in the frame of *body1*;
+    pinocchio 4's ``buildModelAndLegacyConstraintsFromMJCF`` puts them in the frame of body1's
+    *joint*, which is not the body's frame when that joint has a ``pos`` (pinocchio places the
+    joint frame at the joint's position, the body frame stays where the file puts it), and then
+    computes the point on body2 at ``qpos0`` from that misplaced point: a loop that closes, with
+    links of other lengths than the file's (seen on a ball joint with ``pos``, which dynid's
+    rewrite passes on to its hinges). Corrected here: the body1 side is composed with body1's
+    placement in its joint (body2's likewise for a weld with an explicit ``relpose``), and the body2
+    side of a ``<connect>`` (or of a weld without ``relpose``) is recomputed at ``qpos0``, MuJoCo's
+    rule. Without joint offsets nothing changes.
     """
+    data = model.createData()
+    q0 = model.referenceConfigurations["qpos0"] if "qpos0" in model.referenceConfigurations else pin.neutral(model)
+    pin.forwardKinematics(model, data, q0)
     kinds = {pin.ContactType.CONTACT_3D: "3d", pin.ContactType.CONTACT_6D: "6d"}
     used: set[int] = set()
     out = []
@@ -399,13 +496,23 @@ def _mjcf_closures(model: pin.Model, constraints, equalities: list[dict]) -> lis
             raise ModelError(f"unsupported constraint type {cm.type}")
         j1, j2 = int(cm.joint1_id), int(cm.joint2_id)
         name = cm.name or f"closure{k + 1}"
+        match = None
         for i, eq in enumerate(equalities):
             joints = (_body_joint(model, eq["body1"]), _body_joint(model, eq["body2"]))
             if i not in used and eq["kind"] == kind and joints == (j1, j2):
                 used.add(i)
-                name = eq["name"]
+                name, match = eq["name"], eq
                 break
-        out.append(LoopClosure(name, j1, pin.SE3(cm.joint1_placement), j2, pin.SE3(cm.joint2_placement), kind))
+        pa, pb = pin.SE3(cm.joint1_placement), pin.SE3(cm.joint2_placement)
+        if match is not None:
+            f1, f2 = _body_frame(model, match["body1"]), _body_frame(model, match["body2"])
+            if not (f1.isIdentity(1e-15) and f2.isIdentity(1e-15)):
+                pa = f1 * pa
+                if match["relpose"]:
+                    pb = f2 * pb
+                else:  # the point (frame) on body2 where body1's is at qpos0
+                    pb = data.oMi[j2].actInv(data.oMi[j1] * pa)
+        out.append(LoopClosure(name, j1, pa, j2, pb, kind))
     return out
 
 
@@ -431,7 +538,7 @@ def _mjcf_actuators(root: ET.Element, path: Path, joints: dict[str, int], notes:
 
 
 # ---------------------------------------------------------------------------- closure YAML
-def _read_closure_yaml(path: Path, *, need_motors: bool) -> tuple[list[tuple[str, str]], list[str], list[str]]:
+def _read_closure_yaml(path: Path, *, need_motors: bool) -> tuple[list[tuple[str, str]], list[str], list[str], list[str]]:
     doc = _load_yaml(path)
     if not isinstance(doc, dict):
         raise ModelError(f"{path}: the closure file must be a mapping with keys closed_loop, type, name_mot")
@@ -460,7 +567,25 @@ def _read_closure_yaml(path: Path, *, need_motors: bool) -> tuple[list[tuple[str
     motors = doc.get("name_mot", [])
     if not isinstance(motors, list) or not all(isinstance(s, str) for s in motors):
         raise ModelError(f"{path}: 'name_mot' must be a list of joint names")
-    return pairs, kinds, motors
+    return pairs, kinds, motors, _spherical_joints(doc, path)
+
+
+def _spherical_joints(doc: dict, path: Path) -> list[str]:
+    """The YAML's ``joint_name`` whose ``joint_type`` is ``SPHERICAL`` (or ``ball``), Gepetto's keys."""
+    names, types = doc.get("joint_name", []), doc.get("joint_type", [])
+    for key, value in (("joint_name", names), ("joint_type", types)):
+        if not isinstance(value, list) or not all(isinstance(s, str) for s in value):
+            raise ModelError(f"{path}: {key!r} must be a list of strings")
+    if len(names) != len(types):
+        raise ModelError(f"{path}: 'joint_name' has {len(names)} entries but 'joint_type' has {len(types)}")
+    bad = [t for t in types if t.strip().lower() not in ("spherical", "ball")]
+    if bad:
+        raise ModelError(f"{path}: joint_type {bad[0]!r} is not supported; use 'SPHERICAL' (a universal joint is two "
+                         "revolute joints through a link in the URDF)")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ModelError(f"{path}: joint_name lists {dup} more than once")
+    return list(names)
 
 
 def _load_yaml(path: Path):
