@@ -225,9 +225,10 @@ EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "own_robot" / "s
 
 
 def test_stewart_from_its_mjcf_is_simulated_and_identified_from_configs(tmp_path):
-    """simulate -> identify from the configs alone; the simulated truth (the file's nominal
-    model) inside the 95 % intervals: at most 11 of the 118 base parameters outside
-    (binomial, P(more) < 2 %), none beyond 4.5 std."""
+    """simulate (training and held-out motion) -> identify from the configs alone; the identified
+    model beats the file's (15 % off) on the held-out motion; the simulated truth inside the 95 %
+    intervals: at most 11 of the 118 base parameters outside (binomial, P(more) < 2 %), none
+    beyond 4.5 std."""
     from dynid.config import load_config
     from dynid.pipeline.identification import identify
 
@@ -240,12 +241,19 @@ def test_stewart_from_its_mjcf_is_simulated_and_identified_from_configs(tmp_path
     (tmp_path / "stewart.xml").write_text(text)
     (tmp_path / "sim.toml").write_text((EXAMPLE / "simulate.toml").read_text())
     assert main(["simulate", str(tmp_path / "sim.toml"), "--out", str(tmp_path / "sim"), "-q"]) == 0
+    (tmp_path / "val.toml").write_text((EXAMPLE / "validate.toml").read_text())  # the held-out motion
+    assert main(["simulate", str(tmp_path / "val.toml"), "--out", str(tmp_path / "val"), "-q"]) == 0
     log = np.loadtxt(tmp_path / "sim" / "log.csv", delimiter=",", skiprows=1)
     q = load_mechanism_mjcf(tmp_path / "stewart.xml").solve_positions(log[::10, 1:7])
     assert np.degrees(np.abs(q[:, 3:6]).max(axis=0)).min() > 3.0  # the ball turns about all three axes (27, 5.7, 20 deg)
     (tmp_path / "id.toml").write_text((EXAMPLE / "identify.toml").read_text() + "\n[output]\nplots = false\n")
     outcome = identify(load_config(tmp_path / "id.toml"))
     assert "mx_platform" in outcome.base.names
+    # the file's model is 15 % off the simulated robot: on another motion the identified model
+    # predicts the actuator forces better than that nominal model on every strut (3.0 % against 9.0 %)
+    prior = outcome.prior
+    assert prior["comparable"] and prior["beats_nominal"] and all(prior["better_per_channel"])
+    assert prior["identified_mean_rel_rmse_pct"] < 0.5 * prior["nominal_mean_rel_rmse_pct"]
     truth = json.loads((tmp_path / "sim" / "truth.json").read_text())
     z = (outcome.result.params - outcome.base.from_standard(np.asarray(truth["true_parameters"]))) / outcome.result.bse
     assert z.size == 118
