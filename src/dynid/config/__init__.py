@@ -252,6 +252,8 @@ class IdentificationConfig:
     start: str = "wls"  # "wls" (IDIM-WLS estimate) or "nominal" (the robot description's values)
     max_iterations: int = 10
     tolerance: float = 0.5  # stop when no parameter moves by more than this many standard deviations
+    # the Coulomb terms' sign: "none" (the sign), "auto" (erf of the data's velocity-noise std), or widths per actuator
+    coulomb_smoothing: str | tuple[float, ...] = "none"
 
 
 _PHYSICAL_KEYS = ("margin", "regularization", "regularization_weight", "solver", "bodies", "friction_model", "max_samples")
@@ -529,7 +531,8 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
     where = "identification"
     t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
                           "force_model", "noise_covariance", "iterations", "nominal_weighting",
-                          "position_covariance", "cutoff_range_hz", "structure", "identical_chains", *_PHYSICAL_KEYS,
+                          "position_covariance", "cutoff_range_hz", "structure", "identical_chains", "coulomb_smoothing",
+                          *_PHYSICAL_KEYS,
                           *_COVARIANCE_KEYS, *_LOOP_KEYS})
     method = _str(t.get("method", "wls"), f"{where}.method", _METHODS)
     physical = _bool(t.get("physical_consistency", False), f"{where}.physical_consistency")
@@ -584,6 +587,20 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
         crange = (_num(v[0], f"{where}.cutoff_range_hz"), _num(v[1], f"{where}.cutoff_range_hz"))
         if not 0 < crange[0] < crange[1]:
             raise ConfigError(f"{where}.cutoff_range_hz must satisfy 0 < low < high, got {list(crange)}")
+    smoothing: str | tuple[float, ...] = "none"
+    if "coulomb_smoothing" in t:
+        v = t["coulomb_smoothing"]
+        if isinstance(v, str):
+            smoothing = _str(v, f"{where}.coulomb_smoothing", ("none", "auto"))
+        elif isinstance(v, list) and v:
+            smoothing = tuple(_num(x, f"{where}.coulomb_smoothing", minimum=0.0) for x in v)
+        else:
+            raise ConfigError(f"{where}.coulomb_smoothing must be 'none', 'auto' or a list of velocity widths per actuator "
+                              "[rad/s or m/s]")
+        if smoothing != "none" and (method not in ("ols", "wls", "gm") or friction_model != "linear"):
+            raise ConfigError(f"{where}.coulomb_smoothing is available with methods 'ols', 'wls' and 'gm' and the linear "
+                              f"friction model, not method {method!r}" + (" with friction_model = 'stribeck'"
+                                                                            if friction_model != "linear" else ""))
     chains = _chain_groups(t["identical_chains"], f"{where}.identical_chains") if "identical_chains" in t else None
     structure = _str(t.get("structure", "identical_chains" if chains else "full"), f"{where}.structure", _STRUCTURES)
     if chains and structure == "full":
@@ -591,6 +608,7 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
     return IdentificationConfig(
         structure=structure,
         identical_chains=chains,
+        coulomb_smoothing=smoothing,
         experiment=_path(t["experiment"], f"{where}.experiment", base) if loop else None,
         start=_str(t.get("start", "wls" if method == "iv" else "nominal"), f"{where}.start", ("wls", "nominal")),
         max_iterations=_int(t.get("max_iterations", 10), f"{where}.max_iterations", 1),

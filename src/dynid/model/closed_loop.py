@@ -36,6 +36,7 @@ from typing import Literal
 import numpy as np
 import pinocchio as pin
 
+from dynid.model.serial_dynamics import motor_width, smooth_sign
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.base_parameters import BaseParameters, _base_from_stack
@@ -59,22 +60,23 @@ DISTRIBUTIONS = ("projected", "min_norm", "min_norm_local_friction")
 Distribution = Literal["projected", "min_norm", "min_norm_local_friction"]
 
 
-def term_basis(kind: str, v: FloatArray, a: FloatArray) -> FloatArray:
-    """The basis function of a joint term of ``kind`` at velocities ``v`` and accelerations ``a``."""
+def term_basis(kind: str, v: FloatArray, a: FloatArray, width: FloatArray | None = None) -> FloatArray:
+    """The basis function of a joint term of ``kind`` at velocities ``v`` and accelerations ``a``;
+    ``width``: the Coulomb terms' smoothing per joint (:func:`dynid.model.serial_dynamics.smooth_sign`)."""
     if kind == "inertia":
         return a
     if kind == "viscous":
         return v
     if kind == "coulomb":
-        return np.sign(v)
+        return smooth_sign(v, width)
     if kind == "viscous+":
         return np.where(v > 0, v, 0.0)
     if kind == "viscous-":
         return np.where(v < 0, v, 0.0)
     if kind == "coulomb+":
-        return (v > 0).astype(float)
+        return (v > 0).astype(float) if width is None else 0.5 * (1.0 + smooth_sign(v, width))
     if kind == "coulomb-":
-        return (v < 0).astype(float)
+        return (v < 0).astype(float) if width is None else 0.5 * (1.0 - smooth_sign(v, width))
     return np.ones_like(v)  # offset
 
 
@@ -89,12 +91,14 @@ def term_columns(mech: Mechanism, dq: FloatArray, ddq: FloatArray) -> FloatArray
     n, nv = dq.shape
     incidence = mech.term_incidence  # incidence[j, k] = 1 if term k acts on joint j
     F = np.empty((n, nv, incidence.shape[1]))
+    width = mech.coulomb_width
     for kind, ks in mech.term_groups:
-        F[:, :, ks] = term_basis(kind, dq, ddq)[:, :, None] * incidence[None, :, ks]
+        F[:, :, ks] = term_basis(kind, dq, ddq, width)[:, :, None] * incidence[None, :, ks]
     for k, t in enumerate(mech.terms):
         if t.weights:  # a coupled motor: the basis of its own velocity w = c^T qd, distributed by c
             c = incidence[:, k]
-            F[:, :, k] = term_basis(t.kind, dq @ c, ddq @ c)[:, None] * c[None, :]
+            w = motor_width(width, c)
+            F[:, :, k] = term_basis(t.kind, (dq @ c)[:, None], (ddq @ c)[:, None], None if w is None else [w])[:, 0][:, None] * c[None, :]
     return F
 
 

@@ -191,6 +191,9 @@ class Mechanism:
         two count as ``massless`` without being listed there);
         that one's parameters are named after ``body``; a configuration within
         ``BALL_MARGIN_DEG`` of the chart's singularity is refused (one-line ModelError).
+    coulomb_width : sequence of float, optional
+        Per joint (velocity index), the velocity-noise std of the Coulomb terms' smooth sign
+        (:func:`~dynid.model.serial_dynamics.smooth_sign`); None: the sign itself (default).
     """
 
     pin_model: pin.Model
@@ -210,6 +213,7 @@ class Mechanism:
     identical_chains: tuple = ()
     symmetric_zero: tuple[str, ...] = ()
     ball_joints: tuple[BallJoint, ...] = ()
+    coulomb_width: tuple[float, ...] | None = None
 
     # derived
     bodies: tuple[int, ...] = dataclasses.field(init=False)
@@ -298,6 +302,11 @@ class Mechanism:
         bodies = tuple(j for j in range(1, m.njoints) if j not in self.massless)
         set_(self, "bodies", bodies)
         set_(self, "ball_joints", tuple(self.ball_joints))
+        if self.coulomb_width is not None:
+            cw = tuple(float(x) for x in self.coulomb_width)
+            if len(cw) != m.nv or not all(np.isfinite(x) and x >= 0 for x in cw):
+                raise ModelError(f"coulomb_width needs {m.nv} finite values >= 0 (one per joint), got {list(cw)}")
+            set_(self, "coulomb_width", cw)
         set_(self, "_ball_middle", self._check_balls())
         pnames = [f"{p}_{self.body_label(j)}" for j in bodies for p in BODY_PARAMS] + tnames
         set_(self, "parameter_names", tuple(pnames))

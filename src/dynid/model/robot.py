@@ -199,6 +199,9 @@ class RobotModel:
         coupled motors ``{"Iam": {6: 0.01}}``; missing ones are 0.
     source : str
         Where the model came from (file path or ``builtin:<name>``).
+    coulomb_width : sequence of float, optional
+        Per joint, the velocity-noise std [rad/s or m/s] of the Coulomb terms' smooth sign
+        (:func:`~dynid.model.serial_dynamics.smooth_sign`); None: the sign itself (default).
     """
 
     pin_model: pin.Model
@@ -207,6 +210,7 @@ class RobotModel:
     transmission: Transmission | None = None
     nominal_extras: Mapping[str, object] = dataclasses.field(default_factory=dict)
     source: str = ""
+    coulomb_width: tuple[float, ...] | None = None
 
     layout: ParameterLayout = dataclasses.field(init=False)
 
@@ -225,6 +229,11 @@ class RobotModel:
         coupled = self.transmission.coupled_motors if self.transmission is not None else ()
         object.__setattr__(self, "layout", ParameterLayout(m.njoints - 1, m.nv, self.extras, coupled))
         object.__setattr__(self, "nominal_extras", MappingProxyType(dict(self.nominal_extras)))
+        if self.coulomb_width is not None:
+            w = tuple(float(x) for x in self.coulomb_width)
+            if len(w) != m.nv or not all(np.isfinite(x) and x >= 0 for x in w):
+                raise ModelError(f"coulomb_width needs {m.nv} finite values >= 0 (one per joint), got {list(w)}")
+            object.__setattr__(self, "coulomb_width", w)
 
     # ------------------------------------------------------------------ basics
     @property

@@ -19,7 +19,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError
 from dynid.model.robot import RobotModel
 
-__all__ = ["regressor", "extra_basis", "extras_torque", "inverse_dynamics", "check_states"]
+__all__ = ["regressor", "extra_basis", "extras_torque", "inverse_dynamics", "check_states", "smooth_sign"]
 
 
 def check_states(robot: RobotModel, q: FloatArray, dq: FloatArray, ddq: FloatArray) -> tuple[FloatArray, ...]:
@@ -44,23 +44,51 @@ and 84 columns) stays in cache while it is zeroed, filled by pinocchio and compl
 with the extras."""
 
 
-def extra_basis(extra: str, dq: FloatArray, ddq: FloatArray) -> FloatArray | float:
-    """The basis function of a joint extra (see :mod:`dynid.model.robot`) at ``dq``, ``ddq``."""
+def smooth_sign(v: FloatArray, width: FloatArray | None = None) -> FloatArray:
+    r"""The Coulomb basis: :math:`\mathrm{sign}(v)` when ``width`` is None (or 0 for a joint), else
+    :math:`\mathrm{erf}(v / (\sqrt 2\,\sigma_v))` with :math:`\sigma_v` = ``width`` (broadcast
+    over the last axis: one per joint).
+
+    Why erf: with the measured velocity :math:`v` = true velocity + Gaussian noise of std
+    :math:`\sigma_v`, :math:`E[\mathrm{sign}(v_{true}) \mid v] = \mathrm{erf}(v/(\sqrt2\sigma_v))`:
+    the best prediction of the Coulomb force's direction from a noisy velocity. Far from zero it
+    is the sign; near zero (a joint at rest or reversing) it goes through 0 instead of chattering
+    between :math:`\pm f_c` with the noise (issue 19, item 4; the dead-band alternative, a linear
+    ramp, has the same effect with a kink). ``width`` comes from the data
+    (:func:`dynid.pipeline.data.velocity_noise_std`) or from the user."""
+    v = np.asarray(v, dtype=float)
+    if width is None:
+        return np.sign(v)
+    from scipy.special import erf
+
+    w = np.broadcast_to(np.asarray(width, dtype=float), v.shape[-1:])
+    safe = np.where(w > 0, w, 1.0)
+    return np.where(w > 0, erf(v / (np.sqrt(2.0) * safe)), np.sign(v))
+
+
+def extra_basis(extra: str, dq: FloatArray, ddq: FloatArray, width: FloatArray | None = None) -> FloatArray | float:
+    """The basis function of a joint extra (see :mod:`dynid.model.robot`) at ``dq``, ``ddq``;
+    ``width``: the Coulomb terms' smoothing per joint (:func:`smooth_sign`)."""
     if extra == "Ia":
         return ddq
     if extra == "fv":
         return dq
     if extra == "fc":
-        return np.sign(dq)
+        return smooth_sign(dq, width)
     if extra == "fv+":
         return np.maximum(dq, 0.0)
     if extra == "fv-":
         return np.minimum(dq, 0.0)
     if extra == "fc+":
-        return (dq > 0).astype(float)
+        return (dq > 0).astype(float) if width is None else 0.5 * (1.0 + smooth_sign(dq, width))
     if extra == "fc-":
-        return (dq < 0).astype(float)
+        return (dq < 0).astype(float) if width is None else 0.5 * (1.0 - smooth_sign(dq, width))
     return 1.0  # offset
+
+
+def motor_width(width: FloatArray | None, c: FloatArray) -> float | None:
+    """The velocity-noise std of a coupled motor's velocity ``dq @ c`` from the joints' (independent noise)."""
+    return None if width is None else float(np.sqrt(np.sum((np.asarray(c) * np.asarray(width)) ** 2)))
 
 
 def _extras_diagonal(robot: RobotModel, out: FloatArray) -> FloatArray | None:
@@ -102,7 +130,7 @@ def _fill_extras(
     if joints:
         rows = np.arange(lay.nv)
         for k, (e, idx) in enumerate(lay.extra_index.items()):
-            value = extra_basis(e, dq, ddq)
+            value = extra_basis(e, dq, ddq, robot.coulomb_width)
             if diag is not None:
                 diag[:, :, k] = value
             else:
@@ -113,7 +141,7 @@ def _fill_extras(
         for m_pos, k in enumerate(lay.coupled_motors):
             c = tr.coupling_weights(k)
             w = dq @ c
-            motor_cols = {"Ia": ddq @ c, "fv": w, "fc": np.sign(w)}
+            motor_cols = {"Ia": ddq @ c, "fv": w, "fc": smooth_sign(w[:, None], motor_width(robot.coulomb_width, c))[:, 0]}
             for e, idx in lay.motor_index.items():
                 out[:, :, idx[m_pos]] = motor_cols[e][:, None] * c[None, :]
 
@@ -198,12 +226,12 @@ def extras_torque(robot: RobotModel, params: FloatArray, dq: FloatArray, ddq: Fl
     ddq = np.atleast_2d(np.asarray(ddq, dtype=float))
     tau = np.zeros_like(dq)
     for e, idx in lay.extra_index.items():
-        tau += params[idx][None, :] * extra_basis(e, dq, ddq)
+        tau += params[idx][None, :] * extra_basis(e, dq, ddq, robot.coulomb_width)
     for m_pos, k in enumerate(lay.coupled_motors):
         assert robot.transmission is not None
         c = robot.transmission.coupling_weights(k)
         w, dw = dq @ c, ddq @ c
-        motor = {"Ia": dw, "fv": w, "fc": np.sign(w)}
+        motor = {"Ia": dw, "fv": w, "fc": smooth_sign(w[:, None], motor_width(robot.coulomb_width, c))[:, 0]}
         torque_k = sum(params[idx[m_pos]] * motor[e] for e, idx in lay.motor_index.items())
         tau += np.asarray(torque_k)[:, None] * c[None, :]
     return tau

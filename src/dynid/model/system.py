@@ -104,6 +104,7 @@ class System(Protocol):
     def still_parameters(self, actuators: Sequence[int]) -> list[str]: ...
     def describe(self) -> dict[str, Any]: ...
     def with_structure(self, structure: str, chains: Any = None) -> System: ...
+    def with_coulomb_width(self, actuator_width: Sequence[float] | None) -> System: ...
     def reduce_parameters(self, pi: FloatArray) -> FloatArray: ...
     def expand_parameters(self, params: FloatArray) -> FloatArray: ...
 
@@ -218,6 +219,12 @@ class SerialSystem:
         return {"name": r.name, "kind": "serial", "dof": r.dof, "extras": list(r.extras),
                 "transmission": r.transmission.describe() if r.transmission else None}
 
+    def with_coulomb_width(self, actuator_width: Sequence[float] | None) -> SerialSystem:
+        """The same robot whose Coulomb terms use the smooth sign with these velocity-noise stds
+        per joint (:func:`~dynid.model.serial_dynamics.smooth_sign`; None: the sign)."""
+        return dataclasses.replace(self, model=self.model.replace(
+            coulomb_width=None if actuator_width is None else tuple(actuator_width)))
+
     def with_structure(self, structure: str, chains: Any = None) -> SerialSystem:
         """Only ``"full"``: a serial arm has one chain, nothing to tie."""
         if structure != "full" or chains:
@@ -321,6 +328,28 @@ class ClosedLoopSystem:
 
     def body_blocks(self) -> tuple[np.ndarray, ...]:
         return self.model.body_blocks() if self.reduction is None else self.reduction.body_blocks
+
+    def with_coulomb_width(self, actuator_width: Sequence[float] | None) -> ClosedLoopSystem:
+        r"""The same system whose Coulomb terms use the smooth sign (:func:`~dynid.model.serial_dynamics.smooth_sign`)
+        with velocity-noise stds ``actuator_width`` on the actuated joints; every other joint's is
+        propagated from the independent coordinates' through the velocity map at the reference
+        configuration, :math:`\sigma_j = \sqrt{\sum_k G_{jk}^2 \sigma_{u,k}^2}` (independent noise;
+        the map changes along the motion, the width is a scale, not an exact std)."""
+        if actuator_width is None:
+            return dataclasses.replace(self, model=dataclasses.replace(self.model, coulomb_width=None))
+        mech = self.model
+        act = dict(zip(mech.actuated, (float(w) for w in actuator_width)))
+        indep = getattr(mech.independent, "joints", None)
+        if indep is None or any(j not in act for j in indep):
+            raise ConfigError(f"identification.coulomb_smoothing: the independent coordinates of {mech.name!r} are not "
+                              "actuated joints; the widths of the other joints cannot be propagated from the actuators'")
+        zero = np.zeros((1, len(indep)))
+        G = mech.states(mech.q_ref[None], zero, zero).G[0]  # (n_v, n_u)
+        sigma_u = np.array([act[j] for j in indep])
+        width = np.sqrt((G ** 2) @ (sigma_u ** 2))
+        for j, w in act.items():
+            width[j] = w
+        return dataclasses.replace(self, model=dataclasses.replace(mech, coulomb_width=tuple(width)))
 
     def with_structure(self, structure: str, chains: Any = None) -> ClosedLoopSystem:
         """The same system whose parameters follow ``structure`` (``"full"``, ``"identical_chains"``,

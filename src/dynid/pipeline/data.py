@@ -32,7 +32,7 @@ from dynid.model.system import System, as_system, with_actuator_extras, with_mot
 from dynid.model.transmission import Coupling, Transmission
 from dynid.signals import central_difference, lowpass, padlen_for, resample_uniform
 
-__all__ = ["build_system", "build_robot", "to_actuator_space", "check_units", "read_log", "check_held_out", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask", "reversal_keep"]
+__all__ = ["build_system", "build_robot", "to_actuator_space", "check_units", "read_log", "check_held_out", "to_joint_space", "preprocess", "check_joint_motion", "velocity_mask", "reversal_keep", "velocity_noise_std"]
 
 _TORQUE_UNITS = ("N*m", "Nm", "N.m", "mN*m")
 _FORCE_UNITS = ("N",)
@@ -558,3 +558,41 @@ def physical_options(icfg) -> dict:
         raise ConfigError(f"identification: {exc}") from None
     return {"constraints": constraints, "regularization": icfg.regularization,
             "regularization_weight": icfg.regularization_weight, "solver": icfg.solver}
+
+
+def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data") -> FloatArray:
+    r"""Per coordinate, the std [rad/s or m/s] of the noise that ``cfg``'s processing leaves in the
+    velocities of ``ds`` (the unprocessed log in actuator space): the width of the Coulomb terms'
+    smooth sign for ``identification.coulomb_smoothing = "auto"``
+    (:func:`~dynid.model.serial_dynamics.smooth_sign`).
+
+    The position noise :math:`\sigma_q` is the robust std (1.4826 x MAD) of what the low-pass
+    removes from the positions (``processing.lowpass``; without one, what a low-pass at a tenth of
+    the sampling rate removes), a white-noise reading that counts everything above the cut-off as
+    noise; the processing's noise gain :math:`g = \lVert h \rVert_2`, with :math:`h` the impulse
+    response of the configured zero-phase low-pass followed by central differences, gives
+    :math:`\sigma_{\dot q} = g\,\sigma_q` (white noise through a linear filter). Needs
+    ``processing.derivatives = "central"`` (measured velocities: give the widths)."""
+    if cfg.periodic is not None or cfg.derivatives != "central":
+        raise ConfigError("identification.coulomb_smoothing = 'auto' estimates the noise of velocities taken by central "
+                          "differences of (low-passed) positions; with processing.derivatives = 'measured' or "
+                          "[processing.periodic] give the widths per actuator instead")
+    t = np.asarray(ds.t, dtype=float)
+    fs = 1.0 / float(np.median(np.diff(t)))
+    lp = cfg.lowpass
+    ref_hz = lp.cutoff_hz if lp is not None else 0.1 * fs
+    order = lp.order if lp is not None else 4
+    n_trim = padlen_for(order, ref_hz, fs)
+    q = np.asarray(ds.q, dtype=float)
+    if q.shape[0] <= 2 * n_trim + 10:
+        raise InputError(f"{label}: {q.shape[0]} samples are too few to estimate the velocity noise "
+                         "(identification.coulomb_smoothing = 'auto'); give the widths per actuator")
+    r = (q - lowpass(q, ref_hz, fs, order))[n_trim: q.shape[0] - n_trim]
+    sigma_q = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)
+    n = 2 * n_trim + 1
+    delta = np.zeros(n)
+    delta[n_trim] = 1.0
+    h = lowpass(delta, lp.cutoff_hz, fs, lp.order) if lp is not None else delta
+    gain = float(np.sqrt(np.sum(central_difference(h, 1.0 / fs) ** 2)))
+    return sigma_q * gain
+

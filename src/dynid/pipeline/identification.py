@@ -61,10 +61,11 @@ from dynid.pipeline.data import (
     reversal_keep,
     to_actuator_space,
     velocity_mask,
+    velocity_noise_std,
 )
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos, padlen_for
 
-__all__ = ["Chunk", "Progress", "ValidationMetrics", "IdentifyOutcome", "RowSelection", "SelectedRows", "build_problem",
+__all__ = ["Chunk", "FullRate", "Progress", "ValidationMetrics", "IdentifyOutcome", "RowSelection", "SelectedRows", "build_problem",
            "prior_comparison", "row_mask", "validate", "validate_with_prior", "identify", "write_outputs",
            "write_files", "OUTPUT_FILES"]
 
@@ -370,6 +371,25 @@ def _other_view(Ga: FloatArray, tau: FloatArray, predicted: FloatArray, prior: F
     return g(tau), g(predicted), None if prior is None else g(prior)
 
 
+@dataclasses.dataclass(frozen=True)
+class FullRate:
+    """The held-out errors at the log's own rate when the processing decimates: the same
+    low-pass and derivatives, no decimation (neither ``decimate_method = "samples"`` nor
+    ``"parallel"``), every held-out row after the filter's trim, the measured outputs as logged
+    (``filter_effort`` as configured). The decimated scores are what the fit saw; these are what a
+    tool that predicts every logged sample is compared with (FIGAROH publishes its TX40 figures
+    so). ``prior``: the :func:`~dynid.estimation.validation.prior_comparison` of the two."""
+
+    metrics: ValidationMetrics
+    nominal: ValidationMetrics | None = None
+    prior: dict[str, Any] | None = None
+    decimate: int = 1
+
+    def heading(self) -> str:
+        return (f"Validation at the log's full rate (no decimation; the fit used 1 sample in {self.decimate}): "
+                f"{self.metrics.n_samples} samples")
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class IdentifyOutcome:
     config: Config
@@ -387,6 +407,7 @@ class IdentifyOutcome:
     system: Any = None  # the System identified (its parameters: the model's, or reduced by identification.structure)
     other_view: OtherView | None = None  # redundant mechanisms: the held-out errors in the other form of the equations
     selected: SelectedRows | None = None  # with a row selection: the errors on the held-out rows it keeps
+    full_rate: FullRate | None = None  # with decimation: the held-out errors at every logged sample
 
     def summary_text(self) -> str:
         v = self.validation
@@ -406,6 +427,13 @@ class IdentifyOutcome:
                 lines += ["nominal model, the same rows", sel.nominal.table()]
                 if sel.prior is not None:
                     lines += ["", sel.prior["verdict"]]
+        fr = self.full_rate
+        if fr is not None:
+            lines += ["", fr.heading(), fr.metrics.table()]
+            if fr.nominal is not None:
+                lines += ["nominal model, the same samples", fr.nominal.table()]
+                if fr.prior is not None:
+                    lines += ["", fr.prior["verdict"]]
         o = self.other_view
         if o is not None:
             lines += ["", f"The same predictions {o.label}", o.metrics.table()]
@@ -442,7 +470,11 @@ def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
         sp = None if selected.nominal is None or prior is None else _selected_prior(
             sel, selected.nominal, prior["comparable"], f"row-selected {validation.label}")
         selected = dataclasses.replace(selected, metrics=sel, prior=sp)
-    return dataclasses.replace(outcome, validation=validation, prior=prior, selected=selected,
+    full = outcome.full_rate
+    if full is not None and full.nominal is not None and prior is not None:
+        full = dataclasses.replace(full, prior=prior_comparison(full.metrics, full.nominal, prior["comparable"],
+                                                                f"full-rate {validation.label}"))
+    return dataclasses.replace(outcome, validation=validation, prior=prior, selected=selected, full_rate=full,
                                elapsed_s=time.perf_counter() - t0)
 
 
@@ -680,6 +712,21 @@ def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Data
     return result, worst
 
 
+def _coulomb_smoothing(spec, train_a: Dataset, pcfg, system) -> dict[str, Any] | None:
+    """``identification.coulomb_smoothing``: None ("none"), or the widths per actuator and where
+    they come from ("auto": :func:`~dynid.pipeline.data.velocity_noise_std` of the training log)."""
+    if spec == "none":
+        return None
+    if spec == "auto":
+        width = velocity_noise_std(train_a, pcfg)
+        return {"kind": "erf", "width": [float(w) for w in width],
+                "source": "auto: velocity-noise std of the training log after the processing"}
+    if len(spec) != system.n_actuators:
+        raise ConfigError(f"identification.coulomb_smoothing: {len(spec)} widths for {system.n_actuators} actuators "
+                          f"({', '.join(system.actuator_names)})")
+    return {"kind": "erf", "width": [float(w) for w in spec], "source": "given"}
+
+
 def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     system = build_system(cfg.robot).with_structure(cfg.identification.structure, cfg.identification.identical_chains)
     force_model = _check_config(cfg, system)
@@ -700,6 +747,9 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
 
     train, steps = preprocess(train_a, pcfg, "data", unknowns=lambda: (base_parameters().n_base, len(channels)))
     held_out, _ = preprocess(valid_a, pcfg, "validation")
+    smoothing = _coulomb_smoothing(icfg.coulomb_smoothing, train_a, pcfg, system)
+    if smoothing is not None:
+        system = system.with_coulomb_width(smoothing["width"])
     check_joint_motion(train, system, icfg.min_joint_motion, "data")
     progress("base parameters", 0, 1)
     base = base_parameters()
@@ -764,6 +814,11 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
                                             + (" (whole samples: every actuator)" if whole else " (per actuator equation)")))
         result = result.with_provenance(row_selection=selection)
     notes = list(notes)
+    if smoothing is not None:
+        result = result.with_provenance(coulomb_smoothing=smoothing)
+        notes.append(f"Coulomb terms: smooth sign erf(v / (sqrt(2) w)) with w = "
+                     f"{', '.join(f'{n} {w:.3g}' for n, w in zip(names, smoothing['width']))} ({smoothing['source']}); "
+                     "the same in prediction")
     if force_model == "projected":
         notes.append("redundant actuation: projected equations G_a^T tau_a (no assumption about the force distribution)")
     elif force_model is not None:
@@ -785,11 +840,17 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     metrics, prior, other, selected = validate_with_prior(
         result, system, base, held_out, nominal, force_model=force_model, parallel_decimate=parallel,
         chunk_size=icfg.chunk_size, progress=progress, friction=fj, periodic=periodic, selection=rows_rule)
+    full = None
+    if pcfg.decimate > 1 and periodic is None:
+        held_full, _ = preprocess(valid_a, dataclasses.replace(pcfg, decimate=1), "validation")
+        fm, fn, _, _ = validate_with_prior(result, system, base, held_full, nominal, force_model=force_model,
+                                           chunk_size=icfg.chunk_size, progress=progress, friction=fj)
+        full = FullRate(fm, fn, decimate=pcfg.decimate)
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
-                           other_view=other, selected=selected)
+                           other_view=other, selected=selected, full_rate=full)
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
@@ -878,6 +939,16 @@ def _selected_dict(sel: SelectedRows) -> dict[str, Any]:
             **({"prior_comparison": sel.prior} if sel.prior is not None else {})}
 
 
+def _full_rate_dict(fr: FullRate) -> dict[str, Any]:
+    """:class:`FullRate` for result.json."""
+    d = fr.metrics.to_dict()
+    ident = {k: d[k] for k in ("joints", "n_samples", "rmse_per_joint", "rel_rmse_pct_per_joint",
+                               "max_abs_error_per_joint", "r2_per_joint")}
+    return {"decimate_in_fit": fr.decimate, "identified": ident,
+            **({"nominal": _nominal_dict(fr.nominal)} if fr.nominal is not None else {}),
+            **({"prior_comparison": fr.prior} if fr.prior is not None else {})}
+
+
 def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     """Write the output files into an existing folder (see :func:`write_outputs`)."""
     res = outcome.result
@@ -894,6 +965,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
                                              if outcome.other_view.nominal is not None else {})}}
                if outcome.other_view is not None else {}),
             **({"validation_selected_rows": _selected_dict(outcome.selected)} if outcome.selected is not None else {}),
+            **({"validation_full_rate": _full_rate_dict(outcome.full_rate)} if outcome.full_rate is not None else {}),
             "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
             "base_parameters": {
                 "names": list(outcome.base.names),
