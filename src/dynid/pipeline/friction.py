@@ -140,6 +140,9 @@ def run_friction(cfg: FrictionConfig, progress: Progress | None = None) -> Frict
                           "every actuator force)")
     names = tuple(system.actuator_names)
     n = len(names)
+    unknown = [j for j in cfg.joints or () if j not in names]
+    if unknown:
+        raise ConfigError(f"friction.joints: {unknown} are not joints of {system.model.name!r} ({', '.join(names)})")
     ds = read_log(cfg.data, n, names, "data")
     ds, notes = to_actuator_space(ds, system, "data")
     lab = _labels(cfg, ds.n_samples)
@@ -148,9 +151,6 @@ def run_friction(cfg: FrictionConfig, progress: Progress | None = None) -> Frict
     notes = list(notes) + list(pts.notes)
     tested = sorted(set(pts.joint.tolist()))
     if cfg.joints is not None:
-        unknown = [j for j in cfg.joints if j not in names]
-        if unknown:
-            raise ConfigError(f"friction.joints: {unknown} are not joints of {system.model.name!r} ({', '.join(names)})")
         missing = [j for j in cfg.joints if names.index(j) not in tested]
         if missing:
             raise ConfigError(f"friction.joints: the log has no friction point of {missing} "
