@@ -34,7 +34,7 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     rest-to-rest Fourier + quintic, ``seed``; or ``design``: the ``design.json`` of
     ``dynid design``, whose coefficients and coordinates are used, with ``periods``), or
     ``"constant_velocity"`` (serial robots: the friction experiment of paper 003, Sec. 3.1, one
-    joint at a time: ``joints`` (names, default all), ``speeds`` [rad/s or m/s] (default twelve
+    joint at a time: ``joints`` (names, default all), ``speeds`` [rad/s or m/s] (default sixteen
     log-spaced from 0.002 to 0.8), ``window`` [s] (each constant-velocity window, default 2),
     ``pose`` (where the joints are held and each stroke centred, default the middle of the
     limits), ``max_acceleration`` (default 5), ``switch`` (shortest switching phase [s],

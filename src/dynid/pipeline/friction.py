@@ -156,6 +156,11 @@ def run_friction(cfg: FrictionConfig, progress: Progress | None = None) -> Frict
             raise ConfigError(f"friction.joints: the log has no friction point of {missing} "
                               f"(it tests {[names[k] for k in tested]})")
         tested = [names.index(j) for j in cfg.joints]
+    off = np.abs(pts.speed / pts.speed_cmd - 1) > 0.02
+    for k in np.flatnonzero(off):
+        notes.append(f"{names[pts.joint[k]]} at {pts.speed_cmd[k]:g}: measured {pts.speed[k]:.3g} "
+                     f"({100 * (pts.speed[k] / pts.speed_cmd[k] - 1):+.0f} %): the loop does not hold this speed in the "
+                     "window; the point is likely biased (a longer window or skip, or a stiffer loop)")
     out = []
     total = len(tested) * len(cfg.models) * (1 if cfg.held_out == "none" else 2)
     done = 0

@@ -10,7 +10,9 @@ Outputs, written together or not at all:
 
 * ``log.csv`` or ``log.npz``: ``t`` [s], ``q_<actuator>`` [rad or m], ``tau_<actuator>``
   [N·m or N] (or ``i_<actuator>`` [A] with torque constants), and the commanded independent
-  coordinates ``ref_<coordinate>`` at the logged instants;
+  coordinates ``ref_<coordinate>`` at the logged instants (a constant-velocity experiment adds
+  its labels ``cv_joint``, ``cv_speed``, ``cv_direction``, ``cv_repetition``,
+  :mod:`dynid.trajectories.constant_velocity`);
 * ``truth.json``: the true and nominal standard parameters of the robot (names and values),
   the true base parameters with their grouping expressions, the payload (body, mass, centre
   of mass, inertia) separately;
