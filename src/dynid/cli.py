@@ -259,6 +259,23 @@ def _cmd_design(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_friction(args: argparse.Namespace) -> int:
+    from dynid.config.friction import load_friction_config
+
+    _check_out(args.out)
+    cfg = load_friction_config(args.config)  # config errors come before the heavy imports below
+    from dynid.pipeline.friction import run_friction, write_friction
+
+    with _progress_bar(not args.quiet) as progress:
+        outcome = run_friction(cfg, progress)
+    written = write_friction(outcome, args.out)
+    if not args.quiet:
+        print(outcome.summary_text())
+        print()
+    print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    return EXIT_OK
+
+
 def _workers(value: str) -> int | str:
     if value == "auto":
         return value
@@ -383,6 +400,13 @@ def build_parser() -> argparse.ArgumentParser:
     pg.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pg.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
     pg.set_defaults(func=_cmd_design)
+
+    pr = sub.add_parser("friction", help="friction curves from a constant-velocity log (paper 003): extracted points, "
+                                         "four models fitted with uncertainties, held-out comparison, plot")
+    pr.add_argument("config", help="TOML configuration (schema in the README, 'Friction from constant-velocity runs')")
+    pr.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    pr.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no tables")
+    pr.set_defaults(func=_cmd_friction)
 
     pm = sub.add_parser("montecarlo", help="repeat a virtual experiment and its identification: coverage of the "
                                            "intervals, chi2 against the confidence ellipsoid")

@@ -32,7 +32,15 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     ``"fourier"`` (``base_frequency_hz``, ``harmonics``, ``fill``: fraction of the half range
     of each coordinate, ``max_velocity``, ``max_acceleration``, ``periods``, ``quintic``:
     rest-to-rest Fourier + quintic, ``seed``; or ``design``: the ``design.json`` of
-    ``dynid design``, whose coefficients and coordinates are used, with ``periods``). Circles and polylines are paths of the
+    ``dynid design``, whose coefficients and coordinates are used, with ``periods``), or
+    ``"constant_velocity"`` (serial robots: the friction experiment of paper 003, Sec. 3.1, one
+    joint at a time: ``joints`` (names, default all), ``speeds`` [rad/s or m/s] (default sixteen
+    log-spaced from 0.002 to 0.8), ``window`` [s] (each constant-velocity window, default 2),
+    ``pose`` (where the joints are held and each stroke centred, default the middle of the
+    limits), ``max_acceleration`` (default 5), ``switch`` (shortest switching phase [s],
+    default 0.1), ``rest`` [s] (default 0.3), ``repetitions`` (default 1); the log gains the
+    columns ``cv_joint``, ``cv_speed``, ``cv_direction``, ``cv_repetition``, see
+    :mod:`dynid.trajectories.constant_velocity`). Circles and polylines are paths of the
     independent coordinates of a planar mechanism (its end-effector); Fourier series run
     in the independent coordinates (the joints of a serial robot).
 ``[control]``
@@ -86,6 +94,7 @@ _TRAJ_KEYS = {
     "circle": {"centre", "radius", "speed", "turns", "clockwise", "ramp", "axes"},
     "polyline": {"vertices", "speed", "ramp", "axes"},
     "fourier": {"base_frequency_hz", "harmonics", "fill", "max_velocity", "max_acceleration", "periods", "quintic", "seed", "design"},
+    "constant_velocity": {"joints", "speeds", "window", "pose", "max_acceleration", "switch", "rest", "repetitions"},
 }
 
 
@@ -216,6 +225,8 @@ def _parse_trajectory(t: Any) -> TrajectoryConfig:
         v["turns"] = _num(t.get("turns", 1.0), f"{w}.turns", True)
         v["clockwise"] = _bool(t.get("clockwise", True), f"{w}.clockwise")
         v["ramp"] = _num(t.get("ramp", 0.2), f"{w}.ramp", True)
+    elif kind == "constant_velocity":
+        v.update(_parse_constant_velocity(t))
     elif kind == "polyline":
         for k in ("vertices", "speed"):
             if k not in t:
@@ -249,6 +260,33 @@ def _parse_trajectory(t: Any) -> TrajectoryConfig:
     if kind in ("circle", "polyline") and "axes" in t:
         v["axes"] = _list(t["axes"], f"{w}.axes", _str)
     return TrajectoryConfig(kind, v)
+
+
+def _parse_constant_velocity(t: Mapping[str, Any]) -> dict[str, Any]:
+    """The keys of ``kind = "constant_velocity"`` (paper 003, Sec. 3.1; defaults in
+    :class:`~dynid.trajectories.constant_velocity.ConstantVelocityExperiment`)."""
+    w = "trajectory"
+    v: dict[str, Any] = {}
+    if "joints" in t:
+        v["joints"] = joint_name_list(t, "joints", w)
+    if "speeds" in t:
+        speeds = _list(t["speeds"], f"{w}.speeds", lambda x, ww: _num(x, ww, True))
+        if not speeds:
+            raise ConfigError(f"{w}.speeds: empty list; give the speed levels [rad/s or m/s]")
+        twice = sorted({x for x in speeds if speeds.count(x) > 1})
+        if twice:
+            raise ConfigError(f"{w}.speeds: {twice} given more than once")
+        v["speeds"] = speeds
+    if "pose" in t:
+        v["pose"] = _list(t["pose"], f"{w}.pose", _num)
+    for key in ("window", "max_acceleration", "switch"):
+        if key in t:
+            v[key] = _num(t[key], f"{w}.{key}", True)
+    if "rest" in t:
+        v["rest"] = _num(t["rest"], f"{w}.rest", minimum=0.0)
+    if "repetitions" in t:
+        v["repetitions"] = _int(t["repetitions"], f"{w}.repetitions", 1)
+    return v
 
 
 def _parse_control(t: Any) -> ControlSimConfig:

@@ -10,7 +10,9 @@ Outputs, written together or not at all:
 
 * ``log.csv`` or ``log.npz``: ``t`` [s], ``q_<actuator>`` [rad or m], ``tau_<actuator>``
   [N·m or N] (or ``i_<actuator>`` [A] with torque constants), and the commanded independent
-  coordinates ``ref_<coordinate>`` at the logged instants;
+  coordinates ``ref_<coordinate>`` at the logged instants (a constant-velocity experiment adds
+  its labels ``cv_joint``, ``cv_speed``, ``cv_direction``, ``cv_repetition``,
+  :mod:`dynid.trajectories.constant_velocity`);
 * ``truth.json``: the true and nominal standard parameters of the robot (names and values),
   the true base parameters with their grouping expressions, the payload (body, mass, centre
   of mass, inertia) separately;
@@ -40,7 +42,7 @@ from dynid import __version__
 from dynid._files import TIMING_FILE, save_npz, write_timing
 from dynid.config.simulate import SimulateConfig
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError, ModelError, read_file_text
+from dynid.errors import ConfigError, InputError, ModelError, read_file_text
 from dynid.io.output import staged_output
 from dynid.model.closed_loop import mechanism_base_parameters
 from dynid.model.loading import load_model
@@ -50,7 +52,7 @@ from dynid.pipeline.control_model import controller_parameters
 from dynid.simulation.closed_loop import (ActuatorReference, AugmentedPD, ConstrainedSimulator, DecentralizedPID,
                                           simulate_mechanism_control)
 from dynid.simulation.control import ComputedTorque, FeedforwardPID, JointPID, SerialPlant, model_inverse, simulate_control
-from dynid.trajectories import CirclePath, Embedded, FourierQuintic, PolylinePath, Repeated, zyx_angular_velocity
+from dynid.trajectories import CirclePath, ConstantVelocityExperiment, Embedded, FourierQuintic, PolylinePath, Repeated, zyx_angular_velocity
 from dynid.simulation.sensors import Measurements, Sensors
 from dynid.trajectories import FourierTrajectory
 from dynid.stats import tracking_errors
@@ -164,6 +166,8 @@ def _trajectory(cfg: SimulateConfig, robot):
     v = tc.values
     lo, hi, names = _coordinate_box(robot)
     n_u = lo.size
+    if tc.kind == "constant_velocity":
+        return _constant_velocity(v, robot, lo, hi, names), names
     if tc.kind in ("circle", "polyline"):
         dim = 2 if tc.kind == "circle" else len(v["vertices"][0])
         axes = v.get("axes")
@@ -195,6 +199,33 @@ def _trajectory(cfg: SimulateConfig, robot):
     if v["quintic"]:
         return FourierQuintic(four), names
     return (Repeated(four, v["periods"]) if v["periods"] > 1 else four), names
+
+
+def _constant_velocity(v: dict, robot, lo: np.ndarray, hi: np.ndarray, names: list[str]) -> ConstantVelocityExperiment:
+    """``kind = "constant_velocity"``: paper 003's friction experiment on a serial robot."""
+    if isinstance(robot, Mechanism):
+        raise ConfigError("trajectory.kind = 'constant_velocity' is for serial robots: an actuator of a closed chain "
+                          "cannot move alone (passive joints move with it, and their friction enters every actuator "
+                          "force, so (tau(q, v) - tau(q, -v)) / 2 is no single joint's friction)")
+    joints = v.get("joints") or tuple(names)
+    unknown = [j for j in joints if j not in names]
+    if unknown:
+        raise ConfigError(f"trajectory.joints: {unknown} are not joints of {robot.name!r} ({', '.join(names)})")
+    finite = np.isfinite(lo) & np.isfinite(hi)
+    pose = np.where(finite, 0.5 * (lo + hi), 0.0)
+    if "pose" in v:
+        if len(v["pose"]) != len(names):
+            raise ConfigError(f"trajectory.pose has {len(v['pose'])} entries; {robot.name!r} has {len(names)} joints")
+        pose = np.array(v["pose"], dtype=float)
+        outside = [f"{n} = {p:g} not in [{a:g}, {b:g}]" for n, p, a, b in zip(names, pose, lo, hi) if not a <= p <= b]
+        if outside:
+            raise ConfigError(f"trajectory.pose: outside the joint limits: {'; '.join(outside)}")
+    keys = {k: v[k] for k in ("speeds", "window", "max_acceleration", "switch", "rest", "repetitions") if k in v}
+    try:
+        return ConstantVelocityExperiment(pose=pose, lower=lo, upper=hi, joints=tuple(names.index(j) for j in joints),
+                                          names=tuple(names), **keys)
+    except InputError as exc:
+        raise ConfigError(f"trajectory: {exc}") from None
 
 
 def _design_trajectory(cfg: SimulateConfig, names: list[str]) -> FourierTrajectory:
@@ -438,6 +469,8 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
         omega, _ = zyx_angular_velocity(u_ref[:, sel], du_ref[:, sel], ddu_ref[:, sel])
         for k, axis in enumerate("xyz"):
             references[f"ref_w{axis}"] = omega[:, k]
+    if isinstance(traj, ConstantVelocityExperiment):  # which joint, speed and window each sample belongs to
+        references.update(traj.labels(motion.t))
     signals = TrueSignals(t=motion.t, q=q_act, effort=tau, actuators=tuple(act_names), references=references,
                           sensors=sensors)
     meas, columns = measure_signals(signals)
@@ -480,6 +513,11 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
             "q_*": "actuator positions [rad or m], quantized and noisy",
             f"{effort_prefix}_*": "actuator efforts " + ("[A] (torque / torque constant)" if meas.effort_kind == "current" else "[N*m or N]"),
             "ref_*": "commanded independent coordinates at the nominal sample instants",
+            **({"cv_joint": "constant-velocity experiment: the moving joint (1-based; 0 during moves and rests)",
+                "cv_speed": "its speed level [rad/s or m/s]",
+                "cv_direction": "+1 in the forward constant-velocity window, -1 in the backward one, 0 elsewhere",
+                "cv_repetition": "the repetition of the cycle (from 1)"}
+               if isinstance(traj, ConstantVelocityExperiment) else {}),
             "ref_w*": "commanded angular velocity of the platform [rad/s], world axes (paper 004, Eq. 16), when the "
                       "coordinates include the z-y-x angles",
         },

@@ -7,7 +7,7 @@ from typing import Any
 
 from dynid.errors import require
 
-__all__ = ["plot_design", "plot_montecarlo_chi2", "plot_montecarlo_history", "plot_processing", "plot_tracking", "plot_validation"]
+__all__ = ["plot_design", "plot_friction", "plot_montecarlo_chi2", "plot_montecarlo_history", "plot_processing", "plot_tracking", "plot_validation"]
 
 _MAX_POINTS = 4000
 
@@ -264,5 +264,50 @@ def plot_montecarlo_chi2(result: Any, path: str | Path) -> Path:
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_friction(joints: Any, models: Any, path: str | Path, *, labels: dict[str, str] | None = None) -> Path:
+    """Paper 003, Fig. 7 in kind: per joint the extracted friction points (mean over the matched
+    stroke, error bars ±2 standard errors; held-out points open) and the fitted curves of each
+    model, against the speed on a logarithmic axis (the speeds are log-spaced).
+
+    ``joints``: items with ``name``, ``points`` (a :class:`dynid.signals.friction_points.FrictionPoints`),
+    ``fits`` (model -> fit with ``force(v)``) and ``held_out`` (mask of the points).
+    """
+    import numpy as np
+
+    plt = _pyplot()
+    joints = list(joints)
+    n = len(joints)
+    cols = min(n, 3)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.5 * rows + 0.5), squeeze=False)
+    colors = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple"]
+    for ax, j in zip(axes.flat, joints):
+        p = j.points
+        v = np.geomspace(p.speed.min() / 1.5, p.speed.max() * 1.2, 300)
+        for c, m in zip(colors, models):
+            ax.plot(v, j.fits[m].force(v), color=c, lw=1.2, label=(labels or {}).get(m, m))
+        held = np.asarray(j.held_out, dtype=bool)
+        for mask, face, lab in ((~held, "k", "points (fit)"), (held, "white", "points (held out)")):
+            if mask.any():
+                ax.errorbar(p.speed[mask], p.force[mask], yerr=2 * p.sigma[mask], fmt="o", ms=4, mfc=face, mec="k",
+                            ecolor="k", elinewidth=0.8, capsize=2, label=lab, zorder=5)
+        ax.set_xscale("log")
+        ax.set_title(j.name, fontsize=9)
+        ax.set_xlabel("speed [rad/s or m/s]", fontsize=8)
+        ax.set_ylabel("friction [N·m or N]", fontsize=8)
+        ax.grid(alpha=0.3, which="both")
+        ax.tick_params(labelsize=8)
+    for ax in list(axes.flat)[n:]:
+        ax.set_visible(False)
+    axes.flat[0].legend(fontsize=7, loc="best")
+    fig.suptitle("Friction from constant-velocity runs:\nextracted points and fitted models (paper 003, Fig. 7)",
+                 fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -2,6 +2,7 @@
 derivatives; no robot model): Fourier series, Fourier + quintic, constant-velocity segments,
 circles and polylines, periodic repetition. Used by excitation design and virtual experiments."""
 
+from dynid.trajectories.constant_velocity import ConstantVelocityExperiment
 from dynid.trajectories.fourier import FourierTrajectory
 from dynid.trajectories.paths import (
     BidirectionalVelocity,
@@ -16,6 +17,7 @@ from dynid.trajectories.paths import (
 __all__ = [
     "BidirectionalVelocity",
     "CirclePath",
+    "ConstantVelocityExperiment",
     "Embedded",
     "FourierQuintic",
     "FourierTrajectory",

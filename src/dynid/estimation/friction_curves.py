@@ -1,0 +1,220 @@
+"""Friction curves fitted to constant-velocity friction points (paper 003, Sec. 3.1, Table 4).
+
+The models (odd functions of the velocity; the points are at :math:`v > 0`, where
+:math:`\\mathrm{sign}(v) = 1`), numbered as :data:`MODELS` lists them:
+
+1. ``coulomb_viscous`` (paper 003, Eq. 2): :math:`F_c\\,\\mathrm{sign}(v) + F_v v`;
+2. ``stribeck`` (Eq. 14): :math:`[F_c + (F_s - F_c)e^{-(v/v_s)^2}]\\,\\mathrm{sign}(v) + F_v v`;
+3. ``power_law`` (Eq. 13, nonlinear Coulomb-viscous): :math:`F_c\\,\\mathrm{sign}(v) + F_v|v|^{\\alpha}\\mathrm{sign}(v)`;
+4. ``smooth_stribeck`` (Eq. 15, the improved Stribeck model):
+   :math:`[F_c + (F_s - F_c)e^{-(v/v_s)^2}]\\tfrac{2}{\\pi}\\arctan(K_v v) + F_v|v|^{\\alpha}\\mathrm{sign}(v)`;
+
+and, on request, ``arctan_stribeck``: Eq. 15 with :math:`\\alpha = 1` (the third model of paper
+003's Table 4 footnote: Stribeck with the arctangent in place of the sign only). The offset
+:math:`B` of Eq. 13 is even in the velocity: it cancels in the extraction and is not fitted.
+
+Fits (:func:`fit_curve`) are bounded weighted nonlinear least squares
+(``scipy.optimize.least_squares``, trust-region reflective) of
+:math:`r_k = (F(v_k; \\theta) - F_k)/\\sigma_k`, with the paper's positivity constraints as
+bounds (paper 003 solves the same problem by an interior-point method): :math:`F_c, F_s, F_v \\ge 0`,
+:math:`v_s \\in [v_{min}/100, 100\\,v_{max}]`, :math:`K_v \\in [10^{-3}/v_{max}, 10^4/v_{min}]`,
+:math:`\\alpha \\in [0.05, 3]` (:math:`v_{min}, v_{max}`: the smallest and largest speed of the
+points). Starting values: for each point of a grid of the nonlinear parameters
+(:math:`v_s, K_v, \\alpha`) the linear ones (:math:`F_c, F_s, F_v`) by non-negative least squares;
+the best few grid points start the nonlinear fit, and the lowest cost wins. Standard errors:
+:math:`\\mathrm{cov} = s^2 (J^T J)^{-1}` with :math:`J` the Jacobian of the weighted residuals
+at the optimum (central differences) and :math:`s^2 = \\sum r_k^2/(m - p)` the reduced
+chi-square, as weighted least squares does when the weights are known up to a factor (the
+points' :math:`\\sigma_k` set their relative weights). A parameter at a bound has no standard
+error (NaN, ``at_bound``) and the others' covariance is that with it held fixed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.optimize import least_squares, nnls
+
+from dynid._typing import FloatArray
+from dynid.errors import InputError
+from dynid.model.friction import CoulombViscous, PowerLawViscous, SmoothStribeck, Stribeck
+
+__all__ = ["MODELS", "CurveFit", "curve_force", "fit_curve", "held_out_split"]
+
+MODELS: dict[str, tuple[str, ...]] = {
+    "coulomb_viscous": ("fc", "fv"),
+    "stribeck": ("fc", "fs", "fv", "vs"),
+    "power_law": ("fc", "fv", "alpha"),
+    "smooth_stribeck": ("fc", "fs", "fv", "vs", "kv", "alpha"),
+    "arctan_stribeck": ("fc", "fs", "fv", "vs", "kv"),
+}
+"""Model name -> its coefficients (paper 003 Table 4 numbering: the first four, in order)."""
+
+DEFAULT_MODELS = ("coulomb_viscous", "stribeck", "power_law", "smooth_stribeck")
+_LINEAR = ("fc", "fs", "fv")
+
+
+def curve_force(model: str, params: dict[str, float] | Sequence[float], v: FloatArray) -> FloatArray:
+    """Friction of ``model`` with ``params`` (a dict, or values in :data:`MODELS` order) at
+    velocities ``v`` (m,), through the classes of :mod:`dynid.model.friction`."""
+    p = params if isinstance(params, dict) else dict(zip(MODELS[model], params))
+    v = np.asarray(v, dtype=float).reshape(-1, 1)
+    if model == "coulomb_viscous":
+        m = CoulombViscous(fc=p["fc"], fv=p["fv"])
+    elif model == "stribeck":
+        m = Stribeck(fc=p["fc"], fs=p["fs"], fv=p["fv"], vs=p["vs"], delta=2.0)
+    elif model == "power_law":
+        m = PowerLawViscous(fc=p["fc"], fv=p["fv"], alpha=p["alpha"])
+    elif model in ("smooth_stribeck", "arctan_stribeck"):
+        m = SmoothStribeck(fc=p["fc"], fs=p["fs"], fv=p["fv"], vs=p["vs"], kv=p["kv"], alpha=p.get("alpha", 1.0))
+    else:
+        raise InputError(f"unknown friction model {model!r}; one of {list(MODELS)}")
+    return m.force(v)[:, 0]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CurveFit:
+    """One model fitted to one joint's points.
+
+    ``names``, ``params``, ``std`` (NaN at a bound or without residual degrees of freedom),
+    ``at_bound`` per coefficient; ``cov`` (p, p); ``rmse`` [N·m or N] and ``chi2_red`` of the
+    fit; ``n_points``; ``success`` and ``message`` of the solver.
+    """
+
+    model: str
+    names: tuple[str, ...]
+    params: np.ndarray
+    std: np.ndarray
+    at_bound: np.ndarray
+    cov: np.ndarray
+    rmse: float
+    chi2_red: float
+    n_points: int
+    success: bool
+    message: str
+
+    def as_dict(self) -> dict[str, float]:
+        return dict(zip(self.names, self.params.tolist()))
+
+    def force(self, v: FloatArray) -> FloatArray:
+        return curve_force(self.model, self.as_dict(), v)
+
+
+def _bounds(names: tuple[str, ...], v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    vmin, vmax = float(v.min()), float(v.max())
+    table = {"fc": (0.0, np.inf), "fs": (0.0, np.inf), "fv": (0.0, np.inf), "vs": (vmin / 100, 100 * vmax),
+             "kv": (1e-3 / vmax, 1e4 / vmin), "alpha": (0.05, 3.0)}
+    lo, hi = zip(*(table[n] for n in names))
+    return np.array(lo), np.array(hi)
+
+
+def _starts(model: str, v: np.ndarray, f: np.ndarray, w: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+            keep: int = 3) -> list[np.ndarray]:
+    """Grid of the nonlinear coefficients, the linear ones by NNLS; the ``keep`` best."""
+    names = MODELS[model]
+    nonlinear = [n for n in names if n not in _LINEAR]
+    vmin, vmax = float(v.min()), float(v.max())
+    grids = {"vs": np.geomspace(max(vmin / 2, lo[names.index("vs")] if "vs" in names else 0), vmax, 8),
+             "kv": np.geomspace(0.1 / vmin, 100 / vmin, 7), "alpha": np.array([0.3, 0.5, 0.7, 1.0, 1.4])}
+    trials = []
+    for combo in itertools.product(*(grids[n] for n in nonlinear)):
+        p = dict(zip(nonlinear, combo))
+        a = 2 / np.pi * np.arctan(p["kv"] * v) if "kv" in p else np.ones_like(v)
+        e = np.exp(-((v / p["vs"]) ** 2)) if "vs" in p else np.zeros_like(v)
+        cols = {"fc": a * (1 - e), "fs": a * e, "fv": v ** p.get("alpha", 1.0)}
+        lin = [n for n in names if n in _LINEAR]
+        coef, res = nnls(np.column_stack([cols[n] for n in lin]) * w[:, None], f * w)
+        p.update(zip(lin, coef))
+        trials.append((res, np.clip([p[n] for n in names], lo, hi)))
+    trials.sort(key=lambda x: x[0])
+    return [x for _, x in trials[:keep]]
+
+
+def _jacobian(fun, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    cols = []
+    for i in range(x.size):
+        h = 1e-6 * max(abs(x[i]), 1e-3 * (hi[i] - lo[i]) if np.isfinite(hi[i]) else 1.0, 1e-12)
+        up, dn = x.copy(), x.copy()
+        up[i] = min(x[i] + h, hi[i]) if np.isfinite(hi[i]) else x[i] + h
+        dn[i] = max(x[i] - h, lo[i])
+        cols.append((fun(up) - fun(dn)) / (up[i] - dn[i]))
+    return np.column_stack(cols)
+
+
+def fit_curve(model: str, v: FloatArray, f: FloatArray, sigma: FloatArray | None = None) -> CurveFit:
+    """Fit ``model`` to points ``(v, f)`` with uncertainties ``sigma`` (see the module docstring).
+
+    Parameters
+    ----------
+    model : str
+        A key of :data:`MODELS`.
+    v, f : arrays (m,)
+        Speeds (> 0) [rad/s or m/s] and friction [N·m or N].
+    sigma : array (m,), optional
+        Uncertainty of each point (relative weights); default equal weights. Values below
+        1e-3 of their median are raised to it (noise-free points have a spread of round-off).
+    """
+    if model not in MODELS:
+        raise InputError(f"unknown friction model {model!r}; one of {list(MODELS)}")
+    v, f = np.asarray(v, dtype=float), np.asarray(f, dtype=float)
+    names = MODELS[model]
+    m, p = v.size, len(names)
+    if m < p:
+        raise InputError(f"{model}: {m} friction points for {p} coefficients ({', '.join(names)}); test more speeds")
+    if np.any(v <= 0) or not np.all(np.isfinite(f)):
+        raise InputError(f"{model}: speeds must be positive and friction finite")
+    s = np.ones(m) if sigma is None else np.asarray(sigma, dtype=float)
+    floor = max(1e-3 * float(np.median(s)), 1e-12 * max(float(np.abs(f).max()), 1.0), 1e-300)
+    w = 1.0 / np.maximum(s, floor)
+    lo, hi = _bounds(names, v)
+
+    def resid(x):
+        return (curve_force(model, x, v) - f) * w
+
+    best = None
+    for x0 in _starts(model, v, f, w, lo, hi):
+        x0 = np.minimum(np.maximum(x0, lo), hi)  # trf moves a start on a bound strictly inside
+        res = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                            max_nfev=2000 * p)
+        if best is None or res.cost < best.cost:
+            best = res
+    x = best.x
+    r = resid(x)
+    span = np.where(np.isfinite(hi), hi - lo, np.maximum(np.abs(x), 1.0))
+    at_bound = (x - lo <= 1e-6 * span) | (hi - x <= 1e-6 * span)
+    J = _jacobian(resid, x, lo, hi)
+    dof = m - p
+    chi2_red = float(r @ r / dof) if dof > 0 else float("nan")
+    cov = np.full((p, p), np.nan)
+    free = ~at_bound
+    if dof > 0 and free.any():
+        Jf = J[:, free]
+        try:
+            inv = np.linalg.inv(Jf.T @ Jf)
+        except np.linalg.LinAlgError:
+            inv = np.linalg.pinv(Jf.T @ Jf)
+        cov[np.ix_(free, free)] = chi2_red * inv
+    std = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
+    rmse = float(np.sqrt(np.mean((curve_force(model, x, v) - f) ** 2)))
+    return CurveFit(model=model, names=names, params=x, std=std, at_bound=at_bound, cov=cov, rmse=rmse,
+                    chi2_red=chi2_red, n_points=m, success=bool(best.success), message=str(best.message))
+
+
+def held_out_split(speed_cmd: FloatArray, repetition: FloatArray, rule: str) -> np.ndarray:
+    """Which points are held out (True) for one joint: ``"alternate_speeds"``: every other
+    commanded speed level in increasing order, from the second (the lowest and the highest
+    level of an odd count stay in the fit); ``"last_repetition"``: the points of the last
+    repetition (needs two or more)."""
+    speed_cmd, repetition = np.asarray(speed_cmd, dtype=float), np.asarray(repetition)
+    if rule == "alternate_speeds":
+        levels = np.unique(speed_cmd)
+        held = levels[1::2]
+        return np.isin(speed_cmd, held)
+    if rule == "last_repetition":
+        if np.unique(repetition).size < 2:
+            raise InputError("held_out = 'last_repetition' needs two or more repetitions of the cycles")
+        return repetition == repetition.max()
+    raise InputError(f"unknown held-out rule {rule!r}")
