@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg import lapack as sla_lapack
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
@@ -96,6 +97,215 @@ class _Sides:
         self.kinds = [c.kind for c in mech.closures]
         # row offset of each closure in the full (redundant) constraint vector
         self.offsets = np.cumsum([0] + [3 if k == "3d" else 6 for k in self.kinds])
+        # all sides at once: the sides on a moving body ("moving"), the bodies that carry them
+        # (each with its support columns as a 0/1 mask, in the output column order), and the
+        # constant matrix T that stacks the sides' [linear; angular] rows (6 per moving side)
+        # into the output rows: + side b - side a per closure, only the independent constraint
+        # rows, then the point coordinate's rows. Its entries are 0 and +-1 and every output
+        # element has at most two non-zero terms, so T @ rows is exactly the side-by-side
+        # subtraction (products by +-1 and sums with 0 are exact in floating point).
+        self.moving = np.array([s for s in range(len(sides)) if self.columns[s].size], dtype=int)
+        bodies = sorted({sides[s][0] for s in self.moving})
+        self.bodies = np.array(bodies, dtype=int)
+        self.body_of = np.array([bodies.index(sides[s][0]) for s in self.moving], dtype=int)
+        self.body_columns = [self.columns[self.moving[list(self.body_of).index(b)]] for b in range(len(bodies))]
+        self.body_mask = np.zeros((len(bodies), m.nv))  # support columns of each body, output column order
+        self.body_mask_q = np.zeros((len(bodies), m.nv))  # the same in the joints' own order
+        for b, cols in enumerate(self.body_columns):
+            self.body_mask[b, position[cols]] = 1.0
+            self.body_mask_q[b, cols] = 1.0
+        row_of = {int(s): k for k, s in enumerate(self.moving)}
+        full = np.zeros((int(self.offsets[-1]), 6 * len(self.moving)))
+        for c, kind in enumerate(self.kinds):
+            r0 = int(self.offsets[c])
+            for s, sign in ((2 * c + 1, 1.0), (2 * c, -1.0)):
+                if s not in row_of:
+                    continue
+                k = 6 * row_of[s]
+                full[r0 : r0 + 3, k : k + 3] += sign * np.eye(3)
+                if kind == "6d":
+                    full[r0 + 3 : r0 + 6, k + 3 : k + 6] += sign * np.eye(3)
+        T = full[mech.constraint_rows]
+        if not isinstance(ind, JointCoordinates):
+            extra = np.zeros((len(ind.axes), full.shape[1]))
+            s = len(sides) - 1
+            if s in row_of:
+                extra[np.arange(len(ind.axes)), 6 * row_of[s] + np.array(ind.axes)] = 1.0
+            T = np.vstack([T, extra])
+        self.T = np.ascontiguousarray(T)
+        # one sample (:func:`_one_sample`): the placements' slots of the computed points, which of
+        # them lie on the ground, and the computed point of every moving side
+        self.slot0 = np.where(self.slot < 0, 0, self.slot)
+        self.on_ground = self.slot < 0
+        self.moving_ref = self.ref_index[self.moving]
+        self.side_mask = self.body_mask[self.body_of][:, None, :]  # (moving sides, 1, n_v)
+        self.any_ground = bool(self.on_ground.any())
+        self.r1 = np.concatenate([self.r, np.ones((len(self.r), 1))], axis=1)[:, :, None]  # homogeneous
+        if isinstance(ind, JointCoordinates):  # G = dq/du: the identity on the independent joints
+            self.G_template = np.zeros((m.nv, ind.size))
+            self.G_template[u, np.arange(ind.size)] = 1.0
+
+
+class _Closures:
+    """The loop closures' sides for the residual and the Jacobian at any configuration (assembled
+    or not: :meth:`Mechanism.project`, :meth:`Mechanism.solve_positions`, :func:`actuator_states`),
+    each side at its own point. Built from the tree and the closures alone (the mechanism's
+    constraint rows are not needed: the topology check uses it before they are known)."""
+
+    def __init__(self, mech: Mechanism) -> None:
+        m = mech.pin_model
+        sides = []
+        for c in mech.closures:
+            sides += [(c.joint_a, c.placement_a), (c.joint_b, c.placement_b)]
+        self.joints = sorted({j for j, _ in sides if j != 0})  # placements read
+        slot = {j: k for k, j in enumerate(self.joints)}
+        self.slot = np.array([slot.get(j, 0) for j, _ in sides], dtype=int)
+        self.ground = np.array([j == 0 for j, _ in sides], dtype=bool)
+        self.any_ground = bool(self.ground.any())
+        self.r = np.array([pl.translation for _, pl in sides], dtype=float).reshape(-1, 3)
+        self.r1 = np.concatenate([self.r, np.ones((len(sides), 1))], axis=1)[:, :, None]  # homogeneous
+        self.rotations = np.array([pl.rotation for _, pl in sides], dtype=float).reshape(-1, 3, 3)
+        self.kinds = [c.kind for c in mech.closures]
+        self.offsets = np.cumsum([0] + [3 if k == "3d" else 6 for k in self.kinds])
+        self.all_3d = all(k == "3d" for k in self.kinds)
+        self.moving = np.array([s for s, (j, _) in enumerate(sides) if j != 0], dtype=int)
+        self.mask = np.zeros((self.moving.size, 1, m.nv))  # support columns of each moving side's body
+        for k, s in enumerate(self.moving):
+            for a in m.supports[sides[s][0]].tolist()[1:]:
+                jm = m.joints[a]
+                self.mask[k, 0, jm.idx_v : jm.idx_v + jm.nv] = 1.0
+        # [linear; angular] rows of the moving sides -> closure rows (side b minus side a; exact,
+        # as _Sides.T: entries 0 and +-1, at most two non-zero terms per element)
+        row_of = {int(s): k for k, s in enumerate(self.moving)}
+        T = np.zeros((int(self.offsets[-1]), 6 * self.moving.size))
+        for c, kind in enumerate(self.kinds):
+            r0 = int(self.offsets[c])
+            for s, sign in ((2 * c + 1, 1.0), (2 * c, -1.0)):
+                if s in row_of:
+                    k = 6 * row_of[s]
+                    T[r0 : r0 + 3, k : k + 3] += sign * np.eye(3)
+                    if kind == "6d":
+                        T[r0 + 3 : r0 + 6, k + 3 : k + 6] += sign * np.eye(3)
+        self.T = T
+
+    def frames(self, data: pin.Data) -> tuple[FloatArray, FloatArray]:
+        """World positions (sides, 3) of every side point and the joints' homogeneous placements
+        (slots, 4, 4), from the placements in ``data`` (after a kinematics pass)."""
+        oMi = data.oMi
+        H = np.array([oMi[j].homogeneous for j in self.joints]) if self.joints else np.zeros((1, 4, 4))
+        Hs = H[self.slot]
+        P = np.matmul(Hs[:, :3], self.r1)[:, :, 0]  # R r + t
+        if self.any_ground:
+            P[self.ground] = self.r[self.ground]
+        return P, Hs
+
+    def rotation(self, Hs: FloatArray, s: int) -> FloatArray:
+        """World orientation of side ``s``'s frame."""
+        return self.rotations[s] if self.ground[s] else Hs[s, :3, :3] @ self.rotations[s]
+
+
+def _closures(mech: Mechanism) -> _Closures:
+    cached = mech.__dict__.get("_closures_cache")
+    if cached is None:
+        cached = _Closures(mech)
+        object.__setattr__(mech, "_closures_cache", cached)
+    return cached
+
+
+def row_space(A: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+    """Householder QR of :math:`A^T` (A: m x n, m <= n, full row rank): ``Q`` (n, m) with
+    orthonormal columns spanning the rows of A and ``R`` (m, m) in the upper triangle of the
+    returned block (below it: Householder vectors), :math:`A = R^T Q^T`. None when A is
+    (numerically) rank deficient: a diagonal element of R at or below ``max(m, n) eps`` of the
+    largest (:func:`numpy.linalg.lstsq`'s default cut on the singular values), where a caller
+    falls back to the SVD. Three LAPACK calls instead of an SVD: the projection onto the loop
+    closures runs every control period, the position solve of :func:`actuator_states` every sample."""
+    m, n = A.shape
+    if m > n or not m:
+        return None
+    qr, tau, _, info = sla_lapack.dgeqrf(A.T)
+    d = np.abs(np.diag(qr))
+    if info != 0 or not d.min() > max(m, n) * np.finfo(float).eps * d.max():
+        return None
+    Q, _, info = sla_lapack.dorgqr(qr, tau)
+    return (Q, qr[:m]) if info == 0 else None
+
+
+def lstsq_full_rank(A: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.linalg.lstsq(A, b, rcond=None)[0]`` (to rounding) where A (m x n) has full rank: for
+    m <= n the minimum-norm solution :math:`x = Q R^{-T} b` (:func:`row_space`), for m > n the
+    least-squares solution :math:`x = R^{-1} Q^T b` of :math:`A = QR`; the SVD where A is rank
+    deficient (a singular configuration)."""
+    m, n = A.shape
+    if m <= n:
+        f = row_space(A)
+        if f is not None:
+            y, info = sla_lapack.dtrtrs(f[1], b, lower=0, trans=1)
+            if info == 0:
+                return f[0] @ y
+    else:
+        qr, tau, _, info = sla_lapack.dgeqrf(A)
+        d = np.abs(np.diag(qr))
+        if info == 0 and d.min() > m * np.finfo(float).eps * d.max():
+            Q, _, info = sla_lapack.dorgqr(qr, tau)
+            if info == 0:
+                x, info = sla_lapack.dtrtrs(qr[:n], Q.T @ b, lower=0, trans=0)
+                if info == 0:
+                    return x
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def closure_geometry(mech: Mechanism, q: FloatArray, data: pin.Data, jacobian: bool = True) -> tuple:
+    """One kinematics pass at ``q`` for :func:`closure_residual` and :func:`closure_jacobian`:
+    the joint Jacobians (with the placements; None with ``jacobian=False``: the placements only),
+    the sides' points and their joints' placements."""
+    if jacobian:
+        J = pin.computeJointJacobians(mech.pin_model, data, q)
+    else:
+        J = None
+        pin.forwardKinematics(mech.pin_model, data, q)
+    return (J, *_closures(mech).frames(data))
+
+
+def closure_residual(mech: Mechanism, q: FloatArray, data: pin.Data, geometry: tuple | None = None) -> FloatArray:
+    """:math:`c(q)` stacked over the closures (all rows): point gaps and, for ``6d``, the
+    relative rotation vector :math:`R_a\\log_3(R_a^T R_b)` in world axes; one forward
+    kinematics pass (or ``geometry``, :func:`closure_geometry` at ``q``), the sides' points at once."""
+    cl = _closures(mech)
+    _, P, Hs = closure_geometry(mech, q, data, jacobian=False) if geometry is None else geometry
+    gap = P[1::2] - P[0::2]  # (closures, 3): side b minus side a
+    if cl.all_3d:
+        return gap.reshape(-1)
+    out = []
+    for c, kind in enumerate(cl.kinds):
+        out.append(gap[c])
+        if kind == "6d":
+            Ra, Rb = cl.rotation(Hs, 2 * c), cl.rotation(Hs, 2 * c + 1)
+            out.append(Ra @ pin.log3(Ra.T @ Rb))
+    return np.concatenate(out)
+
+
+def closure_jacobian(mech: Mechanism, q: FloatArray, data: pin.Data, exact: bool = False,
+                     geometry: tuple | None = None) -> FloatArray:
+    """:math:`J_c(q)` (all rows, the joints' own column order), each side at its own point:
+    :math:`J_v - [p]_\\times J_\\omega` on the support of its body. ``exact``: the rotation rows of
+    ``6d`` closures are :math:`\\partial\\log_3/\\partial q` (for Newton), otherwise the relative
+    angular velocity in the world frame (same null space). ``geometry``: :func:`closure_geometry`
+    at ``q`` (with the Jacobians)."""
+    cl = _closures(mech)
+    J, P, Hs = closure_geometry(mech, q, data) if geometry is None or geometry[0] is None else geometry
+    if not cl.moving.size:
+        return np.zeros((cl.T.shape[0], q.size))
+    Jk = J * cl.mask  # (moving sides, 6, n_v)
+    Jw = Jk[:, 3:]
+    rows = cl.T @ np.concatenate([Jk[:, :3] - _skew(P[cl.moving]) @ Jw, Jw], axis=1).reshape(-1, q.size)
+    if exact and not cl.all_3d:  # d/dt of Ra log3(Ra^T Rb), Ra held constant (exact at the solution)
+        for c, kind in enumerate(cl.kinds):
+            if kind == "6d":
+                r0 = int(cl.offsets[c]) + 3
+                Ra, Rb = cl.rotation(Hs, 2 * c), cl.rotation(Hs, 2 * c + 1)
+                rows[r0 : r0 + 3] = Ra @ pin.Jlog3(Ra.T @ Rb) @ Rb.T @ rows[r0 : r0 + 3]
+    return rows
 
 
 def _sides(mech: Mechanism) -> _Sides:
@@ -152,64 +362,27 @@ def _side_points(mech: Mechanism, H: FloatArray) -> FloatArray:
     return p[:, sd.ref_index]
 
 
-def _assemble(mech: Mechanism, n: int, side_rows) -> FloatArray:
-    """Constraint rows (independent ones) then coordinate rows, shape (n, n_rows, n_v).
-
-    Columns are in the order of ``_Sides.out_columns``: for joint coordinates the dependent
-    joints first, then the independent ones.
-
-    ``side_rows(s)`` gives, for side ``s``, its linear and angular Jacobian rows on its
-    support columns, shapes (n, 3, m_s) each."""
-    sd = _sides(mech)
-    nv = mech.nv
-    full = np.zeros((n, int(sd.offsets[-1]), nv))
-    for c, kind in enumerate(sd.kinds):
-        r0 = int(sd.offsets[c])
-        for s, sign in ((2 * c + 1, 1.0), (2 * c, -1.0)):
-            cols = sd.columns[s]
-            if cols.size == 0:
-                continue
-            lin, ang = side_rows(s)
-            out_cols = sd.out_columns[s]
-            full[:, r0 : r0 + 3, out_cols] += sign * lin
-            if kind == "6d":
-                full[:, r0 + 3 : r0 + 6, out_cols] += sign * ang
-    rows = full[:, mech.constraint_rows]
-    ind = mech.independent
-    if isinstance(ind, JointCoordinates):
-        return rows
-    s = sd.n_sides - 1
-    cols = sd.columns[s]
-    extra = np.zeros((n, len(ind.axes), nv))
-    if cols.size:
-        extra[:, :, cols] = side_rows(s)[0][:, list(ind.axes)]
-    return np.concatenate([rows, extra], axis=1)
-
-
-def _cross_m(p: FloatArray, M: FloatArray) -> FloatArray:
-    """``p x M[:, :, k]`` for every column k: p (n, 3), M (n, 3, m)."""
-    px, py, pz = p[:, 0, None], p[:, 1, None], p[:, 2, None]
-    mx, my, mz = M[:, 0], M[:, 1], M[:, 2]
-    return np.stack([py * mz - pz * my, pz * mx - px * mz, px * my - py * mx], axis=1)
-
-
 def _velocity_rows(mech: Mechanism, q: FloatArray, data: pin.Data | None = None) -> tuple[FloatArray, tuple]:
     """Rows :math:`[J_c; J_u]` per sample, shape (n, n_v, n_v), and the geometry for reuse.
 
     For joint coordinates only the independent constraint rows are returned, shape
     (n, n_v - n_u, n_v), with the columns reordered as [dependent joints, independent
-    joints] (``_Sides.w``, ``_Sides.u``)."""
+    joints] (``_Sides.w``, ``_Sides.u``).
+
+    Every side at once: the world Jacobian restricted to the support of each side's body
+    (a 0/1 column mask), the point's linear rows :math:`J_v - p\\times J_\\omega`, then the
+    constant matrix ``_Sides.T`` stacks them into closure rows (side b minus side a, exact:
+    see :class:`_Sides`)."""
     data = mech.pin_model.createData() if data is None else data
     J, H = _placements(mech, q, data)
     p = _side_points(mech, H)
-    cols = _sides(mech).columns
-
-    def side_rows(s: int) -> tuple[FloatArray, FloatArray]:
-        Js = J[:, :, cols[s]]
-        Jw = Js[:, 3:]
-        return Js[:, :3] - _cross_m(p[:, s], Jw), Jw
-
-    return _assemble(mech, q.shape[0], side_rows), (J, p)
+    sd = _sides(mech)
+    n, nv = q.shape
+    Jb = J[:, None][..., sd.order] * sd.body_mask[None, :, None, :]  # (n, bodies, 6, n_v)
+    Jk = Jb[:, sd.body_of]  # (n, moving sides, 6, n_v)
+    lin = Jk[:, :, :3] - _cross_cols(p[:, sd.moving], Jk[:, :, 3:])
+    rows = np.matmul(sd.T, np.concatenate([lin, Jk[:, :, 3:]], axis=2).reshape(n, -1, nv))
+    return rows, (J, p)
 
 
 def _invert(A: FloatArray, max_cond: float, what: str = "[J_c; J_u]", offset: int = 0) -> tuple[FloatArray, FloatArray]:
@@ -285,43 +458,21 @@ def _drift(mech: Mechanism, q: FloatArray, dq: FloatArray, J: FloatArray, p: Flo
     for i in range(n):
         tv(model, data, q[i], dq[i])
         dJ[i] = data.dJ
+    if not sd.moving.size:
+        return np.zeros((n, sd.T.shape[0]))
     # spatial velocity (at the world origin) and acceleration (at q-ddot = 0) of every body that
-    # carries a side, once per body (the platform of a hexapod carries six sides)
-    spatial: dict[int, tuple[FloatArray, FloatArray]] = {}
-    moving = [s for s in range(sd.n_sides) if sd.columns[s].size]
-    for s in moving:
-        j = sd.side_joints[s]
-        if j not in spatial:
-            c = sd.columns[s]
-            v = dq[:, c]
-            spatial[j] = (np.einsum("nkm,nm->nk", J[:, :, c], v), np.einsum("nkm,nm->nk", dJ[:, :, c], v))
-    # classical acceleration of every side point, all sides at once (n, sides, 3): element by
-    # element the same arithmetic as one side at a time, without a Python call per side
-    row = {s: k for k, s in enumerate(moving)}
-    lin = ang = np.zeros((n, 0, 3))
-    if moving:
-        V = np.stack([spatial[sd.side_joints[s]][0] for s in moving], axis=1)
-        A = np.stack([spatial[sd.side_joints[s]][1] for s in moving], axis=1)
-        w, ps = V[:, :, 3:], p[:, moving]
-        vp = V[:, :, :3] + _cross(w, ps)
-        lin, ang = A[:, :, :3] + _cross(A[:, :, 3:], ps) + _cross(w, vp), A[:, :, 3:]
-
-    full = np.zeros((n, int(sd.offsets[-1])))
-    for c, kind in enumerate(sd.kinds):
-        r0 = int(sd.offsets[c])
-        for s, sign in ((2 * c + 1, 1.0), (2 * c, -1.0)):
-            if s not in row:
-                continue
-            full[:, r0 : r0 + 3] += sign * lin[:, row[s]]
-            if kind == "6d":
-                full[:, r0 + 3 : r0 + 6] += sign * ang[:, row[s]]
-    drift = full[:, mech.constraint_rows]
-    ind = mech.independent
-    if isinstance(ind, JointCoordinates):
-        return drift
-    s = sd.n_sides - 1
-    extra = lin[:, row[s]][:, list(ind.axes)] if s in row else np.zeros((n, len(ind.axes)))
-    return np.concatenate([drift, extra], axis=1)
+    # carries a side, once per body (the platform of a hexapod carries six sides): the joint
+    # Jacobian and its time variation on the body's support columns times q-dot
+    v = dq[:, None, :] * sd.body_mask_q[None]  # (n, bodies, n_v)
+    Vb = np.einsum("nkm,nbm->nbk", J, v)
+    Ab = np.einsum("nkm,nbm->nbk", dJ, v)
+    # classical acceleration of every side point (n, sides, 3)
+    V, A = Vb[:, sd.body_of], Ab[:, sd.body_of]
+    w, ps = V[:, :, 3:], p[:, sd.moving]
+    vp = V[:, :, :3] + _cross(w, ps)
+    lin = A[:, :, :3] + _cross(A[:, :, 3:], ps) + _cross(w, vp)
+    # stacked as the velocity rows are (side b minus side a, independent rows, point coordinate)
+    return np.matmul(np.concatenate([lin, A[:, :, 3:]], axis=2).reshape(n, -1), sd.T.T)
 
 
 def _check(mech: Mechanism, x: FloatArray, shape: tuple[int, int], name: str) -> FloatArray:
@@ -348,6 +499,9 @@ def states(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray, *, m
     du = _check(mech, du, (n, n_u), "du")
     ddu = _check(mech, ddu, (n, n_u), "ddu")
     data = mech.pin_model.createData() if data is None else data
+    if n == 1:  # a controller's call: one sample
+        dq, ddq, G, c = _one_sample(mech, q[0], du[0], ddu[0], max_cond, data)
+        return KinematicState(q=q, dq=dq[None], ddq=ddq[None], G=G[None], cond=np.array([c]))
     dq, ddq = np.empty_like(q), np.empty_like(q)
     G, cond = np.empty((n, mech.nv, n_u)), np.empty(n)
     for a in range(0, n, _BLOCK):
@@ -359,6 +513,81 @@ def states(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray, *, m
         ddq[a:b] = maps.accelerations(ddu[a:b], drift)
         G[a:b], cond[a:b] = maps.G, maps.cond
     return KinematicState(q=q, dq=dq, ddq=ddq, G=G, cond=cond)
+
+
+def _one_sample(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray, max_cond: float,
+                data: pin.Data) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+    """:func:`states` of one sample, ``q`` (n_v,), ``du``, ``ddu`` (n_u,): ``dq``, ``ddq``, ``G``
+    and the condition number. The batched route's formulas on 2-D arrays, with the cross
+    products as products by skew matrices (a controller calls it every period, and there the
+    batched route's cost is the per-call overhead of some hundred operations on small arrays;
+    the two agree to rounding, tests/test_simulation_mechanism.py)."""
+    sd = _sides(mech)
+    model = mech.pin_model
+    nv = q.size
+    J = pin.computeJointJacobians(model, data, q)
+    oMi = data.oMi
+    H = np.array([oMi[j].homogeneous for j in sd.joints]) if sd.joints else np.zeros((1, 4, 4))
+    p = np.matmul(H[sd.slot0, :3], sd.r1)[:, :, 0]  # R r + t
+    if sd.any_ground:
+        p[sd.on_ground] = sd.r[sd.on_ground]
+    pk = p[sd.moving_ref]  # (moving sides, 3)
+    Sp = _skew(pk)
+    Jk = J[:, sd.order] * sd.side_mask  # (moving sides, 6, n_v)
+    Jw = Jk[:, 3:]
+    rows = sd.T @ np.concatenate([Jk[:, :3] - Sp @ Jw, Jw], axis=1).reshape(-1, nv)
+    ind = mech.independent
+    joint_coords = isinstance(ind, JointCoordinates)
+    A = rows[:, : sd.w.size] if joint_coords else rows
+    inv, cond = _invert_one(A, max_cond, "the loop-closure Jacobian of the dependent joints" if joint_coords else "[J_c; J_u]")
+    if joint_coords:
+        Jcu = rows[:, sd.w.size :]
+        G = sd.G_template.copy()
+        G[sd.w] = -(inv @ Jcu)
+    else:
+        G = np.ascontiguousarray(inv[:, nv - ind.size :])
+    dq = G @ du
+    drift = np.zeros(sd.T.shape[0])
+    if sd.moving.size:
+        pin.computeJointJacobiansTimeVariation(model, data, q, dq)
+        v = dq * sd.body_mask_q  # (bodies, n_v)
+        V, Ac = (v @ J.T)[sd.body_of], (v @ data.dJ.T)[sd.body_of]  # (moving sides, 6)
+        w = V[:, 3:]
+        # p x [omega, alpha]: v_p = v + omega x p, a_p = a + alpha x p + omega x v_p
+        px = Sp @ np.stack([w, Ac[:, 3:]], axis=2)
+        vp = V[:, :3] - px[:, :, 0]
+        lin = Ac[:, :3] - px[:, :, 1] + (_skew(w) @ vp[:, :, None])[:, :, 0]
+        drift = np.concatenate([lin, Ac[:, 3:]], axis=1).reshape(-1) @ sd.T.T
+    if joint_coords:
+        ddq = np.empty(nv)
+        ddq[sd.u] = ddu
+        ddq[sd.w] = inv @ (-(Jcu @ ddu) - drift)
+    else:
+        ddq = G @ ddu - inv @ drift
+    return dq, ddq, G, cond
+
+
+_SKEW = np.zeros((3, 9))
+_SKEW[2, 1] = _SKEW[0, 5] = _SKEW[1, 6] = -1.0
+_SKEW[1, 2] = _SKEW[2, 3] = _SKEW[0, 7] = 1.0
+
+
+def _skew(p: FloatArray) -> FloatArray:
+    """Skew matrices :math:`[p]_\\times` of rows ``p`` (k, 3), shape (k, 3, 3) (exact: each entry
+    is one element of p or its negative)."""
+    return (p @ _SKEW).reshape(-1, 3, 3)
+
+
+def _invert_one(A: FloatArray, max_cond: float, what: str) -> tuple[FloatArray, float]:
+    """:func:`_invert` of one square matrix, by LAPACK's LU directly."""
+    lu, piv, info = sla_lapack.dgetrf(A)
+    inv = None
+    if info == 0:
+        inv, info = sla_lapack.dgetri(lu, piv)
+    cond = float(np.abs(A).sum(axis=0).max() * np.abs(inv).sum(axis=0).max()) if info == 0 else np.inf
+    if not np.isfinite(cond) or cond > max_cond:
+        raise ModelError(f"sample 0: singular configuration (condition number of {what} = {cond:.3g} > {max_cond:.3g})")
+    return inv, cond
 
 
 def kinematic_state(mech: Mechanism, q: FloatArray, dq: FloatArray, ddq: FloatArray, *, max_cond: float = 1e8) -> KinematicState:
@@ -447,14 +676,15 @@ def actuator_states(
         if q_start is not None:
             q = q_start[i].copy()
         for it in range(max_iter + 1):
-            c = mech._constraint_residual(q, data)[rows]
+            geometry = closure_geometry(mech, q, data)  # one pass for the residual and the Jacobian
+            c = closure_residual(mech, q, data, geometry)[rows]
             ea = q[act] - qa[i]
-            if q_start is not None and it == 0 and max(np.linalg.norm(c, np.inf), np.linalg.norm(ea, np.inf)) < tol:
+            if q_start is not None and it == 0 and max(np.abs(c).max(initial=0.0), np.abs(ea).max()) < tol:
                 break
-            A = np.vstack([mech._constraint_jacobian(q, data, exact=True)[rows], Sa])
+            A = np.vstack([closure_jacobian(mech, q, data, True, geometry)[rows], Sa])
             F = np.concatenate([c, ea])
-            step, *_ = np.linalg.lstsq(A, F, rcond=None)
-            if np.linalg.norm(step, np.inf) < tol:
+            step = lstsq_full_rank(A, F)
+            if np.abs(step).max() < tol:  # the infinity norm
                 break
             if it == max_iter:
                 cond = np.linalg.cond(A)
