@@ -97,8 +97,11 @@ class _Sides:
         self.kinds = [c.kind for c in mech.closures]
         # row offset of each closure in the full (redundant) constraint vector
         self.offsets = np.cumsum([0] + [3 if k == "3d" else 6 for k in self.kinds])
-        # all sides at once: the sides on a moving body ("moving"), the bodies that carry them
-        # (each with its support columns as a 0/1 mask, in the output column order), and the
+        # one sample (:func:`_one_sample`, a controller's call) takes all sides at once (the
+        # batched route goes side by side: over many samples the sides' own column slices are
+        # cheaper than masks over all columns): the sides on a moving body ("moving"), the
+        # bodies that carry them (each with its support columns as a 0/1 mask, in the output
+        # column order), and the
         # constant matrix T that stacks the sides' [linear; angular] rows (6 per moving side)
         # into the output rows: + side b - side a per closure, only the independent constraint
         # rows, then the point coordinate's rows. Its entries are 0 and +-1 and every output
@@ -362,27 +365,64 @@ def _side_points(mech: Mechanism, H: FloatArray) -> FloatArray:
     return p[:, sd.ref_index]
 
 
+def _assemble(mech: Mechanism, n: int, side_rows) -> FloatArray:
+    """Constraint rows (independent ones) then coordinate rows, shape (n, n_rows, n_v).
+
+    Columns are in the order of ``_Sides.out_columns``: for joint coordinates the dependent
+    joints first, then the independent ones.
+
+    ``side_rows(s)`` gives, for side ``s``, its linear and angular Jacobian rows on its
+    support columns, shapes (n, 3, m_s) each."""
+    sd = _sides(mech)
+    nv = mech.nv
+    full = np.zeros((n, int(sd.offsets[-1]), nv))
+    for c, kind in enumerate(sd.kinds):
+        r0 = int(sd.offsets[c])
+        for s, sign in ((2 * c + 1, 1.0), (2 * c, -1.0)):
+            cols = sd.columns[s]
+            if cols.size == 0:
+                continue
+            lin, ang = side_rows(s)
+            out_cols = sd.out_columns[s]
+            full[:, r0 : r0 + 3, out_cols] += sign * lin
+            if kind == "6d":
+                full[:, r0 + 3 : r0 + 6, out_cols] += sign * ang
+    rows = full[:, mech.constraint_rows]
+    ind = mech.independent
+    if isinstance(ind, JointCoordinates):
+        return rows
+    s = sd.n_sides - 1
+    cols = sd.columns[s]
+    extra = np.zeros((n, len(ind.axes), nv))
+    if cols.size:
+        extra[:, :, cols] = side_rows(s)[0][:, list(ind.axes)]
+    return np.concatenate([rows, extra], axis=1)
+
+
+def _cross_m(p: FloatArray, M: FloatArray) -> FloatArray:
+    """``p x M[:, :, k]`` for every column k: p (n, 3), M (n, 3, m)."""
+    px, py, pz = p[:, 0, None], p[:, 1, None], p[:, 2, None]
+    mx, my, mz = M[:, 0], M[:, 1], M[:, 2]
+    return np.stack([py * mz - pz * my, pz * mx - px * mz, px * my - py * mx], axis=1)
+
+
 def _velocity_rows(mech: Mechanism, q: FloatArray, data: pin.Data | None = None) -> tuple[FloatArray, tuple]:
     """Rows :math:`[J_c; J_u]` per sample, shape (n, n_v, n_v), and the geometry for reuse.
 
     For joint coordinates only the independent constraint rows are returned, shape
     (n, n_v - n_u, n_v), with the columns reordered as [dependent joints, independent
-    joints] (``_Sides.w``, ``_Sides.u``).
-
-    Every side at once: the world Jacobian restricted to the support of each side's body
-    (a 0/1 column mask), the point's linear rows :math:`J_v - p\\times J_\\omega`, then the
-    constant matrix ``_Sides.T`` stacks them into closure rows (side b minus side a, exact:
-    see :class:`_Sides`)."""
+    joints] (``_Sides.w``, ``_Sides.u``)."""
     data = mech.pin_model.createData() if data is None else data
     J, H = _placements(mech, q, data)
     p = _side_points(mech, H)
-    sd = _sides(mech)
-    n, nv = q.shape
-    Jb = J[:, None][..., sd.order] * sd.body_mask[None, :, None, :]  # (n, bodies, 6, n_v)
-    Jk = Jb[:, sd.body_of]  # (n, moving sides, 6, n_v)
-    lin = Jk[:, :, :3] - _cross_cols(p[:, sd.moving], Jk[:, :, 3:])
-    rows = np.matmul(sd.T, np.concatenate([lin, Jk[:, :, 3:]], axis=2).reshape(n, -1, nv))
-    return rows, (J, p)
+    cols = _sides(mech).columns
+
+    def side_rows(s: int) -> tuple[FloatArray, FloatArray]:
+        Js = J[:, :, cols[s]]
+        Jw = Js[:, 3:]
+        return Js[:, :3] - _cross_m(p[:, s], Jw), Jw
+
+    return _assemble(mech, q.shape[0], side_rows), (J, p)
 
 
 def _invert(A: FloatArray, max_cond: float, what: str = "[J_c; J_u]", offset: int = 0) -> tuple[FloatArray, FloatArray]:
@@ -458,21 +498,43 @@ def _drift(mech: Mechanism, q: FloatArray, dq: FloatArray, J: FloatArray, p: Flo
     for i in range(n):
         tv(model, data, q[i], dq[i])
         dJ[i] = data.dJ
-    if not sd.moving.size:
-        return np.zeros((n, sd.T.shape[0]))
     # spatial velocity (at the world origin) and acceleration (at q-ddot = 0) of every body that
-    # carries a side, once per body (the platform of a hexapod carries six sides): the joint
-    # Jacobian and its time variation on the body's support columns times q-dot
-    v = dq[:, None, :] * sd.body_mask_q[None]  # (n, bodies, n_v)
-    Vb = np.einsum("nkm,nbm->nbk", J, v)
-    Ab = np.einsum("nkm,nbm->nbk", dJ, v)
-    # classical acceleration of every side point (n, sides, 3)
-    V, A = Vb[:, sd.body_of], Ab[:, sd.body_of]
-    w, ps = V[:, :, 3:], p[:, sd.moving]
-    vp = V[:, :, :3] + _cross(w, ps)
-    lin = A[:, :, :3] + _cross(A[:, :, 3:], ps) + _cross(w, vp)
-    # stacked as the velocity rows are (side b minus side a, independent rows, point coordinate)
-    return np.matmul(np.concatenate([lin, A[:, :, 3:]], axis=2).reshape(n, -1), sd.T.T)
+    # carries a side, once per body (the platform of a hexapod carries six sides)
+    spatial: dict[int, tuple[FloatArray, FloatArray]] = {}
+    moving = [s for s in range(sd.n_sides) if sd.columns[s].size]
+    for s in moving:
+        j = sd.side_joints[s]
+        if j not in spatial:
+            c = sd.columns[s]
+            v = dq[:, c]
+            spatial[j] = (np.einsum("nkm,nm->nk", J[:, :, c], v), np.einsum("nkm,nm->nk", dJ[:, :, c], v))
+    # classical acceleration of every side point, all sides at once (n, sides, 3): element by
+    # element the same arithmetic as one side at a time, without a Python call per side
+    row = {s: k for k, s in enumerate(moving)}
+    lin = ang = np.zeros((n, 0, 3))
+    if moving:
+        V = np.stack([spatial[sd.side_joints[s]][0] for s in moving], axis=1)
+        A = np.stack([spatial[sd.side_joints[s]][1] for s in moving], axis=1)
+        w, ps = V[:, :, 3:], p[:, moving]
+        vp = V[:, :, :3] + _cross(w, ps)
+        lin, ang = A[:, :, :3] + _cross(A[:, :, 3:], ps) + _cross(w, vp), A[:, :, 3:]
+
+    full = np.zeros((n, int(sd.offsets[-1])))
+    for c, kind in enumerate(sd.kinds):
+        r0 = int(sd.offsets[c])
+        for s, sign in ((2 * c + 1, 1.0), (2 * c, -1.0)):
+            if s not in row:
+                continue
+            full[:, r0 : r0 + 3] += sign * lin[:, row[s]]
+            if kind == "6d":
+                full[:, r0 + 3 : r0 + 6] += sign * ang[:, row[s]]
+    drift = full[:, mech.constraint_rows]
+    ind = mech.independent
+    if isinstance(ind, JointCoordinates):
+        return drift
+    s = sd.n_sides - 1
+    extra = lin[:, row[s]][:, list(ind.axes)] if s in row else np.zeros((n, len(ind.axes)))
+    return np.concatenate([drift, extra], axis=1)
 
 
 def _check(mech: Mechanism, x: FloatArray, shape: tuple[int, int], name: str) -> FloatArray:
@@ -708,11 +770,12 @@ def actuator_states(
     drift = _drift(mech, Q, dq, J, p, data)[:, :nc]
     rhs_a = np.concatenate([-drift, ddqa], axis=1)
     ddq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_a)[..., None])[..., 0]
-    try:
-        state = kinematic_state(mech, Q, dq, ddq, max_cond=max_cond)
+    dq, ddq = _check(mech, dq, (n, mech.nv), "dq"), _check(mech, ddq, (n, mech.nv), "ddq")
+    try:  # the velocity map from the rows above (what kinematic_state would compute again)
+        maps = _Maps(mech, Jrows, max_cond)
     except ModelError as exc:
         raise ModelError(f"samples {sample_offset}..{sample_offset + n - 1}: {exc}") from None
-    return state, resid
+    return KinematicState(q=Q, dq=dq, ddq=ddq, G=maps.G, cond=maps.cond), resid
 
 
 def platform_pose(mech: Mechanism, qa: FloatArray, *, q0: FloatArray | None = None) -> FloatArray:
