@@ -356,3 +356,21 @@ def test_qr_least_squares_equal_the_svd():
     b = rng.standard_normal(18)
     b[5] = b[3]
     np.testing.assert_allclose(lstsq_full_rank(A, b), np.linalg.lstsq(A, b, rcond=None)[0], atol=1e-12)
+
+
+def test_actuator_states_from_starts_reports_the_sample_that_cannot_be_assembled():
+    """From starting points the position solve runs on blocks of samples at once; a sample whose
+    actuator positions no assembly reaches (one strut 3 m longer than the others allow) is still
+    a one-line ModelError naming that sample (with the chunk's offset), as sample by sample."""
+    from dynid.errors import ModelError
+    from dynid.model.loop_kinematics import actuator_states
+
+    mech = build_mechanism("hexapod")
+    st = random_consistent_states(mech, 8, np.random.default_rng(2))
+    act = list(mech.actuated)
+    qa = st.q[:, act].copy()
+    qa[5, 2] += 3.0
+    with pytest.raises(ModelError, match=r"^sample 105: actuator positions .* cannot be assembled"):
+        actuator_states(mech, qa, st.dq[:, act], st.ddq[:, act], q_start=st.q, sample_offset=100)
+    with pytest.raises(ModelError, match=r"^sample 105: "):  # sample by sample (no starting points): the same
+        actuator_states(mech, qa, st.dq[:, act], st.ddq[:, act], sample_offset=100)
