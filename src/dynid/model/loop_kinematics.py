@@ -109,7 +109,6 @@ class _Sides:
         # subtraction (products by +-1 and sums with 0 are exact in floating point).
         self.moving = np.array([s for s in range(len(sides)) if self.columns[s].size], dtype=int)
         bodies = sorted({sides[s][0] for s in self.moving})
-        self.bodies = np.array(bodies, dtype=int)
         self.body_of = np.array([bodies.index(sides[s][0]) for s in self.moving], dtype=int)
         self.body_columns = [self.columns[self.moving[list(self.body_of).index(b)]] for b in range(len(bodies))]
         self.body_mask = np.zeros((len(bodies), m.nv))  # support columns of each body, output column order
