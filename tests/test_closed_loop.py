@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import _loop_reference as reference
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -243,3 +244,133 @@ def test_actuator_states_start_from_known_joint_positions():
     assert np.max(np.abs(near.q - ref.q)) < 1e-9
     with pytest.raises(InputError, match="starting joint positions"):
         actuator_states(mech, qa, dqa, ddqa, q_start=ref.q[:, :3])
+
+
+# ---------------------------------------------------------------- the vectorized closure rows
+def _weld_fivebar():
+    """The five-bar with its connect replaced by a weld ('6d'): a four-bar, 1 DOF (as in
+    tests/test_mechanism_io.py)."""
+    import tempfile
+    from importlib import resources
+    from pathlib import Path
+
+    from dynid.model.mechanism_io import load_mechanism_mjcf
+
+    text = (resources.files("dynid.model.robots") / "fivebar.xml").read_text()
+    connect = '<connect name="P" body1="dist1" body2="dist2" anchor="0.27 0 0.36"/>'
+    assert connect in text
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "weld.xml"
+        path.write_text(text.replace(connect, '<weld name="W" body1="dist1" body2="dist2"/>'))
+        return load_mechanism_mjcf(path, actuated=["qa1"])
+
+
+def _grounded_fourbar():
+    """A planar four-bar closed on the ground: three revolute links in a chain, the tip of the
+    third pinned to a world point (a closure side on the fixed base, joint 0)."""
+    from dynid.model.mechanism import LoopClosure, Mechanism
+
+    model = pin.Model()
+    parent, place = 0, pin.SE3.Identity()
+    for k, length in enumerate((0.5, 1.0, 0.8)):
+        parent = model.addJoint(parent, pin.JointModelRZ(), place, f"j{k + 1}")
+        inertia = pin.Inertia(1.0 + k, np.array([length / 2, 0.0, 0.0]), np.diag([0.01, 0.02 + 0.01 * k, 0.03]))
+        model.appendBodyToJoint(parent, inertia, pin.SE3.Identity())
+        place = pin.SE3(np.eye(3), np.array([length, 0.0, 0.0]))
+    tip = LoopClosure("tip", 3, pin.SE3(np.eye(3), np.array([0.8, 0.0, 0.0])), 0,
+                      pin.SE3(np.eye(3), np.array([1.1, 0.1, 0.0])))
+    return Mechanism(model, (tip,), actuated=(0,), q_guess=np.array([1.5, -1.2, -1.6]), name="grounded four-bar")
+
+
+CLOSURE_CASES = NAMES + ["weld fivebar", "grounded fourbar"]
+
+
+def _closure_case(name):
+    if name in NAMES:
+        return mechanism(name)
+    if name not in _CACHE:
+        _CACHE[name] = {"weld fivebar": _weld_fivebar, "grounded fourbar": _grounded_fourbar}[name]()
+    return _CACHE[name]
+
+
+@pytest.mark.parametrize("name", CLOSURE_CASES)
+def test_closure_rows_equal_the_per_closure_route_and_the_derivative(name):
+    """The loop-closure residual and Jacobian, computed for all sides at once (one pass, masks and
+    a constant +-1 stacking matrix), equal the closure-by-closure route to rounding, off the
+    assembly too (the projection and the position solves start there); and the exact Jacobian is
+    the derivative of the residual (central differences at an assembled configuration, h = 1e-6:
+    truncation h^2 |c'''| and rounding eps |c| / h, both far below 1e-7 of the scale)."""
+    mech = _closure_case(name)
+    rng = np.random.default_rng(3)
+    data = mech.pin_model.createData()
+    for q in mech.q_ref + 1e-2 * rng.standard_normal((4, mech.nv)):
+        for exact in (False, True):
+            res, rows = reference.closure_rows(mech, q, exact)
+            np.testing.assert_allclose(mech._constraint_residual(q, data), res, rtol=0, atol=1e-14 * max(1.0, np.abs(res).max()))
+            scale = np.abs(rows).max()
+            np.testing.assert_allclose(mech._constraint_jacobian(q, data, exact=exact), rows, rtol=0, atol=1e-13 * scale)
+    q = mech.project(mech.q_ref + 1e-2 * rng.standard_normal(mech.nv))
+    v, h = rng.standard_normal(mech.nv), 1e-6
+    fd = (mech._constraint_residual(q + h * v, data) - mech._constraint_residual(q - h * v, data)) / (2 * h)
+    Jv = mech._constraint_jacobian(q, data, exact=True) @ v
+    np.testing.assert_allclose(Jv, fd, rtol=0, atol=1e-7 * np.abs(Jv).max())
+
+
+@pytest.mark.parametrize("name", CLOSURE_CASES + ["hexapod in task space"])
+def test_one_sample_states_equal_the_batched_route(name):
+    """Mechanism.states of one sample (a controller's call: its own route on 2-D arrays, skew
+    matrices for the cross products) equals the batched route's sample to rounding: relative
+    differences of a linear solve at most about n cond(A) eps (cond of [J_c; J_u] as states
+    reports it), here asserted with 100 n cond eps."""
+    mech = build_mechanism("hexapod").in_task_space() if name == "hexapod in task space" else _closure_case(name)
+    rng = np.random.default_rng(5)
+    state = random_consistent_states(mech, 6, rng)
+    du = np.einsum("nij,nj->ni", np.linalg.pinv(state.G), state.dq)  # u-rates of the drawn states
+    ddu = rng.standard_normal(du.shape)
+    batch = mech.states(state.q, du, ddu)
+    for i in range(state.n):
+        one = mech.states(state.q[i : i + 1], du[i : i + 1], ddu[i : i + 1])
+        tol = 100 * mech.nv * batch.cond[i] * np.finfo(float).eps
+        for what in ("dq", "ddq", "G"):
+            a, b = getattr(one, what)[0], getattr(batch, what)[i]
+            np.testing.assert_allclose(a, b, rtol=0, atol=tol * np.abs(b).max(), err_msg=f"{what} sample {i}")
+        assert one.cond[0] == pytest.approx(batch.cond[i], rel=tol)
+
+
+def test_qr_least_squares_equal_the_svd():
+    """The loop solvers' QR route (projection, Gauss-Newton steps) gives numpy's SVD least squares
+    for full rank, minimum-norm for wide matrices, and falls back to the SVD for rank deficient
+    ones (the minimum-norm solution, which QR without pivoting would not give)."""
+    from dynid.model.loop_kinematics import lstsq_full_rank, row_space
+
+    rng = np.random.default_rng(11)
+    for m, n in ((18, 24), (24, 24), (30, 24), (1, 3)):
+        A, b = rng.standard_normal((m, n)), rng.standard_normal(m)
+        ref = np.linalg.lstsq(A, b, rcond=None)[0]
+        np.testing.assert_allclose(lstsq_full_rank(A, b), ref, rtol=0, atol=1e3 * np.linalg.cond(A) * np.finfo(float).eps * np.abs(ref).max())
+    A = rng.standard_normal((18, 24))
+    Q, _ = row_space(A)
+    np.testing.assert_allclose(Q @ Q.T, np.linalg.pinv(A) @ A, atol=1e-12)  # the projector onto the rows
+    A[5] = A[3]  # rank 17
+    assert row_space(A) is None
+    b = rng.standard_normal(18)
+    b[5] = b[3]
+    np.testing.assert_allclose(lstsq_full_rank(A, b), np.linalg.lstsq(A, b, rcond=None)[0], atol=1e-12)
+
+
+def test_actuator_states_from_starts_reports_the_sample_that_cannot_be_assembled():
+    """From starting points the position solve runs on blocks of samples at once; a sample whose
+    actuator positions no assembly reaches (one strut 3 m longer than the others allow) is still
+    a one-line ModelError naming that sample (with the chunk's offset), as sample by sample."""
+    from dynid.errors import ModelError
+    from dynid.model.loop_kinematics import actuator_states
+
+    mech = build_mechanism("hexapod")
+    st = random_consistent_states(mech, 8, np.random.default_rng(2))
+    act = list(mech.actuated)
+    qa = st.q[:, act].copy()
+    qa[5, 2] += 3.0
+    with pytest.raises(ModelError, match=r"^sample 105: actuator positions .* cannot be assembled"):
+        actuator_states(mech, qa, st.dq[:, act], st.ddq[:, act], q_start=st.q, sample_offset=100)
+    with pytest.raises(ModelError, match=r"^sample 105: "):  # sample by sample (no starting points): the same
+        actuator_states(mech, qa, st.dq[:, act], st.ddq[:, act], sample_offset=100)

@@ -238,13 +238,32 @@ def test_physically_consistent_didim_is_the_projection_of_its_unconstrained_fixe
     assert out.prior["beats_nominal"], out.prior["verdict"]
 
 
-def test_iv_runs_through_the_loop(twin):
+def test_iv_runs_through_the_loop(twin, monkeypatch):
+    """IV runs; its instrument rows start the loop-closure solve from the simulated joint positions
+    (bench/README, control-loop identification time): the same estimate as starting from the
+    previous sample, whose solves converge to the same positions (Gauss-Newton to a 1e-10 step,
+    quadratically: tests/test_closed_loop.py) - asserted to 1e-6 of the standard deviations."""
+    import dynid.pipeline.control_loop as cl
+
     iv = identify(_config(twin, "iv", experiment="train.toml", max_iterations=2))
     r = iv.result
     assert r.method == "IV" and r.solver["start"] == "wls" and len(r.solver["iterations"]) <= 2
     assert 0 < r.solver["instrumented_directions"] <= len(r.params)
     assert r.cov_params is not None and np.all(np.isfinite(r.bse)) and np.all(r.bse > 0)
     assert "instruments" in " ".join(r.notes)
+    simulated = cl._simulated_states
+    starts = []
+
+    def without_joint_positions(*args, **kwargs):
+        out = simulated(*args, **kwargs)
+        starts.append(out[3] is not None)
+        return (*out[:3], None)
+
+    monkeypatch.setattr(cl, "_simulated_states", without_joint_positions)
+    old = identify(_config(twin, "iv", experiment="train.toml", max_iterations=2)).result
+    assert starts and all(starts)  # the replays do have the joint positions
+    assert len(old.solver["iterations"]) == len(r.solver["iterations"])
+    np.testing.assert_allclose(r.params, old.params, rtol=0, atol=1e-6 * r.bse.min())
 
 
 @pytest.mark.parametrize("identification, fragment", [

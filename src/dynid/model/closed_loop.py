@@ -334,6 +334,8 @@ def actuator_forces(
     params = np.asarray(params, dtype=float)
     model = mech.with_parameters(params) if model is None else model
     data = model.createData() if data is None else data
+    if state.q.shape[0] == 1:  # a controller's call
+        return _actuator_forces_one(mech, params, state, distribution, model, data)[None]
     tau = np.array([pin.rnea(model, data, q, v, a) for q, v, a in zip(state.q, state.dq, state.ddq)])
     terms = term_columns(mech, state.dq, state.ddq) * params[mech.n_body_params :]
     act = list(mech.actuated)
@@ -349,6 +351,29 @@ def actuator_forces(
     if not mech.redundant:
         return np.linalg.solve(Ga.transpose(0, 2, 1), proj[..., None])[..., 0]
     return np.einsum("nau,nu->na", np.linalg.pinv(Ga.transpose(0, 2, 1)), proj) + local[:, act]
+
+
+def _actuator_forces_one(mech: Mechanism, params: FloatArray, state: KinematicState, distribution, model: pin.Model,
+                         data: pin.Data) -> FloatArray:
+    """:func:`actuator_forces` of one sample: the same arithmetic on 1-D arrays (a controller
+    calls it every period)."""
+    q, dq, ddq, G = state.q[0], state.dq[0], state.ddq[0], state.G[0]
+    tau = pin.rnea(model, data, q, dq, ddq)
+    terms = term_columns(mech, state.dq, state.ddq)[0] * params[mech.n_body_params :]  # (n_v, n_terms)
+    act = list(mech.actuated)
+    tau = tau + terms.sum(axis=1)
+    local = None
+    if distribution == "min_norm_local_friction":
+        local = np.zeros_like(tau)
+        local[act] = terms[act, :].sum(axis=1)
+        tau = tau - local
+    proj = G.T @ tau
+    if distribution == "projected":
+        return proj
+    Ga = G[act, :]
+    if not mech.redundant:
+        return np.linalg.solve(Ga.T, proj)
+    return np.linalg.pinv(Ga.T) @ proj + (local[act] if local is not None else 0.0)
 
 
 def random_consistent_states(

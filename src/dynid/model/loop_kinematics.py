@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg import lapack as sla_lapack
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
@@ -96,6 +97,217 @@ class _Sides:
         self.kinds = [c.kind for c in mech.closures]
         # row offset of each closure in the full (redundant) constraint vector
         self.offsets = np.cumsum([0] + [3 if k == "3d" else 6 for k in self.kinds])
+        # one sample (:func:`_one_sample`, a controller's call) takes all sides at once (the
+        # batched route goes side by side: over many samples the sides' own column slices are
+        # cheaper than masks over all columns): the sides on a moving body ("moving"), the
+        # bodies that carry them (each with its support columns as a 0/1 mask, in the output
+        # column order), and the
+        # constant matrix T that stacks the sides' [linear; angular] rows (6 per moving side)
+        # into the output rows: + side b - side a per closure, only the independent constraint
+        # rows, then the point coordinate's rows. Its entries are 0 and +-1 and every output
+        # element has at most two non-zero terms, so T @ rows is exactly the side-by-side
+        # subtraction (products by +-1 and sums with 0 are exact in floating point).
+        self.moving = np.array([s for s in range(len(sides)) if self.columns[s].size], dtype=int)
+        bodies = sorted({sides[s][0] for s in self.moving})
+        self.body_of = np.array([bodies.index(sides[s][0]) for s in self.moving], dtype=int)
+        self.body_columns = [self.columns[self.moving[list(self.body_of).index(b)]] for b in range(len(bodies))]
+        self.body_mask = np.zeros((len(bodies), m.nv))  # support columns of each body, output column order
+        self.body_mask_q = np.zeros((len(bodies), m.nv))  # the same in the joints' own order
+        for b, cols in enumerate(self.body_columns):
+            self.body_mask[b, position[cols]] = 1.0
+            self.body_mask_q[b, cols] = 1.0
+        row_of = {int(s): k for k, s in enumerate(self.moving)}
+        full = np.zeros((int(self.offsets[-1]), 6 * len(self.moving)))
+        for c, kind in enumerate(self.kinds):
+            r0 = int(self.offsets[c])
+            for s, sign in ((2 * c + 1, 1.0), (2 * c, -1.0)):
+                if s not in row_of:
+                    continue
+                k = 6 * row_of[s]
+                full[r0 : r0 + 3, k : k + 3] += sign * np.eye(3)
+                if kind == "6d":
+                    full[r0 + 3 : r0 + 6, k + 3 : k + 6] += sign * np.eye(3)
+        T = full[mech.constraint_rows]
+        if not isinstance(ind, JointCoordinates):
+            extra = np.zeros((len(ind.axes), full.shape[1]))
+            s = len(sides) - 1
+            if s in row_of:
+                extra[np.arange(len(ind.axes)), 6 * row_of[s] + np.array(ind.axes)] = 1.0
+            T = np.vstack([T, extra])
+        self.T = np.ascontiguousarray(T)
+        # one sample (:func:`_one_sample`): the placements' slots of the computed points, which of
+        # them lie on the ground, and the computed point of every moving side
+        self.slot0 = np.where(self.slot < 0, 0, self.slot)
+        self.on_ground = self.slot < 0
+        self.moving_ref = self.ref_index[self.moving]
+        self.side_mask = self.body_mask[self.body_of][:, None, :]  # (moving sides, 1, n_v)
+        self.any_ground = bool(self.on_ground.any())
+        self.r1 = np.concatenate([self.r, np.ones((len(self.r), 1))], axis=1)[:, :, None]  # homogeneous
+        if isinstance(ind, JointCoordinates):  # G = dq/du: the identity on the independent joints
+            self.G_template = np.zeros((m.nv, ind.size))
+            self.G_template[u, np.arange(ind.size)] = 1.0
+
+
+class _Closures:
+    """The loop closures' sides for the residual and the Jacobian at any configuration (assembled
+    or not: :meth:`Mechanism.project`, :meth:`Mechanism.solve_positions`, :func:`actuator_states`),
+    each side at its own point. Built from the tree and the closures alone (the mechanism's
+    constraint rows are not needed: the topology check uses it before they are known)."""
+
+    def __init__(self, mech: Mechanism) -> None:
+        m = mech.pin_model
+        sides = []
+        for c in mech.closures:
+            sides += [(c.joint_a, c.placement_a), (c.joint_b, c.placement_b)]
+        self.joints = sorted({j for j, _ in sides if j != 0})  # placements read
+        slot = {j: k for k, j in enumerate(self.joints)}
+        self.slot = np.array([slot.get(j, 0) for j, _ in sides], dtype=int)
+        self.ground = np.array([j == 0 for j, _ in sides], dtype=bool)
+        self.any_ground = bool(self.ground.any())
+        self.r = np.array([pl.translation for _, pl in sides], dtype=float).reshape(-1, 3)
+        self.r1 = np.concatenate([self.r, np.ones((len(sides), 1))], axis=1)[:, :, None]  # homogeneous
+        self.rotations = np.array([pl.rotation for _, pl in sides], dtype=float).reshape(-1, 3, 3)
+        self.kinds = [c.kind for c in mech.closures]
+        self.offsets = np.cumsum([0] + [3 if k == "3d" else 6 for k in self.kinds])
+        self.all_3d = all(k == "3d" for k in self.kinds)
+        self.moving = np.array([s for s, (j, _) in enumerate(sides) if j != 0], dtype=int)
+        self.mask = np.zeros((self.moving.size, 1, m.nv))  # support columns of each moving side's body
+        for k, s in enumerate(self.moving):
+            for a in m.supports[sides[s][0]].tolist()[1:]:
+                jm = m.joints[a]
+                self.mask[k, 0, jm.idx_v : jm.idx_v + jm.nv] = 1.0
+        # [linear; angular] rows of the moving sides -> closure rows (side b minus side a; exact,
+        # as _Sides.T: entries 0 and +-1, at most two non-zero terms per element)
+        row_of = {int(s): k for k, s in enumerate(self.moving)}
+        T = np.zeros((int(self.offsets[-1]), 6 * self.moving.size))
+        for c, kind in enumerate(self.kinds):
+            r0 = int(self.offsets[c])
+            for s, sign in ((2 * c + 1, 1.0), (2 * c, -1.0)):
+                if s in row_of:
+                    k = 6 * row_of[s]
+                    T[r0 : r0 + 3, k : k + 3] += sign * np.eye(3)
+                    if kind == "6d":
+                        T[r0 + 3 : r0 + 6, k + 3 : k + 6] += sign * np.eye(3)
+        self.T = T
+
+    def frames(self, data: pin.Data) -> tuple[FloatArray, FloatArray]:
+        """World positions (sides, 3) of every side point and the joints' homogeneous placements
+        (slots, 4, 4), from the placements in ``data`` (after a kinematics pass)."""
+        oMi = data.oMi
+        H = np.array([oMi[j].homogeneous for j in self.joints]) if self.joints else np.zeros((1, 4, 4))
+        Hs = H[self.slot]
+        P = np.matmul(Hs[:, :3], self.r1)[:, :, 0]  # R r + t
+        if self.any_ground:
+            P[self.ground] = self.r[self.ground]
+        return P, Hs
+
+    def rotation(self, Hs: FloatArray, s: int) -> FloatArray:
+        """World orientation of side ``s``'s frame."""
+        return self.rotations[s] if self.ground[s] else Hs[s, :3, :3] @ self.rotations[s]
+
+
+def _closures(mech: Mechanism) -> _Closures:
+    cached = mech.__dict__.get("_closures_cache")
+    if cached is None:
+        cached = _Closures(mech)
+        object.__setattr__(mech, "_closures_cache", cached)
+    return cached
+
+
+def row_space(A: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+    """Householder QR of :math:`A^T` (A: m x n, m <= n, full row rank): ``Q`` (n, m) with
+    orthonormal columns spanning the rows of A and ``R`` (m, m) in the upper triangle of the
+    returned block (below it: Householder vectors), :math:`A = R^T Q^T`. None when A is
+    (numerically) rank deficient: a diagonal element of R at or below ``max(m, n) eps`` of the
+    largest (:func:`numpy.linalg.lstsq`'s default cut on the singular values), where a caller
+    falls back to the SVD. Three LAPACK calls instead of an SVD: the projection onto the loop
+    closures runs every control period, the position solve of :func:`actuator_states` every sample."""
+    m, n = A.shape
+    if m > n or not m:
+        return None
+    qr, tau, _, info = sla_lapack.dgeqrf(A.T)
+    d = np.abs(np.diag(qr))
+    if info != 0 or not d.min() > max(m, n) * np.finfo(float).eps * d.max():
+        return None
+    Q, _, info = sla_lapack.dorgqr(qr, tau)
+    return (Q, qr[:m]) if info == 0 else None
+
+
+def lstsq_full_rank(A: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.linalg.lstsq(A, b, rcond=None)[0]`` (to rounding) where A (m x n) has full rank: for
+    m <= n the minimum-norm solution :math:`x = Q R^{-T} b` (:func:`row_space`), for m > n the
+    least-squares solution :math:`x = R^{-1} Q^T b` of :math:`A = QR`; the SVD where A is rank
+    deficient (a singular configuration)."""
+    m, n = A.shape
+    if m <= n:
+        f = row_space(A)
+        if f is not None:
+            y, info = sla_lapack.dtrtrs(f[1], b, lower=0, trans=1)
+            if info == 0:
+                return f[0] @ y
+    else:
+        qr, tau, _, info = sla_lapack.dgeqrf(A)
+        d = np.abs(np.diag(qr))
+        if info == 0 and d.min() > m * np.finfo(float).eps * d.max():
+            Q, _, info = sla_lapack.dorgqr(qr, tau)
+            if info == 0:
+                x, info = sla_lapack.dtrtrs(qr[:n], Q.T @ b, lower=0, trans=0)
+                if info == 0:
+                    return x
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def closure_geometry(mech: Mechanism, q: FloatArray, data: pin.Data, jacobian: bool = True) -> tuple:
+    """One kinematics pass at ``q`` for :func:`closure_residual` and :func:`closure_jacobian`:
+    the joint Jacobians (with the placements; None with ``jacobian=False``: the placements only),
+    the sides' points and their joints' placements."""
+    if jacobian:
+        J = pin.computeJointJacobians(mech.pin_model, data, q)
+    else:
+        J = None
+        pin.forwardKinematics(mech.pin_model, data, q)
+    return (J, *_closures(mech).frames(data))
+
+
+def closure_residual(mech: Mechanism, q: FloatArray, data: pin.Data, geometry: tuple | None = None) -> FloatArray:
+    """:math:`c(q)` stacked over the closures (all rows): point gaps and, for ``6d``, the
+    relative rotation vector :math:`R_a\\log_3(R_a^T R_b)` in world axes; one forward
+    kinematics pass (or ``geometry``, :func:`closure_geometry` at ``q``), the sides' points at once."""
+    cl = _closures(mech)
+    _, P, Hs = closure_geometry(mech, q, data, jacobian=False) if geometry is None else geometry
+    gap = P[1::2] - P[0::2]  # (closures, 3): side b minus side a
+    if cl.all_3d:
+        return gap.reshape(-1)
+    out = []
+    for c, kind in enumerate(cl.kinds):
+        out.append(gap[c])
+        if kind == "6d":
+            Ra, Rb = cl.rotation(Hs, 2 * c), cl.rotation(Hs, 2 * c + 1)
+            out.append(Ra @ pin.log3(Ra.T @ Rb))
+    return np.concatenate(out)
+
+
+def closure_jacobian(mech: Mechanism, q: FloatArray, data: pin.Data, exact: bool = False,
+                     geometry: tuple | None = None) -> FloatArray:
+    """:math:`J_c(q)` (all rows, the joints' own column order), each side at its own point:
+    :math:`J_v - [p]_\\times J_\\omega` on the support of its body. ``exact``: the rotation rows of
+    ``6d`` closures are :math:`\\partial\\log_3/\\partial q` (for Newton), otherwise the relative
+    angular velocity in the world frame (same null space). ``geometry``: :func:`closure_geometry`
+    at ``q`` (with the Jacobians)."""
+    cl = _closures(mech)
+    J, P, Hs = closure_geometry(mech, q, data) if geometry is None or geometry[0] is None else geometry
+    if not cl.moving.size:
+        return np.zeros((cl.T.shape[0], q.size))
+    Jk = J * cl.mask  # (moving sides, 6, n_v)
+    Jw = Jk[:, 3:]
+    rows = cl.T @ np.concatenate([Jk[:, :3] - _skew(P[cl.moving]) @ Jw, Jw], axis=1).reshape(-1, q.size)
+    if exact and not cl.all_3d:  # d/dt of Ra log3(Ra^T Rb), Ra held constant (exact at the solution)
+        for c, kind in enumerate(cl.kinds):
+            if kind == "6d":
+                r0 = int(cl.offsets[c]) + 3
+                Ra, Rb = cl.rotation(Hs, 2 * c), cl.rotation(Hs, 2 * c + 1)
+                rows[r0 : r0 + 3] = Ra @ pin.Jlog3(Ra.T @ Rb) @ Rb.T @ rows[r0 : r0 + 3]
+    return rows
 
 
 def _sides(mech: Mechanism) -> _Sides:
@@ -348,6 +560,9 @@ def states(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray, *, m
     du = _check(mech, du, (n, n_u), "du")
     ddu = _check(mech, ddu, (n, n_u), "ddu")
     data = mech.pin_model.createData() if data is None else data
+    if n == 1:  # a controller's call: one sample
+        dq, ddq, G, c = _one_sample(mech, q[0], du[0], ddu[0], max_cond, data)
+        return KinematicState(q=q, dq=dq[None], ddq=ddq[None], G=G[None], cond=np.array([c]))
     dq, ddq = np.empty_like(q), np.empty_like(q)
     G, cond = np.empty((n, mech.nv, n_u)), np.empty(n)
     for a in range(0, n, _BLOCK):
@@ -359,6 +574,81 @@ def states(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray, *, m
         ddq[a:b] = maps.accelerations(ddu[a:b], drift)
         G[a:b], cond[a:b] = maps.G, maps.cond
     return KinematicState(q=q, dq=dq, ddq=ddq, G=G, cond=cond)
+
+
+def _one_sample(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray, max_cond: float,
+                data: pin.Data) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+    """:func:`states` of one sample, ``q`` (n_v,), ``du``, ``ddu`` (n_u,): ``dq``, ``ddq``, ``G``
+    and the condition number. The batched route's formulas on 2-D arrays, with the cross
+    products as products by skew matrices (a controller calls it every period, and there the
+    batched route's cost is the per-call overhead of some hundred operations on small arrays;
+    the two agree to rounding, tests/test_simulation_mechanism.py)."""
+    sd = _sides(mech)
+    model = mech.pin_model
+    nv = q.size
+    J = pin.computeJointJacobians(model, data, q)
+    oMi = data.oMi
+    H = np.array([oMi[j].homogeneous for j in sd.joints]) if sd.joints else np.zeros((1, 4, 4))
+    p = np.matmul(H[sd.slot0, :3], sd.r1)[:, :, 0]  # R r + t
+    if sd.any_ground:
+        p[sd.on_ground] = sd.r[sd.on_ground]
+    pk = p[sd.moving_ref]  # (moving sides, 3)
+    Sp = _skew(pk)
+    Jk = J[:, sd.order] * sd.side_mask  # (moving sides, 6, n_v)
+    Jw = Jk[:, 3:]
+    rows = sd.T @ np.concatenate([Jk[:, :3] - Sp @ Jw, Jw], axis=1).reshape(-1, nv)
+    ind = mech.independent
+    joint_coords = isinstance(ind, JointCoordinates)
+    A = rows[:, : sd.w.size] if joint_coords else rows
+    inv, cond = _invert_one(A, max_cond, "the loop-closure Jacobian of the dependent joints" if joint_coords else "[J_c; J_u]")
+    if joint_coords:
+        Jcu = rows[:, sd.w.size :]
+        G = sd.G_template.copy()
+        G[sd.w] = -(inv @ Jcu)
+    else:
+        G = np.ascontiguousarray(inv[:, nv - ind.size :])
+    dq = G @ du
+    drift = np.zeros(sd.T.shape[0])
+    if sd.moving.size:
+        pin.computeJointJacobiansTimeVariation(model, data, q, dq)
+        v = dq * sd.body_mask_q  # (bodies, n_v)
+        V, Ac = (v @ J.T)[sd.body_of], (v @ data.dJ.T)[sd.body_of]  # (moving sides, 6)
+        w = V[:, 3:]
+        # p x [omega, alpha]: v_p = v + omega x p, a_p = a + alpha x p + omega x v_p
+        px = Sp @ np.stack([w, Ac[:, 3:]], axis=2)
+        vp = V[:, :3] - px[:, :, 0]
+        lin = Ac[:, :3] - px[:, :, 1] + (_skew(w) @ vp[:, :, None])[:, :, 0]
+        drift = np.concatenate([lin, Ac[:, 3:]], axis=1).reshape(-1) @ sd.T.T
+    if joint_coords:
+        ddq = np.empty(nv)
+        ddq[sd.u] = ddu
+        ddq[sd.w] = inv @ (-(Jcu @ ddu) - drift)
+    else:
+        ddq = G @ ddu - inv @ drift
+    return dq, ddq, G, cond
+
+
+_SKEW = np.zeros((3, 9))
+_SKEW[2, 1] = _SKEW[0, 5] = _SKEW[1, 6] = -1.0
+_SKEW[1, 2] = _SKEW[2, 3] = _SKEW[0, 7] = 1.0
+
+
+def _skew(p: FloatArray) -> FloatArray:
+    """Skew matrices :math:`[p]_\\times` of rows ``p`` (k, 3), shape (k, 3, 3) (exact: each entry
+    is one element of p or its negative)."""
+    return (p @ _SKEW).reshape(-1, 3, 3)
+
+
+def _invert_one(A: FloatArray, max_cond: float, what: str) -> tuple[FloatArray, float]:
+    """:func:`_invert` of one square matrix, by LAPACK's LU directly."""
+    lu, piv, info = sla_lapack.dgetrf(A)
+    inv = None
+    if info == 0:
+        inv, info = sla_lapack.dgetri(lu, piv)
+    cond = float(np.abs(A).sum(axis=0).max() * np.abs(inv).sum(axis=0).max()) if info == 0 else np.inf
+    if not np.isfinite(cond) or cond > max_cond:
+        raise ModelError(f"sample 0: singular configuration (condition number of {what} = {cond:.3g} > {max_cond:.3g})")
+    return inv, cond
 
 
 def kinematic_state(mech: Mechanism, q: FloatArray, dq: FloatArray, ddq: FloatArray, *, max_cond: float = 1e8) -> KinematicState:
@@ -438,23 +728,27 @@ def actuator_states(
     nc = rows.size
     q = np.array(mech.q_ref if q0 is None else q0, dtype=float)
     Q = np.empty((n, mech.nv))
-    resid = np.empty(n)
     if q_start is not None:
         q_start = np.asarray(q_start, dtype=float)
         if q_start.shape != (n, mech.nv) or not np.all(np.isfinite(q_start)):
             raise InputError(f"starting joint positions must be finite, shape ({n}, {mech.nv}); got {q_start.shape}")
-    for i in range(n):
+    batched = q_start is not None and _closures(mech).all_3d
+    for a in range(0, n, _BLOCK) if batched else ():  # independent samples: Gauss-Newton on blocks of them
+        b = min(a + _BLOCK, n)
+        Q[a:b] = _solve_from_starts(mech, qa[a:b], q_start[a:b], tol, max_iter, sample_offset + a, data)
+    for i in range(0 if not batched else n, n):
         if q_start is not None:
             q = q_start[i].copy()
         for it in range(max_iter + 1):
-            c = mech._constraint_residual(q, data)[rows]
+            geometry = closure_geometry(mech, q, data)  # one pass for the residual and the Jacobian
+            c = closure_residual(mech, q, data, geometry)[rows]
             ea = q[act] - qa[i]
-            if q_start is not None and it == 0 and max(np.linalg.norm(c, np.inf), np.linalg.norm(ea, np.inf)) < tol:
+            if q_start is not None and it == 0 and max(np.abs(c).max(initial=0.0), np.abs(ea).max()) < tol:
                 break
-            A = np.vstack([mech._constraint_jacobian(q, data, exact=True)[rows], Sa])
+            A = np.vstack([closure_jacobian(mech, q, data, True, geometry)[rows], Sa])
             F = np.concatenate([c, ea])
-            step, *_ = np.linalg.lstsq(A, F, rcond=None)
-            if np.linalg.norm(step, np.inf) < tol:
+            step = lstsq_full_rank(A, F)
+            if np.abs(step).max() < tol:  # the infinity norm
                 break
             if it == max_iter:
                 cond = np.linalg.cond(A)
@@ -464,7 +758,7 @@ def actuator_states(
                 )
             q = q - step
         Q[i] = q
-        resid[i] = float(np.sqrt(np.mean((q[act] - qa[i]) ** 2)))
+    resid = np.sqrt(np.mean((Q[:, act] - qa) ** 2, axis=1))
     # velocities and accelerations: least squares on [J_c; S_a] (normal equations, batched)
     Jrows, (J, p) = _velocity_rows(mech, Q, data)
     sd = _sides(mech)
@@ -478,11 +772,80 @@ def actuator_states(
     drift = _drift(mech, Q, dq, J, p, data)[:, :nc]
     rhs_a = np.concatenate([-drift, ddqa], axis=1)
     ddq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_a)[..., None])[..., 0]
-    try:
-        state = kinematic_state(mech, Q, dq, ddq, max_cond=max_cond)
+    dq, ddq = _check(mech, dq, (n, mech.nv), "dq"), _check(mech, ddq, (n, mech.nv), "ddq")
+    try:  # the velocity map from the rows above (what kinematic_state would compute again)
+        maps = _Maps(mech, Jrows, max_cond)
     except ModelError as exc:
         raise ModelError(f"samples {sample_offset}..{sample_offset + n - 1}: {exc}") from None
-    return state, resid
+    return KinematicState(q=Q, dq=dq, ddq=ddq, G=maps.G, cond=maps.cond), resid
+
+
+def _solve_from_starts(mech: Mechanism, qa: FloatArray, q_start: FloatArray, tol: float, max_iter: int, offset: int,
+                       data: pin.Data) -> FloatArray:
+    """:func:`actuator_states`' position solve from a starting point per sample, for point
+    closures ("3d"): the samples do not depend on each other then, so each Gauss–Newton
+    iteration runs on all the samples still iterating at once (pinocchio per sample, the
+    residuals, Jacobians and steps batched). Per sample the same iteration, stopping rules and
+    error as the sample-by-sample loop: a start whose residual is below ``tol`` is taken as it
+    is, a step below ``tol`` is not taken; steps by LU on the square stacked matrix (the least
+    squares of its normal equations when actuation is redundant), where the loop solves by QR:
+    the two differ by rounding."""
+    cl = _closures(mech)
+    model = mech.pin_model
+    rows = mech.constraint_rows
+    act = list(mech.actuated)
+    Sa = mech.actuator_selection()
+    nv, K = mech.nv, cl.moving.size
+    Q = np.array(q_start, dtype=float)
+    todo = np.arange(qa.shape[0])
+    cjj, oMi, joints = pin.computeJointJacobians, data.oMi, list(enumerate(cl.joints))
+    for it in range(max_iter + 1):
+        m = todo.size
+        if not m:
+            break
+        J = np.empty((m, 6, nv))
+        H = np.zeros((m, max(len(cl.joints), 1), 4, 4))
+        for k, i in enumerate(todo):
+            J[k] = cjj(model, data, Q[i])
+            Hk = H[k]
+            for s, j in joints:
+                Hk[s] = oMi[j].homogeneous
+        P = np.matmul(H[:, cl.slot, :3], cl.r1)[..., 0]  # (m, sides, 3): R r + t
+        if cl.any_ground:
+            P[:, cl.ground] = cl.r[cl.ground]
+        c = (P[:, 1::2] - P[:, 0::2]).reshape(m, -1)[:, rows]
+        ea = Q[todo][:, act] - qa[todo]
+        if it == 0:  # starts that solve it already are taken as they are
+            go = np.maximum(np.abs(c).max(axis=1, initial=0.0), np.abs(ea).max(axis=1)) >= tol
+            todo, J, P, c, ea, m = todo[go], J[go], P[go], c[go], ea[go], int(go.sum())
+            if not m:
+                break
+        Jk = J[:, None] * cl.mask[None]  # (m, moving sides, 6, n_v)
+        Jw = Jk[:, :, 3:]
+        lin = Jk[:, :, :3] - _skew(P[:, cl.moving].reshape(-1, 3)).reshape(m, K, 3, 3) @ Jw
+        Jc = (cl.T @ np.concatenate([lin, Jw], axis=2).reshape(m, 6 * K, nv))[:, rows]
+        A = np.concatenate([Jc, np.broadcast_to(Sa, (m, Sa.shape[0], nv))], axis=1)
+        F = np.concatenate([c, ea], axis=1)
+        try:
+            if A.shape[1] == nv:
+                step = np.linalg.solve(A, F[..., None])[..., 0]
+            else:
+                At = A.transpose(0, 2, 1)
+                step = np.linalg.solve(At @ A, (At @ F[..., None]))[..., 0]
+        except np.linalg.LinAlgError:  # a singular sample: each by the loop's solver (SVD where rank deficient)
+            step = np.array([lstsq_full_rank(Ak, Fk) for Ak, Fk in zip(A, F)])
+        big = ~(np.abs(step).max(axis=1) < tol)  # the steps not taken: below tol
+        if it == max_iter and big.any():
+            k = int(np.flatnonzero(big)[0])
+            i = int(todo[k])
+            raise ModelError(
+                f"sample {offset + i}: actuator positions {np.array2string(qa[i], precision=4)} cannot be assembled "
+                f"(residual {np.abs(F[k]).max():.3g} after {max_iter} Gauss-Newton steps, condition number "
+                f"{np.linalg.cond(A[k]):.3g})"
+            )
+        Q[todo[big]] -= step[big]
+        todo = todo[big]
+    return Q
 
 
 def platform_pose(mech: Mechanism, qa: FloatArray, *, q0: FloatArray | None = None) -> FloatArray:

@@ -604,35 +604,12 @@ class Mechanism:
         return jl - _skew(p) @ ja, ja
 
     def _constraint_residual(self, q: FloatArray, data: pin.Data) -> FloatArray:
-        pin.forwardKinematics(self.pin_model, data, q)
-        out = []
-        for c in self.closures:
-            Ma = self._points(data, c.joint_a, c.placement_a)
-            Mb = self._points(data, c.joint_b, c.placement_b)
-            out.append(Mb.translation - Ma.translation)
-            if c.kind == "6d":  # relative rotation vector, in world axes (matches the velocity rows)
-                out.append(Ma.rotation @ pin.log3(Ma.rotation.T @ Mb.rotation))
-        return np.concatenate(out)
+        return loop_kinematics.closure_residual(self, q, data)
 
     def _constraint_jacobian(self, q: FloatArray, data: pin.Data, exact: bool = False) -> FloatArray:
         """:math:`J_c` (all rows). ``exact``: rotation rows are :math:`\\partial\\log_3/\\partial q`
         (for Newton); otherwise the relative angular velocity in the world frame (same null space)."""
-        m = self.pin_model
-        pin.computeJointJacobians(m, data, q)
-        rows = []
-        for c in self.closures:
-            Ma = self._points(data, c.joint_a, c.placement_a)
-            Mb = self._points(data, c.joint_b, c.placement_b)
-            la, aa = self._point_jacobian(data, c.joint_a, Ma.translation)
-            lb, ab = self._point_jacobian(data, c.joint_b, Mb.translation)
-            rows.append(lb - la)
-            if c.kind == "6d":
-                if exact:  # d/dt of Ra log3(Ra^T Rb), Ra held constant (exact at the solution)
-                    Rrel = Ma.rotation.T @ Mb.rotation
-                    rows.append(Ma.rotation @ pin.Jlog3(Rrel) @ Mb.rotation.T @ (ab - aa))
-                else:
-                    rows.append(ab - aa)
-        return np.vstack(rows)
+        return loop_kinematics.closure_jacobian(self, q, data, exact)
 
     def _coordinate_values(self, q: FloatArray, data: pin.Data) -> FloatArray:
         ind = self.independent
@@ -696,20 +673,27 @@ class Mechanism:
             raise ModelError("cannot project onto the loop closures: the configuration is not finite (the motion diverged)")
         data = self.pin_model.createData() if data is None else data
         rows = self.constraint_rows
+        lk = loop_kinematics
         for _ in range(max_iter):
-            c = self._constraint_residual(q, data)[rows]
-            if not np.all(np.isfinite(c)):
+            geometry = lk.closure_geometry(self, q, data)  # one pass for the residual and the Jacobian
+            c = lk.closure_residual(self, q, data, geometry)[rows]
+            gap = np.abs(c).max(initial=0.0)  # the infinity norm
+            if not np.isfinite(gap):
                 raise ModelError("cannot project onto the loop closures: the closure residual is not finite")
-            if np.linalg.norm(c, np.inf) < tol:
+            if gap < tol:
                 break
-            q = q - np.linalg.lstsq(self._constraint_jacobian(q, data, exact=True)[rows], c, rcond=None)[0]
+            q = q - lk.lstsq_full_rank(lk.closure_jacobian(self, q, data, True, geometry)[rows], c)
         else:
             raise ModelError(f"cannot project onto the loop closures (residual {np.linalg.norm(c, np.inf):.3g})")
         if dq is None:
             return q
-        J = self._constraint_jacobian(q, data)[rows]
+        J = lk.closure_jacobian(self, q, data, False, geometry)[rows]  # geometry: at this q
         dq = np.asarray(dq, dtype=float)
-        return q, dq - np.linalg.lstsq(J, J @ dq, rcond=None)[0]
+        f = lk.row_space(J)
+        if f is None:
+            return q, dq - np.linalg.lstsq(J, J @ dq, rcond=None)[0]
+        Q = f[0]  # J^+ J = Q Q^T, the projector onto the rows of J
+        return q, dq - Q @ (Q.T @ dq)
 
     def _check_q(self, q: FloatArray, name: str = "q") -> FloatArray:
         if q.ndim != 2 or q.shape[1] != self.nv:

@@ -76,7 +76,10 @@ at them), and the simulated rows go through exactly the processing of the measur
 start the loop-closure position solve from the simulation's own joint positions, which already
 satisfy it (residual below the solve's 1e-10 tolerance at the control instants: no Gauss–Newton
 iteration; the rows then differ from those solved from the actuator positions at that level: the
-DIDIM estimate on the hexapod twin by 1e-9 of its standard deviations).
+DIDIM estimate on the hexapod twin by 1e-9 of its standard deviations). IV's instrument rows
+start there too: its replayed actuator positions are low-passed, so the solve still iterates,
+but from within the filter's deviation of the solution instead of from the previous sample (one
+Gauss–Newton step fewer; the same positions, tests/test_control_loop.py).
 
 Processing: use parallel decimation (``processing.decimate_method = "parallel"``), as Gautier
 and Janot do. On the shang2dof twin (500 Hz augmented PD, Kp = 35000) the full-rate DIDIM
@@ -187,9 +190,12 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
     """Actuator positions, velocities, accelerations (n, n_a) of the experiment replayed with
     the standard parameters ``standard`` (identified robot's layout), at the instants ``t``;
     ``process(ts, q, dq, ddq)``, when given, processes the states at the control instants first
-    (IV: :func:`_instrument_processing`). Without it, also all the joint positions of the
-    simulation at ``t`` (the starting points of the rows' position solve: exact at the control
-    instants, so no Gauss–Newton there), else None."""
+    (IV: :func:`_instrument_processing`). Also all the joint positions of the simulation at
+    ``t`` (None if not finite): the starting points of the rows' position solve. Unprocessed
+    (DIDIM) they solve it already at the control instants (no Gauss–Newton step); processed (IV)
+    the solve starts from them instead of from the previous sample: the filtered actuator
+    positions lie within the filter's small deviation of the simulated ones, so it takes one
+    Gauss–Newton step fewer and converges to the same assembly."""
     from dynid.pipeline.simulate import actuator_states, run_simulation
 
     outcome = run_simulation(exp.cfg, plant=standard[exp.index])  # standard: the model's full layout
@@ -203,7 +209,7 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
                           f"processed log {t[0]:g}-{t[-1]:g} s (the experiment's duration must cover the log)")
     interp = lambda x: np.column_stack([np.interp(t, ts, x[:, k]) for k in range(x.shape[1])])  # noqa: E731
     joint_q = None
-    if process is None and getattr(outcome, "motion", None) is not None:
+    if getattr(outcome, "motion", None) is not None:
         qj = np.asarray(outcome.motion.q, dtype=float)
         joint_q = interp(qj) if np.all(np.isfinite(qj)) else None
     return interp(q), interp(dq), interp(ddq), joint_q
@@ -339,7 +345,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         sim = train.replace(q=qs, dq=dqs, ddq=ddqs)
         if method == "iv":
             builder = InstrumentBuilder(base.names, channels)
-            for (cm, mask), cs in zip(measured, chunks(sim), strict=True):
+            for (cm, mask), cs in zip(measured, chunks(sim, joint_qs), strict=True):
                 builder.add(cs.W, cm.W, cm.y, mask)
             problem = builder.build()
             if sigma is None:

@@ -368,7 +368,9 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, rob
     instead of the configured truth, its friction and its payload; the controller stays
     exactly as configured (its model included). This is the experiment replayed on a model,
     e.g. an identified one (IDIM-IV and DIDIM, :mod:`dynid.pipeline.control_loop`); the
-    outcome's truth still describes the configured robot.
+    outcome's truth still describes the configured robot, without its base parameters
+    (``truth["base_parameters"]`` is None: their computation, a regressor on random
+    configurations, cost a mechanism's replay about 5 % of its time, and a replay is not written).
     """
     t0 = time.perf_counter()
     outcome = _run_simulation(cfg, progress, robot, plant)
@@ -475,7 +477,9 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
                           sensors=sensors)
     meas, columns = measure_signals(signals)
     effort_prefix = "i" if meas.effort_kind == "current" else "tau"
-    base = mechanism_base_parameters(robot) if mech else robot_base_parameters(robot)
+    base = None
+    if plant_params is None:  # a replay's truth goes without them (run_simulation)
+        base = mechanism_base_parameters(robot) if mech else robot_base_parameters(robot)
     truth = {
         "model": cfg.robot.model if variant is None else f"variant of {cfg.robot.model}",
         "parameter_names": list(robot.parameter_names),
@@ -486,7 +490,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
                                   "the joint terms of true_parameters"),
         "payload": ({"body": payload[0], **{k: v for k, v in cfg.robot.payload.items() if k != "body"}}
                     if payload is not None else None),
-        "base_parameters": {
+        "base_parameters": None if base is None else {
             "names": list(base.names),
             "true_values": base.from_standard(true).tolist(),
             "expressions": list(base.expressions()),

@@ -8,9 +8,12 @@ from collections.abc import Callable
 from dynid._typing import FloatArray
 
 
-def rk4_step(acc: Callable[[FloatArray, FloatArray], FloatArray], q: FloatArray, v: FloatArray, h: float) -> tuple[FloatArray, FloatArray]:
-    """Positions and velocities after ``h`` seconds (RK4 on the first-order system (q, v))."""
-    k1 = acc(q, v)
+def rk4_step(acc: Callable[[FloatArray, FloatArray], FloatArray], q: FloatArray, v: FloatArray, h: float,
+             k1: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+    """Positions and velocities after ``h`` seconds (RK4 on the first-order system (q, v)).
+    ``k1``: ``acc(q, v)`` when the caller has it already (the acceleration logged at a control
+    instant is the first stage of the hold's first step)."""
+    k1 = acc(q, v) if k1 is None else k1
     k2 = acc(q + h / 2 * v, v + h / 2 * k1)
     k3 = acc(q + h / 2 * (v + h / 2 * k1), v + h / 2 * k2)
     k4 = acc(q + h * (v + h / 2 * k2), v + h * k3)

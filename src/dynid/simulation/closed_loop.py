@@ -19,7 +19,7 @@ import pinocchio as pin
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.closed_loop import actuator_forces, term_basis
-from dynid.model.mechanism import Mechanism
+from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.simulation._integrate import rk4_step
 from dynid.simulation.control import JointPID
 
@@ -87,6 +87,8 @@ class ConstrainedSimulator:
         model.armature = arm
         self._theta = np.where(keep, theta, 0.0)
         self._friction_coefficients = _piecewise_linear_terms(mech, self._theta)
+        a, b, c, d, e = self._friction_coefficients
+        self._symmetric_friction = bool(np.array_equal(a, b) and np.array_equal(d, -c) and not np.any(e))
         self.model = model
         self.data = model.createData()
         self.cmodels = pin.StdVec_RigidConstraintModel()
@@ -107,19 +109,39 @@ class ConstrainedSimulator:
 
     def joint_forces(self, dq: FloatArray, tau_a: FloatArray) -> FloatArray:
         """Generalized forces on the tree: actuators minus the joint terms (rotor inertia excluded)."""
+        return self._joint_forces(dq, self.Sa.T @ tau_a)
+
+    def _joint_forces(self, dq: FloatArray, tau_joint: FloatArray) -> FloatArray:
+        """:meth:`joint_forces` with the actuator forces already on the joints (``S_a^T tau_a``)."""
         if self.friction is not None:
-            return self.Sa.T @ tau_a - np.asarray(self.friction(dq), dtype=float).reshape(-1)
+            return tau_joint - np.asarray(self.friction(dq), dtype=float).reshape(-1)
         a, b, c, d, e = self._friction_coefficients
+        if self._symmetric_friction:
+            # a = b, d = -c, e = 0: the same value element by element as the general form below
+            # (a v + c sign v; each of the general form's other terms is an exact zero)
+            return tau_joint - (a * dq + c * np.sign(dq))
         terms = a * np.maximum(dq, 0.0) + b * np.minimum(dq, 0.0) + c * (dq > 0) + d * (dq < 0) + e
-        return self.Sa.T @ tau_a - terms
+        return tau_joint - terms
 
     def acceleration(self, q: FloatArray, dq: FloatArray, tau_a: FloatArray) -> FloatArray:
         """Joint accelerations under actuator forces ``tau_a`` (shape (n_a,))."""
         tau_a = np.asarray(tau_a, dtype=float)
         if tau_a.shape != (self.mech.n_actuators,):
             raise InputError(f"tau_a must have shape ({self.mech.n_actuators},), got {tau_a.shape}")
-        tau = self.joint_forces(dq, tau_a)
+        return self._acceleration(q, dq, self.Sa.T @ tau_a)
+
+    def _acceleration(self, q: FloatArray, dq: FloatArray, tau_joint: FloatArray) -> FloatArray:
+        tau = self._joint_forces(dq, tau_joint)
         return pin.constraintDynamics(self.model, self.data, q, dq, tau, self.cmodels, self.cdatas, self.prox).copy()
+
+    def held(self, tau_a: FloatArray):
+        """``acc(q, dq)``: :meth:`acceleration` under the actuator forces ``tau_a`` held (a
+        zero-order hold), their joint forces computed once for the whole period."""
+        tau_a = np.asarray(tau_a, dtype=float)
+        if tau_a.shape != (self.mech.n_actuators,):
+            raise InputError(f"tau_a must have shape ({self.mech.n_actuators},), got {tau_a.shape}")
+        tau_joint = self.Sa.T @ tau_a
+        return lambda q, dq: self._acceleration(q, dq, tau_joint)
 
     def simulate(self, q0: FloatArray, dq0: FloatArray, tau_fn, *, duration: float, dt: float) -> SimulatedMotion:
         """Classical Runge–Kutta 4 integration with actuator forces ``tau_fn(t) -> (n_a,)``.
@@ -202,11 +224,16 @@ class AugmentedPD:
         self._model = mech.with_parameters(self.params)  # the model's inertias, for RNEA at every period
         self._data = self._model.createData()
         self._kinematics = mech.pin_model.createData()  # working memory of the kinematics, reused every period
+        ind = mech.independent
+        self._joints = np.array(ind.joints, dtype=int) if isinstance(ind, JointCoordinates) else None
 
     def __call__(self, dt: float, q: FloatArray, dq: FloatArray, ref: tuple[FloatArray, FloatArray, FloatArray]) -> FloatArray:
         data = self._kinematics
-        u = self.mech.coordinates(q, data=data)[0]
-        du = self.mech.coordinate_velocities(q, dq, data=data)[0]
+        if self._joints is not None:  # joint coordinates: u and du are read off q and dq
+            u, du = q[self._joints], dq[self._joints]
+        else:
+            u = self.mech.coordinates(q, data=data)[0]
+            du = self.mech.coordinate_velocities(q, dq, data=data)[0]
         a = ref[2] + self.kv * (ref[1] - du) + self.kp * (ref[0] - u)
         state = self.mech.states(q[None], du[None], a[None], data=data)
         # RNEA + joint terms, projected: equal to the closed-loop regressor times the parameters
@@ -352,10 +379,12 @@ def _simulate_mechanism_control(sim, controller, reference, duration, dt, subste
     for k in range(n):
         tau = np.asarray(controller(dt, q, v, tuple(r[k] for r in refs)), dtype=float)
         Q[k], V[k], T[k] = q, v, tau
-        A[k] = sim.acceleration(q, v, tau)
+        acc = sim.held(tau)
+        A[k] = first = acc(q, v)
         if k == n - 1:
             break
-        for _ in range(substeps):
-            q, v = rk4_step(lambda a, b: sim.acceleration(a, b, tau), q, v, h)
+        for _ in range(substeps):  # the logged acceleration is the first stage of the first step
+            q, v = rk4_step(acc, q, v, h, k1=first)
+            first = None
         q, v = mech.project(q, v, data=data)
     return SimulatedMotion(t=t, q=Q, dq=V, ddq=A, tau_a=T)
