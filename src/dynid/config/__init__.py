@@ -254,6 +254,15 @@ class IdentificationConfig:
     tolerance: float = 0.5  # stop when no parameter moves by more than this many standard deviations
     # the Coulomb terms' sign: "none" (the sign), "auto" (erf of the data's velocity-noise std), or widths per actuator
     coulomb_smoothing: str | tuple[float, ...] = "none"
+    # hierarchical iterative identification (paper 003 Sec. 3.3, Algorithm 1; dynid.pipeline.hierarchical):
+    # friction_model then names a paper-003 family ("linear", "stribeck", "powerlaw", "arctan")
+    hierarchical: bool = False
+    friction_prior: Path | None = None  # a dynid friction result (friction.json): the starting friction
+
+
+HIERARCHICAL_FAMILIES = ("linear", "stribeck", "powerlaw", "arctan")
+"""``friction_model`` with ``hierarchical = true``: paper 003 Eq. 2, 14, 13 and 15 (the improved Stribeck
+model); see :data:`dynid.pipeline.hierarchical.FAMILIES`."""
 
 
 _PHYSICAL_KEYS = ("margin", "regularization", "regularization_weight", "solver", "bodies", "friction_model", "max_samples")
@@ -532,11 +541,16 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
     t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
                           "force_model", "noise_covariance", "iterations", "nominal_weighting",
                           "position_covariance", "cutoff_range_hz", "structure", "identical_chains", "coulomb_smoothing",
+                          "hierarchical", "friction_prior",
                           *_PHYSICAL_KEYS,
                           *_COVARIANCE_KEYS, *_LOOP_KEYS})
     method = _str(t.get("method", "wls"), f"{where}.method", _METHODS)
     physical = _bool(t.get("physical_consistency", False), f"{where}.physical_consistency")
-    given = [k for k in _PHYSICAL_KEYS if k in t]
+    hierarchical = _bool(t.get("hierarchical", False), f"{where}.hierarchical")
+    if not hierarchical and t.get("friction_model") in ("powerlaw", "arctan"):
+        raise ConfigError(f"{where}.friction_model = {t['friction_model']!r} is a family of the hierarchical "
+                          f"identification (paper 003 Sec. 3.3): set {where}.hierarchical = true")
+    given = [k for k in _PHYSICAL_KEYS if k in t and not (hierarchical and k == "friction_model")]
     if given and not physical:
         raise ConfigError(f"{where}.{given[0]} is for physically consistent identification: set "
                           f"{where}.physical_consistency = true")
@@ -559,7 +573,29 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
     margin = _num(t.get("margin", 0.0), f"{where}.margin")
     if margin < 0:
         raise ConfigError(f"{where}.margin must be >= 0, got {margin}")
-    friction_model = _str(t.get("friction_model", "linear"), f"{where}.friction_model", ("linear", "stribeck"))
+    if hierarchical:
+        if "friction_model" not in t:
+            raise ConfigError(f"{where}.hierarchical = true alternates rigid-body and friction fits: name the friction "
+                              f"family, {where}.friction_model = 'stribeck', 'powerlaw', 'arctan' or 'linear' "
+                              "(paper 003 Eq. 14, 13, 15, 2)")
+        friction_model = _str(t["friction_model"], f"{where}.friction_model", HIERARCHICAL_FAMILIES)
+        if method not in ("ols", "wls"):
+            raise ConfigError(f"{where}.hierarchical = true fits the rigid-body part by 'ols' or 'wls' (+ LMI with "
+                              f"physical_consistency), not method {method!r}")
+        if "max_samples" in t:
+            raise ConfigError(f"{where}.max_samples is for the paper-000 Stribeck fit; hierarchical = true uses every "
+                              "processed training sample")
+        if "covariance" in t and t["covariance"] != "model":
+            raise ConfigError(f"{where}.covariance = {t['covariance']!r} is not available with hierarchical = true "
+                              "(the rigid-body fit is repeated on friction-corrected torques; only the model covariance)")
+        if "coulomb_smoothing" in t:
+            raise ConfigError(f"{where}.coulomb_smoothing is for the linear friction columns; hierarchical = true fits "
+                              "the friction curve itself (friction_model = 'arctan' smooths with arctan, Eq. 15)")
+    else:
+        friction_model = _str(t.get("friction_model", "linear"), f"{where}.friction_model", ("linear", "stribeck"))
+        if "friction_prior" in t:
+            raise ConfigError(f"{where}.friction_prior is the starting friction of hierarchical = true; set "
+                              f"{where}.hierarchical = true or remove it")
     if "max_samples" in t and friction_model != "stribeck":
         raise ConfigError(f"{where}.max_samples is for friction_model = 'stribeck' (the rows of the nonlinear fit)")
     for key, need in (("noise_covariance", ("gm", "ml")), ("iterations", ("gm",)), ("nominal_weighting", ("wls",)),
@@ -609,6 +645,8 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
         structure=structure,
         identical_chains=chains,
         coulomb_smoothing=smoothing,
+        hierarchical=hierarchical,
+        friction_prior=_path(t["friction_prior"], f"{where}.friction_prior", base) if "friction_prior" in t else None,
         experiment=_path(t["experiment"], f"{where}.experiment", base) if loop else None,
         start=_str(t.get("start", "wls" if method == "iv" else "nominal"), f"{where}.start", ("wls", "nominal")),
         max_iterations=_int(t.get("max_iterations", 10), f"{where}.max_iterations", 1),
@@ -626,7 +664,7 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
         solver=_str(t.get("solver", "CLARABEL"), f"{where}.solver"),
         bodies=_parse_bodies(t["bodies"], f"{where}.bodies") if "bodies" in t else {},
         friction_model=friction_model,
-        covariance=_parse_covariance(t, method, physical, friction_model),
+        covariance=_parse_covariance(t, method, physical, "linear" if hierarchical else friction_model),
         max_samples=_int(t.get("max_samples", 4000), f"{where}.max_samples", 100),
         chunk_size=_int(t.get("chunk_size", 20000), f"{where}.chunk_size", 1),
         base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),

@@ -122,6 +122,9 @@ def _parse_identify(t: Any, model: str, base_dir: Path) -> dict[str, Any]:
         cfg = parse_config(_identify_document(t, model, base_dir / "trial.npz", ["a"], "torque", 1000), base_dir)
     except ConfigError as exc:
         raise ConfigError(f"identify: {exc}") from None
+    if cfg.identification.hierarchical:
+        raise ConfigError("identify.identification.hierarchical = true is not available in dynid montecarlo: its trials "
+                          "compare base parameters with the simulated truth and do not map friction curves")
     if cfg.identification.friction_model != "linear":
         raise ConfigError("identify.identification.friction_model = 'stribeck' is not available in dynid montecarlo: "
                           "its trials compare base parameters with the simulated truth and do not map Stribeck parameters yet")

@@ -103,8 +103,9 @@ class CurveFit:
         return curve_force(self.model, self.as_dict(), v)
 
 
-def _bounds(names: tuple[str, ...], v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    vmin, vmax = float(v.min()), float(v.max())
+def _bounds(names: tuple[str, ...], v: np.ndarray, speed_range: tuple[float, float] | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+    vmin, vmax = speed_range if speed_range is not None else (float(v.min()), float(v.max()))
     table = {"fc": (0.0, np.inf), "fs": (0.0, np.inf), "fv": (0.0, np.inf), "vs": (vmin / 100, 100 * vmax),
              "kv": (1e-3 / vmax, 1e4 / vmin), "alpha": (0.05, 3.0)}
     lo, hi = zip(*(table[n] for n in names))
@@ -112,11 +113,11 @@ def _bounds(names: tuple[str, ...], v: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def _starts(model: str, v: np.ndarray, f: np.ndarray, w: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-            keep: int = 3) -> list[np.ndarray]:
+            keep: int = 3, speed_range: tuple[float, float] | None = None) -> list[np.ndarray]:
     """Grid of the nonlinear coefficients, the linear ones by NNLS; the ``keep`` best."""
     names = MODELS[model]
     nonlinear = [n for n in names if n not in _LINEAR]
-    vmin, vmax = float(v.min()), float(v.max())
+    vmin, vmax = speed_range if speed_range is not None else (float(v.min()), float(v.max()))
     grids = {"vs": np.geomspace(max(vmin / 2, lo[names.index("vs")] if "vs" in names else 0), vmax, 8),
              "kv": np.geomspace(0.1 / vmin, 100 / vmin, 7), "alpha": np.array([0.3, 0.5, 0.7, 1.0, 1.4])}
     trials = []
@@ -144,7 +145,8 @@ def _jacobian(fun, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def fit_curve(model: str, v: FloatArray, f: FloatArray, sigma: FloatArray | None = None) -> CurveFit:
+def fit_curve(model: str, v: FloatArray, f: FloatArray, sigma: FloatArray | None = None, *,
+              speed_range: tuple[float, float] | None = None, start: FloatArray | None = None) -> CurveFit:
     """Fit ``model`` to points ``(v, f)`` with uncertainties ``sigma`` (see the module docstring).
 
     Parameters
@@ -156,6 +158,12 @@ def fit_curve(model: str, v: FloatArray, f: FloatArray, sigma: FloatArray | None
     sigma : array (m,), optional
         Uncertainty of each point (relative weights); default equal weights. Values below
         1e-3 of their median are raised to it (noise-free points have a spread of round-off).
+    speed_range : (v_min, v_max), optional
+        The speeds that set the bounds and the start grid in place of the points' smallest and
+        largest (samples of a motion, :mod:`dynid.pipeline.hierarchical`, come as close to 0 as
+        the sampling makes them: the grid would then sit at absurd smoothing coefficients).
+    start : array (p,), optional
+        One starting point (a previous fit: warm start) in place of the grid.
     """
     if model not in MODELS:
         raise InputError(f"unknown friction model {model!r}; one of {list(MODELS)}")
@@ -169,13 +177,15 @@ def fit_curve(model: str, v: FloatArray, f: FloatArray, sigma: FloatArray | None
     s = np.ones(m) if sigma is None else np.asarray(sigma, dtype=float)
     floor = max(1e-3 * float(np.median(s)), 1e-12 * max(float(np.abs(f).max()), 1.0), 1e-300)
     w = 1.0 / np.maximum(s, floor)
-    lo, hi = _bounds(names, v)
+    lo, hi = _bounds(names, v, speed_range)
 
     def resid(x):
         return (curve_force(model, x, v) - f) * w
 
     best = None
-    for x0 in _starts(model, v, f, w, lo, hi):
+    starts = ([np.asarray(start, dtype=float)] if start is not None
+              else _starts(model, v, f, w, lo, hi, speed_range=speed_range))
+    for x0 in starts:
         x0 = np.minimum(np.maximum(x0, lo), hi)  # trf moves a start on a bound strictly inside
         res = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
                             max_nfev=2000 * p)

@@ -376,6 +376,9 @@ def _check_config(cfg: Config) -> None:
         raise ConfigError("identifiability: identification.physical_consistency = true has no covariance and its "
                           "sub-models no map to standard parameters; the search checks feasibility after each fit "
                           "(paper 000 §6.2): set it to false")
+    if icfg.hierarchical:
+        raise ConfigError("identifiability: identification.hierarchical = true alternates nonlinear friction fits; the "
+                          "search needs a linear model: remove it")
     if icfg.friction_model != "linear":
         raise ConfigError(f"identifiability: identification.friction_model = {icfg.friction_model!r}; the search "
                           "needs a linear model: use 'linear'")

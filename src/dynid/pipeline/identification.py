@@ -275,7 +275,9 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
                             reversal=c.reversal)
             kept.append(np.ones(c.y.shape, dtype=bool) if mask is None
                         else np.broadcast_to(mask if mask.ndim == 2 else mask[:, None], c.y.shape))
-        pred.append(c.W @ result.params if friction is None else stribeck.predict(result, friction, c.W, c.dq))
+        pred.append(c.W @ result.params if friction is None else
+                    friction.predict(result, c.W, c.dq) if hasattr(friction, "predict")  # hierarchical
+                    else stribeck.predict(result, friction, c.W, c.dq))
         if nominal is not None:
             prior.append(c.W @ nominal)
         if c.Ga is not None and c.tau is not None:
@@ -502,7 +504,11 @@ def _check_config(cfg: Config, system: System) -> str | None:
         raise ConfigError(f"processing.min_velocity_passive leaves out the samples where a passive joint with Coulomb "
                           f"friction is slow; {system.name!r} has no such joint "
                           f"({'a serial arm has no passive joint' if system.kind == 'serial' else 'no Coulomb term on a passive joint'})")
-    if icfg.friction_model == "stribeck":
+    if icfg.hierarchical:
+        from dynid.pipeline import hierarchical
+
+        hierarchical.check_config(cfg, system)
+    elif icfg.friction_model == "stribeck":
         stribeck.check_config(cfg, system)
     if icfg.method in ("iv", "didim") and pc is not None:
         raise ConfigError(f"identification.method = {icfg.method!r} replays the experiment sample by sample; "
@@ -727,7 +733,37 @@ def _coulomb_smoothing(spec, train_a: Dataset, pcfg, system) -> dict[str, Any] |
     return {"kind": "erf", "width": [float(w) for w in spec], "source": "given"}
 
 
+def _hierarchical_fit(cfg: Config, system: System, base: BaseParameters, train: Dataset, steps, channels, names,
+                      progress: Progress, meta: dict):
+    """:func:`dynid.pipeline.hierarchical.hierarchical_fit` on every processed training row (the
+    friction-free regressor: ``[robot]`` without the friction extras, see :func:`_identify`)."""
+    from dynid.pipeline import hierarchical
+
+    icfg, pcfg = cfg.identification, cfg.processing
+    chunks = list(_chunks(system, base, train, None, chunk_size=icfg.chunk_size, progress=progress,
+                          task="hierarchical rows", reversal_guard=pcfg.reversal_guard_s(),
+                          min_velocity=pcfg.min_velocity))
+    W, y, dq = (np.concatenate([getattr(c, a) for c in chunks]) for a in ("W", "y", "dq"))
+    rev = None if chunks[0].reversal is None else np.concatenate([c.reversal for c in chunks])
+    mask = row_mask(system, None, dq, pcfg.min_velocity, reversal=rev)
+    prior = None
+    if icfg.friction_prior is not None:
+        prior = hierarchical.read_prior(icfg.friction_prior, icfg.friction_model, tuple(system.actuator_names))
+    nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
+    estimator = configured_estimator(icfg, steps, channels, names, nominal)
+    result, fr = hierarchical.hierarchical_fit(
+        W, y, dq, mask, family=icfg.friction_model, joints=tuple(system.actuator_names), estimator=estimator,
+        names=base.names, channels=channels,
+        build_kwargs={"expressions": base.expressions(), "standard": system.standard_map(base), "meta": meta},
+        prior=prior, prior_source=None if icfg.friction_prior is None else str(icfg.friction_prior), progress=progress)
+    return result, fr, 0.0
+
+
 def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
+    if cfg.identification.hierarchical:  # the friction-free regressor Phi_br (paper 003 Eq. 37)
+        from dynid.pipeline.hierarchical import rigid_robot_config
+
+        cfg = dataclasses.replace(cfg, robot=rigid_robot_config(cfg.robot))
     system = build_system(cfg.robot).with_structure(cfg.identification.structure, cfg.identification.identical_chains)
     force_model = _check_config(cfg, system)
     icfg, pcfg = cfg.identification, cfg.processing
@@ -781,6 +817,9 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         at_fc = dataclasses.replace(pcfg, periodic=periodic)  # both logs as processed at the estimated f_c
         train, _ = preprocess(train_a, at_fc, "data")
         held_out, _ = preprocess(valid_a, at_fc, "validation")
+    elif icfg.hierarchical:
+        result, fj, worst = _hierarchical_fit(cfg, system, base, train, steps, tuple(channels), tuple(names), progress,
+                                              meta)
     elif icfg.friction_model == "stribeck":
         result, fj, worst = _stribeck_fit(cfg, system, base, train, force_model, periodic, progress, meta)
     elif icfg.method in ("iv", "didim"):
@@ -854,7 +893,7 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
-                "model.urdf", "model.mjcf", TIMING_FILE)
+                "hierarchical.png", "model.urdf", "model.mjcf", TIMING_FILE)
 
 
 def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Path]:
@@ -992,6 +1031,10 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
         from dynid.report import plot_validation, write_html_report
 
         plot_validation(outcome.validation, stage / "validation.png")
+        if "hierarchical" in res.solver:
+            from dynid.pipeline.hierarchical import plot_history
+
+            plot_history(res.solver["hierarchical"], tuple(res.channel_names), stage / "hierarchical.png")
         if outcome.raw_train is not None:
             from dynid.report.plots import plot_processing
 
