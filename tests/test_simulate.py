@@ -230,3 +230,29 @@ def test_simulate_a_variant_built_in_code(tmp_path):
     assert np.abs(reg.outputs(logged) - reg.W @ mech.nominal_parameters()).max() > 1e-3 * np.abs(logged).max()
     with pytest.raises(ModelError, match="other parameters"):
         run_simulation(cfg, robot=build_mechanism("hexapod"))
+
+
+def test_truth_json_records_no_friction_the_plant_did_not_use(tmp_path):
+    """Issue 19 item 5: with [robot.friction] the plant's friction is that model alone; the linear
+    friction terms it replaces are recorded as 0 and listed, so that the recorded parameters plus the
+    ground-truth model give the logged torques exactly (serial arm, noise-free, computed torque)."""
+    from dynid.model import friction as fr
+    from dynid.model import load_robot
+    from dynid.model.serial_dynamics import inverse_dynamics
+
+    cfg = {"robot": {"model": "builtin:cobot6r", "perturbation": 0.1,
+                     "friction": {"model": "smooth_stribeck", "fc": 1.0, "fs": 1.5, "fv": 2.0, "vs": 0.05, "kv": 200.0,
+                                  "alpha": 0.8}},
+           "trajectory": {"kind": "fourier", "base_frequency_hz": 1.0, "harmonics": 2, "fill": 0.2, "seed": 1},
+           "control": {"rate_hz": 500}, "simulation": {"duration": 0.4}}
+    out = run_simulation(parse_simulate_config(cfg, tmp_path))
+    truth = out.truth
+    robot = load_robot("builtin:cobot6r")
+    replaced = truth["replaced_by_ground_truth_friction"]
+    assert set(replaced) == {n for n in robot.parameter_names if n.startswith(("fv", "fc", "off"))}
+    rec = dict(zip(truth["parameter_names"], truth["true_parameters"]))
+    assert all(rec[n] == 0.0 for n in replaced) and any(v != 0.0 for n, v in rec.items() if n.startswith("Ia"))
+    m = out.motion
+    model = fr.SmoothStribeck(fc=1.0, fs=1.5, fv=2.0, vs=0.05, kv=200.0, alpha=0.8)
+    tau = inverse_dynamics(robot, np.asarray(truth["true_parameters"]), m.q, m.dq, m.ddq) + model.force(m.dq)
+    np.testing.assert_allclose(m.tau, tau, atol=1e-8 * np.abs(tau).max())

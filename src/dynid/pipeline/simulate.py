@@ -15,7 +15,9 @@ Outputs, written together or not at all:
   :mod:`dynid.trajectories.constant_velocity`);
 * ``truth.json``: the true and nominal standard parameters of the robot (names and values),
   the true base parameters with their grouping expressions, the payload (body, mass, centre
-  of mass, inertia) separately;
+  of mass, inertia) separately; with ``[robot.friction]`` the linear friction terms that model
+  replaces in the plant are recorded as 0 and listed in ``replaced_by_ground_truth_friction``
+  (the plant's friction is ``ground_truth_friction`` alone);
 * ``metadata.json``: what every column means, units, seeds, control and sensor settings, the
   model the controller used (``control.model_used``: nominal, true, or the identification
   result's path relative to the configuration's folder), tracking metrics in the independent
@@ -323,6 +325,22 @@ def _friction_model(spec: dict | None, n: int):
     return cls(**kw)
 
 
+def _replaced_friction(robot, mech: bool) -> list[str]:
+    """The linear friction parameters that ``[robot.friction]`` replaces in the plant: every
+    friction extra of a serial robot (``fv``, ``fc``, their asymmetric forms, ``offset``: the plant
+    uses the configured model instead, :class:`~dynid.simulation.control.SerialPlant`), or every
+    non-inertia joint term acting only on an actuated joint of a mechanism (the passive joints
+    keep theirs, :func:`_mechanism_friction`). truth.json records them as 0 (the plant has no
+    such term beyond the configured model) and lists them: the values the robot description or
+    its perturbation gave them never reached the plant."""
+    if mech:
+        act = set(robot.actuated)
+        return [t.name for t in robot.terms if t.kind != "inertia" and set(t.joints) <= act]
+    lay = robot.layout
+    names = list(robot.parameter_names)
+    return [names[i] for e, idx in lay.extra_index.items() if e != "Ia" for i in idx]
+
+
 def _mechanism_friction(mech: Mechanism, params: np.ndarray, model):
     """Generalized friction forces: the joint terms' friction on the passive joints and
     ``model`` on the actuated ones (rotor inertias stay in the simulator)."""
@@ -480,10 +498,14 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
     base = None
     if plant_params is None:  # a replay's truth goes without them (run_simulation)
         base = mechanism_base_parameters(robot) if mech else robot_base_parameters(robot)
+    replaced = _replaced_friction(robot, mech) if cfg.robot.friction is not None and plant_params is None else []
+    recorded = np.array(true, dtype=float)
+    recorded[[list(robot.parameter_names).index(n) for n in replaced]] = 0.0
     truth = {
         "model": cfg.robot.model if variant is None else f"variant of {cfg.robot.model}",
         "parameter_names": list(robot.parameter_names),
-        "true_parameters": true.tolist(),
+        "true_parameters": recorded.tolist(),
+        **({"replaced_by_ground_truth_friction": replaced} if replaced else {}),
         "nominal_parameters": nominal.tolist(),
         "perturbation": cfg.robot.perturbation,
         "ground_truth_friction": (dict(cfg.robot.friction) if cfg.robot.friction is not None else
@@ -492,7 +514,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
                     if payload is not None else None),
         "base_parameters": None if base is None else {
             "names": list(base.names),
-            "true_values": base.from_standard(true).tolist(),
+            "true_values": base.from_standard(recorded).tolist(),
             "expressions": list(base.expressions()),
         },
     }
