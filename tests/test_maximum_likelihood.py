@@ -292,7 +292,7 @@ def test_propagated_position_noise_settles_the_time_domain_cut_off():
     is the negative log-likelihood of the residuals of an unbiased fit: the position term falls as
     the filter removes less noise, the log-determinant rises with g2 ~ f_c^5, and the minimum is
     interior, next to the cut-off where the parameter error is smallest, with the truth inside the
-    estimate's intervals. (Over seeds 0-9 of this record: Eq. 24 at the top in 6, the new search at
+    estimate's intervals. (Over seeds 0-9 of this record: Eq. 24 at the top in 5, the new search at
     16.5 Hz in all 10, largest |error|/std 2.5; without the correction it stops at 16.5-21.9 Hz with
     |error|/std up to 11.)"""
     from dynid.estimation.generalized import gls_solve
