@@ -30,8 +30,9 @@ the papers' 24 parameters, ``structure = "paper"``) in the time domain: WLS afte
 low-pass with and without ``min_velocity = 0.01`` + ``reversal_guard = "auto"``, GM with the guard
 (each sample whitened with the covariance of the struts it keeps), and maximum likelihood in the
 time domain (the low-pass cut-off searched over 5-20 Hz and 5-80 Hz, the simulation's own noise
-covariances given; its cost profile is printed); how many of the 24 rows have the truth within
-3 std.
+covariances given; the force covariance includes the propagated encoder noise and the estimates
+are corrected for it, :mod:`dynid.estimation.likelihood`; its cost profile is printed); how many of
+the 24 rows have the truth within 3 std.
 
 Run: ``.venv/bin/python bench/hexapod_coverage.py`` (``--quick``: 10 trials, no resimulation;
 ``--trials N``; ``--workers K``; ``--figure bench/figures/hexapod_reversal_guard.png``;
@@ -193,11 +194,14 @@ def table2(methods: list[str] | None = None) -> None:
             if method == "ml":
                 sv = out.result.solver
                 fc = f"f_c {sv['cutoff_hz']:.3g} Hz (neighbours {sv['cutoff_interval_hz'][0]:.3g}, {sv['cutoff_interval_hz'][1]:.3g}); "
-                print("ML cost profile (cut-off Hz, position cost, force cost, total):")
+                print(f"{label}: cost profile (cut-off Hz, position cost, force cost, of it the log-determinant of "
+                      "S_k Sigma_eta^-1, total; propagated force noise std N, mean over the struts):")
                 for r in sv["profile"]:
+                    prop = r.get("propagated_std")
                     print(f"  {r['cutoff_hz']:8.3f} {r['position_cost']:14.1f} {r['force_cost'] or float('nan'):14.1f} "
-                          f"{r['cost'] or float('nan'):14.1f}")
-                print(f"  residual variance factor at f_c: {out.result.scale:.3f} (1 if Sigma_eta were the whole residual)")
+                          f"{r.get('log_det', float('nan')):12.1f} {r['cost'] or float('nan'):14.1f} "
+                          f"{float(np.mean(prop)) if prop else float('nan'):8.3f}" + (f"  ({r['error'][:70]})" if 'error' in r else ""))
+                print(f"  residual variance factor at f_c: {out.result.scale:.3f} (1 if S_k is the whole residual)")
             rows.append([label, f"{int((z < 3).sum())} of 24", f"{z.max():.1f}", f"{np.median(z):.2f}",
                          f"{int(np.median(out.result.n_obs))}", f"{fc}worst: {worst}; held-out rel. RMSE % "
                          + " ".join(f"{x:.1f}" for x in out.validation.rel_rmse_pct) + f"; {time.perf_counter() - t0:.0f} s"])

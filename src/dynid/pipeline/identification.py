@@ -570,6 +570,41 @@ def _maximum_likelihood(cfg: Config, system: System, base: BaseParameters, train
 ML_TIME_CANDIDATES = 13  # logarithmic grid over the searched range: neighbours 12 % apart at the default 4:1
 
 
+def _acceleration_columns(system: System, base: BaseParameters, ds: Dataset, force_model: str | None,
+                          stride: int, chunk_size: int) -> tuple[FloatArray, FloatArray]:
+    """``(t, A)``: the derivative of the base regressor in the actuator accelerations,
+    :math:`A_j = \\partial W/\\partial\\ddot q_{a,j}`, shape (m, n_ch, n_a, p), at every ``stride``-th
+    sample of ``ds`` (and the last), and their times. The model is affine in the accelerations, so
+    :math:`A_j` is the difference of the regressors with the acceleration of actuator ``j`` raised
+    by one unit (exact, not a finite-difference step); :math:`M_a = A \\beta` is the actuator-space
+    inertia matrix of the parameters :math:`\\beta`."""
+    idx = np.unique(np.r_[np.arange(0, ds.n_samples, stride), ds.n_samples - 1])
+    sub = Dataset(t=ds.t[idx], q=ds.q[idx], tau=ds.tau[idx], dq=ds.dq[idx], ddq=ds.ddq[idx], names=ds.names)
+
+    def regressor(ddq: FloatArray) -> FloatArray:
+        part = dataclasses.replace(sub, ddq=ddq)
+        return np.concatenate([c.W for c in _chunks(system, base, part, force_model, chunk_size=chunk_size)])
+
+    W0 = regressor(sub.ddq)
+    A = np.empty((idx.size, W0.shape[1], sub.q.shape[1], W0.shape[2]))
+    for j in range(sub.q.shape[1]):
+        ddq = sub.ddq.copy()
+        ddq[:, j] += 1.0
+        A[:, :, j, :] = regressor(ddq) - W0
+    return sub.t, A
+
+
+def _interp_rows(t: FloatArray, tk: FloatArray, Mk: FloatArray) -> FloatArray:
+    """``Mk`` (m, ...) known at the times ``tk``, linearly interpolated to the times ``t``."""
+    i = np.clip(np.searchsorted(tk, t) - 1, 0, tk.size - 2)
+    w = np.clip((t - tk[i]) / (tk[i + 1] - tk[i]), 0.0, 1.0).reshape((-1,) + (1,) * (Mk.ndim - 1))
+    return (1.0 - w) * Mk[i] + w * Mk[i + 1]
+
+
+ML_INERTIA_POINTS_PER_CUTOFF_PERIOD = 10  # M_a(q) evaluated 10 times per period of processing.lowpass.cutoff_hz
+ML_INERTIA_MAX_FLOATS = 25_000_000  # at most this many numbers of d W / d qdd held (200 MB): a sparser grid beyond
+
+
 def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, train_a: Dataset,
                              force_model: str | None, progress: Progress, meta: dict):
     """Maximum likelihood with the cut-off of the zero-phase Butterworth low-pass (paper 004 Eq. 24
@@ -578,8 +613,19 @@ def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, 
     ``reversal_guard``; ``"auto"`` is the settling time of the *lowest* candidate, the longest
     smear) decided once on the log filtered at ``processing.lowpass``. Returns the result, the
     processing at the chosen cut-off (with that trim and a guard in seconds) and the largest
-    inconsistency."""
-    from dynid.estimation.likelihood import CutoffFamily, MaximumLikelihood, log_cutoff_grid
+    inconsistency.
+
+    The force residual's covariance at each candidate is :math:`\\Sigma_{\\eta\\eta}` plus the
+    encoder noise that the filter and the differences carry into the accelerations,
+    :math:`g_2(f_c) M_a(q_k) \\Sigma_{\\delta\\delta} M_a(q_k)^T` (:mod:`dynid.estimation.likelihood`):
+    :math:`M_a` of the pilot estimate, Gauss–Markov with :math:`\\Sigma_{\\eta\\eta}` on the log
+    filtered at ``processing.lowpass`` (the same rows), evaluated every
+    ``fs / (10 cutoff_hz)`` samples and interpolated between them; the estimate at each candidate is
+    corrected for the share of that noise in the normal matrix (errors in the variables), from
+    :math:`\\partial W/\\partial\\ddot q_a` at the same samples."""
+    from dynid.estimation.generalized import gls_solve
+    from dynid.estimation.likelihood import CandidateBuilder, CutoffFamily, MaximumLikelihood, log_cutoff_grid, \
+        processing_noise_gains
     from dynid.signals import zero_phase_settling_time
 
     pcfg, icfg = cfg.processing, cfg.identification
@@ -627,17 +673,40 @@ def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, 
     if keep is not None and keep.ndim == 1:
         keep = np.broadcast_to(keep[:, None], ref.dq.shape)
     meta["processing"] = steps
-    worst = [0.0]
+    # the pilot estimate for M_a(q): Gauss-Markov with Sigma_eta at the configured cut-off, same rows
+    progress("pilot estimate", 0, 1)
+    pilot_problem, w0 = _compress(system, base, ref, force_model=force_model, min_velocity=None, parallel_decimate=1,
+                                  chunk_size=icfg.chunk_size, progress=_no_progress, meta=meta, cross=True,
+                                  periodic=None, keep=keep)
+    try:
+        pilot, pilot_from = gls_solve(pilot_problem, cov_e).beta, f"Gauss-Markov with Sigma_eta at {lp.cutoff_hz:g} Hz"
+    except IdentifiabilityError:  # the configured cut-off does not identify every parameter: the description's
+        pilot, pilot_from = base.from_standard(system.nominal_parameters()), "the robot description's parameters"
+    per_sample = len(channels) * system.n_actuators * base.n_base
+    stride = max(1, int(fs / (ML_INERTIA_POINTS_PER_CUTOFF_PERIOD * lp.cutoff_hz)),
+                 -(-ref.n_samples * per_sample // ML_INERTIA_MAX_FLOATS))
+    tk, Ak = _acceleration_columns(system, base, ref, force_model, stride, icfg.chunk_size)
+    Mk = Ak @ pilot  # M_a(q) of the pilot estimate
+    Bk = np.einsum("kij,jl,kml->kim", Mk, cov_d, Mk)  # M_a Sigma_dd M_a^T at those samples
+    progress("pilot estimate", 1, 1)
+    worst = [w0]
 
     def build(fc: float):
         progress("cut-off search", cutoffs.index(fc), len(cutoffs))
         at = dataclasses.replace(fixed, lowpass=dataclasses.replace(lp, cutoff_hz=fc))
         ds, _ = preprocess(train_a, at, "data")
-        problem, w = _compress(system, base, ds, force_model=force_model, min_velocity=None, parallel_decimate=1,
-                               chunk_size=icfg.chunk_size, progress=_no_progress, meta=meta, cross=True,
-                               periodic=None, keep=keep)
-        worst[0] = max(worst[0], w)
-        return problem, raw.q - ds.q, keep
+        g2 = processing_noise_gains(lp.order, fc, fs).acceleration
+        cb = CandidateBuilder(base.names, channels, cov_e)
+        a = 0
+        for c in _chunks(system, base, ds, force_model, chunk_size=icfg.chunk_size, keep=keep):
+            b = a + c.y.shape[0]
+            cb.add(c.W, c.y, c.reversal, g2 * _interp_rows(ds.t[a:b], tk, Bk),
+                   (_interp_rows(ds.t[a:b], tk, Ak), g2 * cov_d))
+            worst[0] = max(worst[0], float(c.inconsistency.max(initial=0.0)))
+            a = b
+        cand = cb.build(raw.q - ds.q, keep, expressions=base.expressions(), standard=system.standard_map(base),
+                        meta=meta)
+        return cand
 
     result = MaximumLikelihood(noise_covariance=cov_e, position_covariance=cov_d).fit(
         CutoffFamily(cutoffs, build, None))
@@ -647,6 +716,10 @@ def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, 
                                 reversal_guard=guard if guard is not None else pcfg.reversal_guard)
     result = dataclasses.replace(result, solver={**result.solver, "trim_samples": int(trim),
                                                  "reversal_guard_s": guard,
+                                                 "propagation": {"pilot": pilot_from, "pilot_params": [float(x) for x in pilot],
+                                                                 "inertia_every_samples": stride,
+                                                                 "acceleration_noise_gain": processing_noise_gains(
+                                                                     lp.order, fc, fs).acceleration},
                                                  "rows_kept_per_actuator": None if keep is None else keep.sum(axis=0).tolist()})
     return result, at_fc, worst[0]
 
