@@ -40,8 +40,8 @@ Our reading of Section 3.4 (the extracted text lost its operators):
 * **Compensation (§3.4.3)**: :func:`compensate`.
 
 Training is deterministic on the CPU for a seed (``torch.manual_seed``, deterministic algorithms,
-one thread, a seeded shuffle), stops early on a validation split (the last part of the training
-log in time), and is bounded by ``max_seconds`` (then the epoch where the clock stopped it depends
+one thread, a seeded shuffle), stops early on a validation split (every fifth block of 10
+consecutive samples of the training log), and is bounded by ``max_seconds`` (then the epoch where the clock stopped it depends
 on the machine: the result records which bound ended training).
 """
 
@@ -275,7 +275,7 @@ class ResidualNetworks:
         return {"format": FORMAT, "config": self.config.to_dict(), "joints": list(self.joint_names),
                 "scales": self.scales, "stribeck_prior": self.priors, "linear_friction": self.linear_friction,
                 "bounds": self.bounds, "training": [dataclasses.asdict(r) for r in self.records],
-                "torch": require_torch().__version__}
+                "torch": str(require_torch().__version__)}
 
     def save(self, path: str | Path) -> None:
         torch = require_torch()
@@ -298,14 +298,24 @@ class ResidualNetworks:
 
 
 # ---------------------------------------------------------------------- training
+BLOCK = 10  # samples per block of the early-stopping split
+
+
+def _validation_blocks(n: int, fraction: float) -> np.ndarray:
+    """The early-stopping split: every m-th block of ``BLOCK`` consecutive samples (m = round(1 /
+    fraction)), so that it covers the whole motion (the log's tail alone is one stretch of it)."""
+    m = max(2, int(round(1.0 / fraction)))
+    return (np.arange(n) // BLOCK) % m == m - 1
+
+
 def _train_joint(torch, cfg: LearningConfig, x: FloatArray, y: FloatArray, flin: FloatArray, v: FloatArray,
                  sr: float, fmax: float, c: float, seed: int, deadline: float, progress: Progress, task: str):
     """Train one joint's network on scaled inputs x (n, k, 4) and scaled targets y (n,)."""
     n = x.shape[0]
-    n_val = max(1, int(round(cfg.validation_fraction * n)))
-    n_fit = n - n_val
-    if n_fit < cfg.batch_size:
-        raise InputError(f"learning: {n} training samples are too few for batches of {cfg.batch_size}")
+    val_mask = _validation_blocks(n, cfg.validation_fraction)
+    n_fit = int(n - val_mask.sum())
+    if n_fit < cfg.batch_size or not val_mask.any():
+        raise InputError(f"learning: {n} training samples are too few for batches of {cfg.batch_size} and a validation split")
     torch.manual_seed(seed)
     net = _net(torch, cfg.model, cfg.hidden)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.learning_rate)
@@ -324,7 +334,7 @@ def _train_joint(torch, cfg: LearningConfig, x: FloatArray, y: FloatArray, flin:
         return mse, mse + cfg.lam * (l_dir + l_lim + l_str)
 
     gen = torch.Generator().manual_seed(seed)
-    fit_idx, val_idx = torch.arange(n_fit), torch.arange(n_fit, n)
+    fit_idx, val_idx = torch.as_tensor(np.flatnonzero(~val_mask)), torch.as_tensor(np.flatnonzero(val_mask))
     best = (float("inf"), 0, copy.deepcopy(net.state_dict()), float("nan"))
     stopped, epoch, t0 = "epochs", 0, time.perf_counter()
     for epoch in range(1, cfg.epochs + 1):
