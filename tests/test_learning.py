@@ -214,6 +214,33 @@ def test_without_torch_a_one_line_error(logs, monkeypatch, capsys):
     assert not (logs / "no_torch").exists()
 
 
+def test_dynid_imports_without_torch():
+    """Nothing imports torch at module level: a fresh interpreter without it imports every module
+    that touches [learning]."""
+    import subprocess
+
+    # a finder that refuses torch (sys.modules['torch'] = None would break scipy, which looks torch up there)
+    code = ("import sys, importlib.abc\n"
+            "class NoTorch(importlib.abc.MetaPathFinder):\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name.split('.')[0] == 'torch':\n"
+            "            raise ImportError('no torch here')\n"
+            "sys.meta_path.insert(0, NoTorch())\n"
+            "import dynid.cli, dynid.learning, dynid.pipeline.learning, dynid.pipeline.identification\n"
+            "import dynid.studies.learning, dynid.config.learning\n"
+            "from dynid.learning import require_torch\n"
+            "try:\n"
+            "    require_torch()\n"
+            "except Exception as exc:\n"
+            "    print(type(exc).__name__, exc)\n"
+            "print('torch' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.strip().splitlines()
+    assert lines[0].startswith("MissingExtraError [learning] needs torch") and "pip install 'dynid[learning]'" in lines[0]
+    assert lines[1:] == ["False"]
+
+
 DOC = {
     "robot": {"model": "builtin:puma560"},
     "data": {"file": "x.csv", "sample_rate_hz": 100.0, "rows": [0, 10], "position": {"columns": list("abcdef")},

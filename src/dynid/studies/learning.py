@@ -44,7 +44,7 @@ def ablation(train: tuple[FloatArray, FloatArray, FloatArray], held_out: tuple[F
         base = dataclasses.replace(base, **QUICK)
     dq_v, ddq_v, r_v = held_out
     slow = np.abs(dq_v) < LOW_SPEED
-    rows = [_row("identified model alone", r_v, slow, float("nan"), 0.0)]
+    rows = [_row("identified model alone", r_v, slow, float("nan"), float("nan"))]
     for kind in models:
         cfg = dataclasses.replace(base, model=kind)
         t0 = time.perf_counter()
@@ -73,5 +73,6 @@ def table(rows: list[dict[str, Any]]) -> str:
     out = [f"{'model':<24}{'RMSE (all joints)':>18}{f'low-speed (<{LOW_SPEED:g})':>18}{'epochs':>8}{'seconds':>9}"]
     for r in rows:
         ep = "" if np.isnan(r["epochs_to_converge"]) else f"{r['epochs_to_converge']:.0f}"
-        out.append(f"{r['model']:<24}{r['rmse']:>18.4g}{r['low_speed_rmse']:>18.4g}{ep:>8}{r['seconds']:>9.1f}")
+        sec = "" if np.isnan(r["seconds"]) else f"{r['seconds']:.1f}"
+        out.append(f"{r['model']:<24}{r['rmse']:>18.4g}{r['low_speed_rmse']:>18.4g}{ep:>8}{sec:>9}")
     return "\n".join(out)
