@@ -290,3 +290,27 @@ def test_ablation_quick_version(outcome):
     for r in rows[1:3]:
         assert r["rmse"] < 0.9 * base, table(rows)
     assert "PI-GRU" in table(rows)
+
+
+def test_time_bound_and_bad_inputs(outcome, tmp_path):
+    """max_seconds ends training after the epoch in which the clock ran out (recorded); a file that
+    is not a saved network, wrong shapes and too few samples are one-line InputErrors."""
+    from dynid.errors import InputError
+    from dynid.learning import LearningConfig, ResidualNetworks, fit_residual
+
+    (train, r_tr), _ = _residuals(outcome)
+    nets = fit_residual(LearningConfig(epochs=50, hidden=8, max_seconds=1e-3), train.dq[:, :2], train.ddq[:, :2],
+                        r_tr[:, :2])
+    assert [(r.stopped_by, r.epochs_run) for r in nets.records] == [("max_seconds", 1)] * 2
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a network")
+    for call, match in (
+        (lambda: ResidualNetworks.load(bad), "is not a saved dynid network"),
+        (lambda: ResidualNetworks.load(tmp_path / "none.pt"), "no trained network at"),
+        (lambda: nets.predict(train.dq, train.ddq), "expected velocities and accelerations of 2 joints"),
+        (lambda: fit_residual(LearningConfig(), train.dq[:100], train.ddq[:100], r_tr[:100]), "too few"),
+        (lambda: fit_residual(LearningConfig(), train.dq, train.ddq, r_tr[:, :3]), "shapes"),
+    ):
+        with pytest.raises(InputError, match=match) as info:
+            call()
+        assert "\n" not in str(info.value)
