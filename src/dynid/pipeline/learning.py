@@ -58,6 +58,7 @@ class LearningOutcome:
     with_network: ValidationMetrics  # held-out: identified model + network
     low_speed: dict[str, Any]  # RMSE on the held-out samples slower than LOW_SPEED, both ways
     training_rmse: dict[str, list[float]]  # the training log, both ways
+    outside: list[float] = dataclasses.field(default_factory=list)  # held-out share outside the training velocity range
 
     def summary_lines(self) -> list[str]:
         cfg = self.networks.config
@@ -70,6 +71,10 @@ class LearningOutcome:
         for j, n in enumerate(self.without.channel_names):
             lines.append(f"{n:<14}{self.without.rmse[j]:>14.4g}{self.with_network.rmse[j]:>12.4g}"
                          f"{ls['without'][j]:>19.4g}{ls['with'][j]:>16.4g}{recs[j].best_epoch:>12d}  {recs[j].stopped_by}")
+        far = [f"{n} {100 * o:.0f} %" for n, o in zip(self.without.channel_names, self.outside) if o > 0.01]
+        if far:
+            lines.append("held-out samples with velocities outside the training log's range (the network extrapolates there): "
+                         + ", ".join(far))
         lines.append(f"overall RMSE without {_overall(self.without):.4g}, with {_overall(self.with_network):.4g} "
                      f"(low-speed |v| < {LOW_SPEED:g}: {ls['overall_without']:.4g} -> {ls['overall_with']:.4g}); "
                      f"network saved as {LEARNING_FILE}")
@@ -83,7 +88,8 @@ class LearningOutcome:
         return {"file": LEARNING_FILE, **self.networks.describe(),
                 "validation_without_network": {**rm(self.without), "overall_rmse": _overall(self.without)},
                 "validation_with_network": {**rm(self.with_network), "overall_rmse": _overall(self.with_network)},
-                "validation_low_speed": self.low_speed, "training_rmse": self.training_rmse}
+                "validation_low_speed": self.low_speed, "training_rmse": self.training_rmse,
+                "held_out_outside_training_velocities": self.outside}
 
 
 def _overall(v: ValidationMetrics) -> float:
@@ -118,7 +124,9 @@ def train_and_validate(lcfg, names: tuple[str, ...], train, train_measured: Floa
            "overall_without": float(np.sqrt(np.mean(e0[slow] ** 2))) if slow.any() else float("nan"),
            "overall_with": float(np.sqrt(np.mean(e1[slow] ** 2))) if slow.any() else float("nan")}
     r = train_measured - train_model
-    return LearningOutcome(nets, without, with_net, low, {"without": _rmse(r), "with": _rmse(r - net_tr)})
+    lo, hi = train.dq.min(axis=0), train.dq.max(axis=0)
+    outside = np.mean((held_out.dq < lo) | (held_out.dq > hi), axis=0).tolist()
+    return LearningOutcome(nets, without, with_net, low, {"without": _rmse(r), "with": _rmse(r - net_tr)}, outside)
 
 
 def load_networks(result_dir: str | Path):
