@@ -314,6 +314,7 @@ class Config:
     identification: IdentificationConfig = IdentificationConfig()
     output: OutputConfig = OutputConfig()
     source: Path | None = None
+    learning: Any = None  # dynid.learning.LearningConfig: [learning] (config/learning.py), None without
     raw: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
 
@@ -676,7 +677,7 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
 
 def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = None) -> Config:
     """Validate a parsed TOML document into a :class:`Config`."""
-    doc = _table(dict(doc), "config", {"robot", "data", "validation", "processing", "identification", "output"}, {"robot", "data", "validation"})
+    doc = _table(dict(doc), "config", {"robot", "data", "validation", "processing", "identification", "output", "learning"}, {"robot", "data", "validation"})
     data_t = _table(doc["data"], "data", _DATA_KEYS)
     val_t = doc["validation"]
     if not isinstance(val_t, dict):
@@ -723,7 +724,14 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
         output=OutputConfig(plots=_bool(out_t.get("plots", True), "output.plots")),
         source=source,
         raw=doc,
+        learning=_learning(doc.get("learning")),
     )
+
+
+def _learning(t: Any):
+    from dynid.config.learning import parse_learning  # its own module (and dynid.learning's defaults)
+
+    return parse_learning(t)
 
 
 def load_config(path: str | Path) -> Config:

@@ -410,6 +410,7 @@ class IdentifyOutcome:
     other_view: OtherView | None = None  # redundant mechanisms: the held-out errors in the other form of the equations
     selected: SelectedRows | None = None  # with a row selection: the errors on the held-out rows it keeps
     full_rate: FullRate | None = None  # with decimation: the held-out errors at every logged sample
+    learning: Any = None  # [learning]: dynid.pipeline.learning.LearningOutcome (the residual network)
 
     def summary_text(self) -> str:
         v = self.validation
@@ -441,6 +442,8 @@ class IdentifyOutcome:
             lines += ["", f"The same predictions {o.label}", o.metrics.table()]
             if o.nominal is not None:
                 lines += ["nominal model, the same view", o.nominal.table()]
+        if self.learning is not None:
+            lines += self.learning.summary_lines()
         return "\n".join(lines)
 
 
@@ -840,6 +843,12 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     system = build_system(cfg.robot).with_structure(cfg.identification.structure, cfg.identification.identical_chains)
     force_model = _check_config(cfg, system)
     icfg, pcfg = cfg.identification, cfg.processing
+    if cfg.learning is not None:
+        from dynid.learning import require_torch
+        from dynid.pipeline.learning import check_learning
+
+        check_learning(cfg, system)
+        require_torch()  # before the identification, not after it
     names, kinds = system.actuator_names, system.actuator_kinds()
     check_units(cfg.data, kinds, names, "data")
     check_units(cfg.validation, kinds, names, "validation")
@@ -960,13 +969,38 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         full = FullRate(fm, fn, decimate=pcfg.decimate)
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
+    learned = None
+    if cfg.learning is not None:
+        learned = _learn(cfg, system, base, result, train, held_out, icfg.chunk_size, progress)
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
-                           other_view=other, selected=selected, full_rate=full)
+                           other_view=other, selected=selected, full_rate=full, learning=learned)
+
+
+def _model_rows(system: System, base: BaseParameters, params: FloatArray, ds: Dataset,
+                chunk_size: int) -> tuple[FloatArray, FloatArray]:
+    """(measured, predicted) joint torques of a processed serial-robot Dataset at every sample."""
+    meas, pred = [], []
+    for c in _chunks(system, base, ds, None, chunk_size=chunk_size):
+        meas.append(c.y)
+        pred.append(c.W @ params)
+    return np.concatenate(meas), np.concatenate(pred)
+
+
+def _learn(cfg: Config, system: System, base: BaseParameters, result: IdentificationResult, train: Dataset,
+           held_out: Dataset, chunk_size: int, progress: Progress):
+    """[learning]: the residual network (paper 003 Sec. 3.4) on the training log's residual."""
+    from dynid.pipeline.learning import linear_friction, train_and_validate
+
+    names = tuple(system.actuator_names)
+    y_tr, p_tr = _model_rows(system, base, result.params, train, chunk_size)
+    y_va, p_va = _model_rows(system, base, result.params, held_out, chunk_size)
+    fr = linear_friction(base.names, result.params, len(names))
+    return train_and_validate(cfg.learning, names, train, y_tr, p_tr, held_out, y_va, p_va, fr, progress)
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
-                "hierarchical.png", "model.urdf", "model.mjcf", TIMING_FILE)
+                "hierarchical.png", "model.urdf", "model.mjcf", TIMING_FILE, "result_learning.pt")
 
 
 def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Path]:
@@ -1078,6 +1112,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
                if outcome.other_view is not None else {}),
             **({"validation_selected_rows": _selected_dict(outcome.selected)} if outcome.selected is not None else {}),
             **({"validation_full_rate": _full_rate_dict(outcome.full_rate)} if outcome.full_rate is not None else {}),
+            **({"learning": outcome.learning.to_dict()} if outcome.learning is not None else {}),
             "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
             "base_parameters": {
                 "names": list(outcome.base.names),
@@ -1099,6 +1134,10 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     warn = export_warnings(outcome)
     (stage / "summary.txt").write_text(outcome.summary_text() + "\n" + "".join(f"\n{w}\n" for w in warn))
     export_model(outcome, stage)
+    if outcome.learning is not None:
+        from dynid.pipeline.learning import LEARNING_FILE
+
+        outcome.learning.networks.save(stage / LEARNING_FILE)
     write_timing(stage, {"identify_s": outcome.elapsed_s, "solver": res.timing})
     if outcome.config.output.plots:
         from dynid.report import plot_validation, write_html_report
