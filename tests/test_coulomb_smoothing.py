@@ -20,6 +20,7 @@ from dynid.model.serial_dynamics import inverse_dynamics, smooth_sign
 from dynid.pipeline.data import velocity_noise_std
 from dynid.config import ProcessingConfig, LowpassConfig
 from dynid.model.mechanism_io import load_mechanism
+from _cobot_twin import COBOT_LOGS
 
 
 def test_erf_is_the_expected_sign_of_the_true_velocity():
@@ -141,18 +142,7 @@ force_noise_std = 0.05
 seed = {seed}
 """
 
-IDENTIFY = """[robot]
-model = "builtin:cobot6r"
-
-[data]
-file = "train/log.csv"
-time = {{ column = "t", unit = "s" }}
-position = {{ columns = ["q_joint_1", "q_joint_2", "q_joint_3", "q_joint_4", "q_joint_5", "q_joint_6"], unit = "rad" }}
-effort = {{ columns = ["tau_joint_1", "tau_joint_2", "tau_joint_3", "tau_joint_4", "tau_joint_5", "tau_joint_6"], unit = "N*m", kind = "torque" }}
-
-[validation]
-file = "val/log.csv"
-
+IDENTIFY = COBOT_LOGS + """
 [processing]
 lowpass = {{ cutoff_hz = 10.0, order = 4, filter_effort = false }}
 min_velocity = 0.05

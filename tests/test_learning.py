@@ -18,6 +18,7 @@ torch = pytest.importorskip("torch")  # the [learning] extra (make setup install
 from dynid.config import load_config, parse_config  # noqa: E402
 from dynid.errors import ConfigError, MissingExtraError  # noqa: E402
 from dynid.model.friction import SmoothStribeck  # noqa: E402
+from _cobot_twin import COBOT_LOGS
 
 torch.set_num_threads(1)
 
@@ -58,18 +59,7 @@ seed = {seed}
 
 NOISE = 0.05
 
-IDENTIFY = """[robot]
-model = "builtin:cobot6r"
-
-[data]
-file = "train/log.csv"
-time = {{ column = "t", unit = "s" }}
-position = {{ columns = ["q_joint_1", "q_joint_2", "q_joint_3", "q_joint_4", "q_joint_5", "q_joint_6"], unit = "rad" }}
-effort = {{ columns = ["tau_joint_1", "tau_joint_2", "tau_joint_3", "tau_joint_4", "tau_joint_5", "tau_joint_6"], unit = "N*m", kind = "torque" }}
-
-[validation]
-file = "val/log.csv"
-
+IDENTIFY = COBOT_LOGS + """
 [processing]
 lowpass = {{ cutoff_hz = 10.0, order = 4, filter_effort = false }}
 min_velocity = 0.05
