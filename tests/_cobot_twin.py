@@ -15,3 +15,11 @@ effort = {{ columns = ["tau_joint_1", "tau_joint_2", "tau_joint_3", "tau_joint_4
 [validation]
 file = "val/log.csv"
 """
+
+PUMA_DOC = {
+    "robot": {"model": "builtin:puma560"},
+    "data": {"file": "x.csv", "sample_rate_hz": 100.0, "rows": [0, 10], "position": {"columns": list("abcdef")},
+             "effort": {"columns": list("ghijkl")}},
+    "validation": {"rows": [10, 20]},
+}
+"""A minimal identify document (parsed, never run) for config-error tests."""

@@ -20,7 +20,7 @@ from dynid.model.serial_dynamics import inverse_dynamics, smooth_sign
 from dynid.pipeline.data import velocity_noise_std
 from dynid.config import ProcessingConfig, LowpassConfig
 from dynid.model.mechanism_io import load_mechanism
-from _cobot_twin import COBOT_LOGS
+from _cobot_twin import COBOT_LOGS, PUMA_DOC
 
 
 def test_erf_is_the_expected_sign_of_the_true_velocity():
@@ -95,12 +95,7 @@ def test_velocity_noise_std_is_the_noise_left_in_the_processed_velocity():
     np.testing.assert_allclose(est, err.std(axis=0), rtol=0.1)
 
 
-DOC = {
-    "robot": {"model": "builtin:puma560"},
-    "data": {"file": "x.csv", "sample_rate_hz": 100.0, "rows": [0, 10], "position": {"columns": list("abcdef")},
-             "effort": {"columns": list("ghijkl")}},
-    "validation": {"rows": [10, 20]},
-}
+DOC = PUMA_DOC
 
 
 @pytest.mark.parametrize(("ident", "match"), [

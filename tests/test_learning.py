@@ -18,7 +18,7 @@ torch = pytest.importorskip("torch")  # the [learning] extra (make setup install
 from dynid.config import load_config, parse_config  # noqa: E402
 from dynid.errors import ConfigError, MissingExtraError  # noqa: E402
 from dynid.model.friction import SmoothStribeck  # noqa: E402
-from _cobot_twin import COBOT_LOGS
+from _cobot_twin import COBOT_LOGS, PUMA_DOC
 
 torch.set_num_threads(1)
 
@@ -231,12 +231,7 @@ def test_dynid_imports_without_torch():
     assert lines[1:] == ["False"]
 
 
-DOC = {
-    "robot": {"model": "builtin:puma560"},
-    "data": {"file": "x.csv", "sample_rate_hz": 100.0, "rows": [0, 10], "position": {"columns": list("abcdef")},
-             "effort": {"columns": list("ghijkl")}},
-    "validation": {"rows": [10, 20]},
-}
+DOC = PUMA_DOC
 
 
 @pytest.mark.parametrize(("learning", "match"), [
