@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")  # the [learning] extra (make setup installs it)
+import torch  # noqa: E402,F401  the [learning] extra: make setup installs it, so its absence fails loudly
 
 from dynid.config import load_config, parse_config  # noqa: E402
 from dynid.errors import ConfigError, MissingExtraError  # noqa: E402

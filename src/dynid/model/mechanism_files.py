@@ -260,6 +260,18 @@ _ORIENTATION = ("quat", "axisangle", "xyaxes", "zaxis", "euler")
 BALL_AXES = ("x", "y", "z")
 
 
+def _ball_names(name: str, joints, bodies, what: str, kind: str) -> tuple[tuple[str, ...], tuple[str, str]]:
+    """The hinges ``<name>_x/_y/_z`` and massless ``<name>_bx/_by`` a ball joint becomes, refused
+    when the file already uses one of those names."""
+    hinges = tuple(f"{name}_{a}" for a in BALL_AXES)
+    mids = (f"{name}_bx", f"{name}_by")
+    taken = [n for n in hinges if n in joints] + [n for n in mids if n in bodies]
+    if taken:
+        raise ModelError(f"{what} {name!r} becomes hinges {list(hinges)} through {kind} {list(mids)}, "
+                         f"but {taken} already exist in the file: rename them")
+    return hinges, mids
+
+
 def _balls_as_hinges(root: ET.Element, path: Path, notes: list[str]) -> list[BallJoint]:
     """Rewrite (in place) each ``<joint type="ball">`` of a body B as three hinges about B's
     x, y and z axes through B's joint point, in a chain through two massless bodies.
@@ -288,12 +300,7 @@ def _balls_as_hinges(root: ET.Element, path: Path, notes: list[str]) -> list[Bal
             raise ModelError(f"{path}: body {bname!r} has a ball joint and other joints; give each joint its own body")
         ball = balls[0]
         name = ball.get("name") or f"{bname}_ball"
-        hinges = tuple(f"{name}_{a}" for a in BALL_AXES)
-        mids = (f"{name}_bx", f"{name}_by")
-        taken = [n for n in hinges if n in joints] + [n for n in mids if n in bodies]
-        if taken:
-            raise ModelError(f"{path}: ball joint {name!r} becomes hinges {list(hinges)} through bodies {list(mids)}, "
-                             f"but {taken} already exist in the file: rename them")
+        hinges, mids = _ball_names(name, joints, bodies, f"{path}: ball joint", "bodies")
         parent = parents[body]
         k = list(parent).index(body)
         outer = ET.Element("body", name=mids[0])
@@ -370,12 +377,7 @@ def _urdf_balls_as_hinges(xml: str, spherical: list[str], dynamics: dict[str, tu
         if kind not in ("revolute", "continuous", "fixed"):
             raise ModelError(f"{urdf_path}: joint {name!r} is declared SPHERICAL in {yaml_path.name} but is a {kind!r} joint; "
                              "write the placeholder as revolute, continuous or fixed")
-        hinges = tuple(f"{name}_{a}" for a in BALL_AXES)
-        mids = (f"{name}_bx", f"{name}_by")
-        taken = [n for n in hinges if n in joints] + [n for n in mids if n in links]
-        if taken:
-            raise ModelError(f"{urdf_path}: spherical joint {name!r} becomes joints {list(hinges)} through links {list(mids)}, "
-                             f"but {taken} already exist in the file: rename them")
+        hinges, mids = _ball_names(name, joints, links, f"{urdf_path}: spherical joint", "links")
         parent, child = joint.find("parent"), joint.find("child")
         if parent is None or child is None:
             raise ModelError(f"{urdf_path}: joint {name!r} lacks <parent> or <child>")
