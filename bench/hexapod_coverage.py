@@ -126,7 +126,7 @@ def figure(path: Path, strut: int = 2) -> None:
     print(f"figure: {path}")
 
 
-def table2(methods: list[str] | None = None) -> None:
+def table2(methods: list[str] | None = None, smoothing: str | None = None) -> None:
     """Paper 004 Table II's twin in the time domain, with and without the guard (module docstring)."""
     import tempfile
 
@@ -178,6 +178,8 @@ def table2(methods: list[str] | None = None) -> None:
             t0 = time.perf_counter()
             try:
                 ident = {"method": method, "structure": "paper"}
+                if smoothing is not None:
+                    ident["coulomb_smoothing"] = smoothing
                 if method == "ml":
                     ident.update(noise_covariance=cov_f, position_covariance=cov_q,
                                  cutoff_range_hz=[5.0, 20.0] if "5-20" in label else [5.0, 80.0])
@@ -217,10 +219,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--figure", type=Path, default=None, help="draw where the bias lives (no Monte Carlo)")
     ap.add_argument("--table2", action="store_true", help="paper 004 Table II's twin in the time domain (no Monte Carlo)")
     ap.add_argument("--table2-methods", nargs="+", default=None, help="with --table2: only these methods (wls gm ml)")
+    ap.add_argument("--table2-smoothing", default=None,
+                    help="with --table2: identification.coulomb_smoothing for every row ('auto' or 'none')")
     args = ap.parse_args(argv)
     if args.table2:
         print_machine()
-        table2(args.table2_methods)
+        table2(args.table2_methods, args.table2_smoothing)
         return 0
     if args.figure is not None:
         figure(args.figure)

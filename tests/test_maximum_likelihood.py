@@ -152,8 +152,24 @@ def test_ml_in_the_time_domain_searches_the_lowpass_cut_off(rps3_log, ml_time):
     for ds in (ml_time.held_out, ml_time.train):
         step = next(s for s in ds.meta["processing"] if s["step"] == "lowpass")
         assert step["cutoff_hz"] == fc
-    # the explicit per-sample generalized least squares on the rows processed at f_c
-    system, base, ds = ml_time.system, ml_time.base, ml_time.train
+    beta, std, quad, log_det = _explicit_gls(ml_time)
+    # M_a and A interpolated between every 3rd sample in the search: agreement to a small share of a std
+    assert np.max(np.abs(res.params - beta) / std) < 0.02
+    np.testing.assert_allclose(res.bse, std, rtol=1e-2)
+    assert best["log_det"] == pytest.approx(log_det, rel=1e-3)
+    assert best["force_cost"] == pytest.approx(quad + log_det, rel=1e-3)
+
+
+def _explicit_gls(out):
+    """The explicit per-sample generalized least squares on the rows processed at the chosen f_c
+    (the regressor of ``out.system``: with its Coulomb widths), errors-in-variables corrected:
+    estimate, std, quadratic and log-determinant parts of the force cost."""
+    from dynid.estimation.likelihood import processing_noise_gains
+    from dynid.pipeline.identification import _chunks
+
+    res = out.result
+    fc = res.solver["cutoff_hz"]
+    system, base, ds = out.system, out.base, out.train
     W = np.concatenate([c.W for c in _chunks(system, base, ds, None)])
     y = ds.tau
     pilot = np.asarray(res.solver["propagation"]["pilot_params"])
@@ -173,14 +189,41 @@ def test_ml_in_the_time_domain_searches_the_lowpass_cut_off(rps3_log, ml_time):
     Gc = np.linalg.inv(G - N)
     beta = Gc @ np.einsum("kcp,kcd,kd->p", W, Si, y)
     std = np.sqrt(np.diag(Gc @ G @ Gc))
-    # M_a and A interpolated between every 3rd sample in the search: agreement to a small share of a std
-    assert np.max(np.abs(res.params - beta) / std) < 0.02
-    np.testing.assert_allclose(res.bse, std, rtol=1e-2)
     r = y - np.einsum("kcp,p->kc", W, beta)
     quad = 0.5 * np.einsum("kc,kcd,kd->", r, Si, r)
     log_det = 0.5 * np.sum(np.linalg.slogdet(S)[1] - np.linalg.slogdet(cov_e)[1])
-    assert best["log_det"] == pytest.approx(log_det, rel=1e-3)
-    assert best["force_cost"] == pytest.approx(quad + log_det, rel=1e-3)
+    return beta, std, quad, log_det
+
+
+def test_ml_with_coulomb_smoothing_uses_each_cut_offs_own_width(rps3_log, ml_time):
+    """``coulomb_smoothing = "auto"`` with ML: every candidate's Coulomb columns use the velocity
+    noise of its own low-pass (a higher cut-off leaves more noise: wider); the widths at the chosen
+    cut-off are recorded, used in prediction, and the estimate is the explicit GLS with that
+    smooth-sign regressor."""
+    from dynid.pipeline.data import velocity_noise_std
+
+    d, _ = rps3_log
+    cfg = parse_config(_doc(d, {"method": "ml", "cutoff_range_hz": [2.0, 32.0], "coulomb_smoothing": "auto",
+                                **TIME_COV}, {"lowpass": {"cutoff_hz": 8.0, "filter_effort": False}}), d)
+    out = identify(cfg)
+    fc = out.result.solver["cutoff_hz"]
+    sm = out.result.provenance["coulomb_smoothing"]
+    assert f"{fc:.3g} Hz" in sm["source"]
+    from dynid.pipeline.data import read_log, to_actuator_space
+
+    raw = read_log(cfg.data, out.system.n_actuators, out.system.actuator_names, "data", {})
+    train_a, _ = to_actuator_space(raw, out.system, "data")
+    at = [velocity_noise_std(train_a, cfg.processing, cutoff_hz=f) for f in (2.0, fc, 32.0)]
+    np.testing.assert_allclose(sm["width"], at[1], rtol=1e-12)
+    assert np.all(at[0] < at[1]) and np.all(at[1] < at[2])
+    mech = out.system.model
+    width = np.asarray(mech.coulomb_width)
+    assert np.all(width > 0)  # passive joints' from the actuators' through the velocity map
+    np.testing.assert_allclose(width[list(mech.actuated)], sm["width"], rtol=1e-12)
+    beta, std, _, _ = _explicit_gls(out)
+    assert np.max(np.abs(out.result.params - beta) / std) < 0.02
+    # the smooth sign changes the fit: not the estimate without it
+    assert np.max(np.abs(out.result.params - ml_time.result.params) / std) > 1e-6
 
 
 def test_position_cost_is_half_the_mahalanobis_sum():

@@ -634,8 +634,8 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
         else:
             raise ConfigError(f"{where}.coulomb_smoothing must be 'none', 'auto' or a list of velocity widths per actuator "
                               "[rad/s or m/s]")
-        if smoothing != "none" and (method not in ("ols", "wls", "gm") or friction_model != "linear"):
-            raise ConfigError(f"{where}.coulomb_smoothing is available with methods 'ols', 'wls' and 'gm' and the linear "
+        if smoothing != "none" and (method not in ("ols", "wls", "gm", "ml") or friction_model != "linear"):
+            raise ConfigError(f"{where}.coulomb_smoothing is available with methods 'ols', 'wls', 'gm' and 'ml' and the linear "
                               f"friction model, not method {method!r}" + (" with friction_model = 'stribeck'"
                                                                             if friction_model != "linear" else ""))
     chains = _chain_groups(t["identical_chains"], f"{where}.identical_chains") if "identical_chains" in t else None

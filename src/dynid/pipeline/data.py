@@ -560,7 +560,8 @@ def physical_options(icfg) -> dict:
             "regularization_weight": icfg.regularization_weight, "solver": icfg.solver}
 
 
-def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data") -> FloatArray:
+def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data",
+                       cutoff_hz: float | None = None) -> FloatArray:
     r"""Per coordinate, the std [rad/s or m/s] of the noise that ``cfg``'s processing leaves in the
     velocities of ``ds`` (the unprocessed log in actuator space): the width of the Coulomb terms'
     smooth sign for ``identification.coulomb_smoothing = "auto"``
@@ -572,7 +573,11 @@ def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data") 
     noise; the processing's noise gain :math:`g = \lVert h \rVert_2`, with :math:`h` the impulse
     response of the configured zero-phase low-pass followed by central differences, gives
     :math:`\sigma_{\dot q} = g\,\sigma_q` (white noise through a linear filter). Needs
-    ``processing.derivatives = "central"`` (measured velocities: give the widths)."""
+    ``processing.derivatives = "central"`` (measured velocities: give the widths).
+
+    ``cutoff_hz``: the gain of the same low-pass at another cut-off (maximum likelihood's candidate
+    cut-offs, :func:`dynid.pipeline.identification._maximum_likelihood_time`); :math:`\sigma_q` is
+    still read at the configured one."""
     if cfg.periodic is not None or cfg.derivatives != "central":
         raise ConfigError("identification.coulomb_smoothing = 'auto' estimates the noise of velocities taken by central "
                           "differences of (low-passed) positions; with processing.derivatives = 'measured' or "
@@ -589,10 +594,13 @@ def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data") 
                          "(identification.coulomb_smoothing = 'auto'); give the widths per actuator")
     r = (q - lowpass(q, ref_hz, fs, order))[n_trim: q.shape[0] - n_trim]
     sigma_q = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)
-    n = 2 * n_trim + 1
-    delta = np.zeros(n)
-    delta[n_trim] = 1.0
-    h = lowpass(delta, lp.cutoff_hz, fs, lp.order) if lp is not None else delta
+    if cutoff_hz is not None and lp is None:
+        raise ConfigError("velocity_noise_std: a candidate cut-off needs processing.lowpass")
+    h_hz = ref_hz if cutoff_hz is None else float(cutoff_hz)
+    n_h = padlen_for(order, min(ref_hz, h_hz), fs)
+    delta = np.zeros(2 * n_h + 1)
+    delta[n_h] = 1.0
+    h = lowpass(delta, h_hz, fs, lp.order) if lp is not None else delta
     gain = float(np.sqrt(np.sum(central_difference(h, 1.0 / fs) ** 2)))
     return sigma_q * gain
 

@@ -625,7 +625,12 @@ def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, 
     filtered at ``processing.lowpass`` (the same rows), evaluated every
     ``fs / (10 cutoff_hz)`` samples and interpolated between them; the estimate at each candidate is
     corrected for the share of that noise in the normal matrix (errors in the variables), from
-    :math:`\\partial W/\\partial\\ddot q_a` at the same samples."""
+    :math:`\\partial W/\\partial\\ddot q_a` at the same samples.
+
+    With ``identification.coulomb_smoothing = "auto"`` each candidate's Coulomb columns use the
+    smooth sign with the velocity noise *that candidate's* low-pass leaves
+    (:func:`~dynid.pipeline.data.velocity_noise_std` at its cut-off): a wider filter leaves less
+    noise and a sharper sign. The widths at the chosen cut-off are ``solver["coulomb_width"]``."""
     from dynid.estimation.generalized import gls_solve
     from dynid.estimation.likelihood import CandidateBuilder, CutoffFamily, MaximumLikelihood, log_cutoff_grid, \
         processing_noise_gains
@@ -694,14 +699,17 @@ def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, 
     progress("pilot estimate", 1, 1)
     worst = [w0]
 
+    auto_width = icfg.coulomb_smoothing == "auto"
+
     def build(fc: float):
         progress("cut-off search", cutoffs.index(fc), len(cutoffs))
         at = dataclasses.replace(fixed, lowpass=dataclasses.replace(lp, cutoff_hz=fc))
         ds, _ = preprocess(train_a, at, "data")
         g2 = processing_noise_gains(lp.order, fc, fs).acceleration
         cb = CandidateBuilder(base.names, channels, cov_e)
+        sys_fc = system.with_coulomb_width(velocity_noise_std(train_a, pcfg, cutoff_hz=fc)) if auto_width else system
         a = 0
-        for c in _chunks(system, base, ds, force_model, chunk_size=icfg.chunk_size, keep=keep):
+        for c in _chunks(sys_fc, base, ds, force_model, chunk_size=icfg.chunk_size, keep=keep):
             b = a + c.y.shape[0]
             cb.add(c.W, c.y, c.reversal, g2 * _interp_rows(ds.t[a:b], tk, Bk),
                    (_interp_rows(ds.t[a:b], tk, Ak), g2 * cov_d))
@@ -724,6 +732,9 @@ def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, 
                                                                  "acceleration_noise_gain": processing_noise_gains(
                                                                      lp.order, fc, fs).acceleration},
                                                  "rows_kept_per_actuator": None if keep is None else keep.sum(axis=0).tolist()})
+    if auto_width:
+        result = dataclasses.replace(result, solver={**result.solver, "coulomb_width": [
+            float(w) for w in velocity_noise_std(train_a, pcfg, cutoff_hz=fc)]})
     return result, at_fc, worst[0]
 
 
@@ -892,6 +903,11 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     periodic, fj = pcfg.periodic, None
     if icfg.method == "ml" and pcfg.periodic is None:
         result, pcfg, worst = _maximum_likelihood_time(cfg, system, base, train_a, force_model, progress, meta)
+        if "coulomb_width" in result.solver:  # the smooth sign of the chosen cut-off, in prediction too
+            smoothing = {**smoothing, "width": result.solver["coulomb_width"],
+                         "source": f"auto: velocity-noise std of the training log after the low-pass at the maximum "
+                                   f"likelihood cut-off {result.solver['cutoff_hz']:.3g} Hz"}
+            system = system.with_coulomb_width(smoothing["width"])
         train, _ = preprocess(train_a, pcfg, "data")  # both logs as processed at the estimated f_c
         held_out, _ = preprocess(valid_a, pcfg, "validation")
     elif icfg.method == "ml":
