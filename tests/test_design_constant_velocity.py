@@ -158,6 +158,13 @@ def test_simulate_replays_the_design_with_its_own_generator(tmp_path):
     assert list(la) == list(lb)
     for k in la:
         assert la[k].tobytes() == lb[k].tobytes(), k
+    fourier = parse_simulate_config({**common, "trajectory": {"kind": "fourier", "design": "d/design.json"}}, tmp_path)
+    with pytest.raises(ConfigError, match="a 'constant_velocity' design; trajectory.design takes periodic Fourier"):
+        _trajectory(fourier, r)
+    other = parse_simulate_config({**common, "robot": {"model": "builtin:puma560"},
+                                   "trajectory": {"kind": "constant_velocity", "design": "d/design.json"}}, tmp_path)
+    with pytest.raises(ConfigError, match="the design's position limits leave the joint limits"):
+        _trajectory(other, load_model("builtin:puma560"))
     with pytest.raises(ConfigError, match=r"\['speeds'\] are set by the design file"):
         parse_simulate_config({**common, "trajectory": {"kind": "constant_velocity", "design": "d/design.json",
                                                         "speeds": [0.1]}}, tmp_path)

@@ -280,7 +280,8 @@ def _write_constant_velocity(outcome: ConstantVelocityOutcome, out_dir: str | Pa
     q, dq, ddq = e.sample(t)
     labels = e.labels(t)
     doc = {
-        "robot": outcome.robot, "model": cfg.model, "kind": "constant_velocity", "duration_s": d.duration,
+        "robot": outcome.robot, "model": cfg.model, "kind": "constant_velocity", "coordinates": list(outcome.names),
+        "duration_s": d.duration,
         "rate_hz": cfg.rate_hz, "window": d.window, "max_window": d.max_window, "skip": d.skip,
         "min_samples": d.min_samples,
         "limits": {"position": {"lower": outcome.lower.tolist(), "upper": outcome.upper.tolist()},
