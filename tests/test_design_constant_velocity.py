@@ -256,3 +256,22 @@ def test_no_speed_fits_is_an_error(tmp_path):
                                                                         "upper": [3, 0.5, 2, 3, 2, 3]}})
     with pytest.raises(ConfigError, match="joint_2: no speed gets 2 s of steady motion"):
         run_design(cfg)
+
+
+def test_readme_block_and_example_design():
+    """The README's constant_velocity block and examples/friction/design.toml run (no files
+    written), and the example's simulate config replays a design.json."""
+    import re
+
+    from dynid.config.design import load_design_config
+    from dynid.config.simulate import load_simulate_config
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    text = readme.split('### Friction experiments: `kind = "constant_velocity"`', 1)[1].split("\n## ", 1)[0]
+    block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
+    out = run_design(parse_design_config(tomllib.loads(block), EXAMPLES))
+    assert len(out.design.joints) == 6 and all(len(j.levels) + len(j.dropped) == 16 for j in out.design.joints)
+    ex = run_design(load_design_config(EXAMPLES / "design.toml"))
+    assert [lv.speed for lv in ex.design.joints[1].levels] == list(tomllib.loads(
+        (EXAMPLES / "design.toml").read_text())["design"]["speeds"])
+    assert load_simulate_config(EXAMPLES / "simulate_design.toml").trajectory.values["design"].endswith("design.json")
