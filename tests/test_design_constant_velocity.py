@@ -275,3 +275,15 @@ def test_readme_block_and_example_design():
     assert [lv.speed for lv in ex.design.joints[1].levels] == list(tomllib.loads(
         (EXAMPLES / "design.toml").read_text())["design"]["speeds"])
     assert load_simulate_config(EXAMPLES / "simulate_design.toml").trajectory.values["design"].endswith("design.json")
+
+
+def test_quiet_cli_still_says_what_it_dropped(tmp_path, capsys):
+    doc = {"robot": {"model": ROBOT}, "design": {"kind": "constant_velocity", "joints": ["joint_2"],
+                                                 "speeds": [0.1, 0.5, 0.9], "stroke": 1.0},
+           "limits": {"velocity": 1.0, "acceleration": 5.0}, "output": {"plots": False}}
+    (tmp_path / "c.toml").write_text(_toml(doc))
+    assert main(["design", str(tmp_path / "c.toml"), "--out", str(tmp_path / "o"), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "joint_2: speed 0.9 dropped: the stroke 1 takes 1.11 s at it, less than window = 2 s" in out
+    kept = json.loads((tmp_path / "o" / "design.json").read_text())["joints"][0]["speeds"]
+    assert [lv["speed"] for lv in kept] == [0.1, 0.5]  # 0.5 over 1.0 is exactly the 2 s window

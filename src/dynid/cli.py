@@ -253,6 +253,9 @@ def _cmd_design(args: argparse.Namespace) -> int:
         print(outcome.summary_text())
         print()
     print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    if args.quiet and not isinstance(outcome, DesignOutcome):  # the summary lists them otherwise
+        for line in outcome.design.dropped:
+            print(line)
     if isinstance(outcome, DesignOutcome) and not outcome.design.success:
         print(f"dynid: error: the design violates a limit: {outcome.design.violation}", file=sys.stderr)
         return EXIT_INPUT
