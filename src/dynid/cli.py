@@ -244,7 +244,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
     _check_out(args.out)
     cfg = load_design_config(args.config)
-    from dynid.pipeline.design import run_design, write_design
+    from dynid.pipeline.design import DesignOutcome, run_design, write_design
 
     with _progress_bar(not args.quiet) as progress:
         outcome = run_design(cfg, progress)
@@ -253,7 +253,10 @@ def _cmd_design(args: argparse.Namespace) -> int:
         print(outcome.summary_text())
         print()
     print(f"outputs in {Path(args.out)}: {', '.join(written)}")
-    if not outcome.design.success:
+    if args.quiet and not isinstance(outcome, DesignOutcome):  # the summary lists them otherwise
+        for line in outcome.design.dropped:
+            print(line)
+    if isinstance(outcome, DesignOutcome) and not outcome.design.success:
         print(f"dynid: error: the design violates a limit: {outcome.design.violation}", file=sys.stderr)
         return EXIT_INPUT
     return EXIT_OK

@@ -3,8 +3,13 @@
 ``[robot]``
     ``model`` (required): anything ``dynid info`` loads.
 ``[design]``
-    ``kind``: ``"fourier"`` (default: optimized Fourier series) or ``"circle"`` (paper 001's
-    one-line design, evaluated, not optimized: ``centre``, ``radius``, ``speed``, ``turns``);
+    ``kind``: ``"fourier"`` (default: optimized Fourier series), ``"circle"`` (paper 001's
+    one-line design, evaluated, not optimized: ``centre``, ``radius``, ``speed``, ``turns``) or
+    ``"constant_velocity"`` (serial robots: paper 003, Sec. 3.1's friction experiment sized from
+    ``[limits]``: ``joints``, ``speeds`` or ``speed_range`` with ``n_speeds``, ``stroke``,
+    ``window``, ``max_window``, ``pose``, ``repetitions``, ``switch``, ``rest``, ``skip``,
+    ``min_samples``; see :mod:`dynid.excitation.friction_design`; the Fourier keys below do not
+    apply to it);
     ``coordinates``: ``"independent"`` or ``"task"`` (platform pose of a parallel robot);
     ``harmonics``, ``base_frequency_hz``, ``optimize_frequency``, ``quintic``, ``criterion``
     (``cond``, ``weighted_cond``, ``d_opt``, ``a_opt``, ``e_opt``), ``samples`` per period,
@@ -56,6 +61,7 @@ class DesignConfig:
     raw: Mapping[str, Any]
     actuated: tuple[str, ...] | None = None  # mechanisms: as [robot] actuated / independent of dynid identify
     independent: tuple[str, ...] | None = None
+    constant_velocity: Mapping[str, Any] | None = None  # kind = "constant_velocity": its keys, parsed
 
 
 def _range(t: Any, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -75,8 +81,16 @@ def parse_design_config(doc: Mapping[str, Any], base_dir: Path, source: Path | N
         model = str((p if p.is_absolute() else base_dir / p).resolve())
     keys = {"kind", "coordinates", "harmonics", "base_frequency_hz", "optimize_frequency", "quintic", "criterion",
             "samples", "starts", "seed", "max_iter", "noise_std", "box", "centre", "radius", "speed", "turns"}
-    d = _table(doc.get("design", {}), "design", keys)
-    kind = _str(d.get("kind", "fourier"), "design.kind", ("fourier", "circle"))
+    d = _table(doc.get("design", {}), "design", keys | _CV_KEYS)
+    kind = _str(d.get("kind", "fourier"), "design.kind", ("fourier", "circle", "constant_velocity"))
+    cv = None
+    if kind == "constant_velocity":
+        extra = sorted(set(d) - _CV_KEYS - {"kind"})
+        if extra:
+            raise ConfigError(f"design: keys {extra} do not apply to kind 'constant_velocity'; it takes {sorted(_CV_KEYS)}")
+        cv = _parse_constant_velocity(d)
+    elif _CV_KEYS & set(d) - keys:
+        raise ConfigError(f"design: keys {sorted(_CV_KEYS & set(d) - keys)} are for kind = 'constant_velocity'")
     circle_keys = {"centre", "radius", "speed", "turns"}
     if kind == "fourier" and circle_keys & set(d):
         raise ConfigError(f"design: keys {sorted(circle_keys & set(d))} are for kind = 'circle'")
@@ -88,6 +102,11 @@ def parse_design_config(doc: Mapping[str, Any], base_dir: Path, source: Path | N
         circle = {"centre": _list(d["centre"], "design.centre", _num, 2), "radius": _num(d["radius"], "design.radius", True),
                   "speed": _num(d["speed"], "design.speed", True), "turns": _num(d.get("turns", 1.0), "design.turns", True)}
     lim_t = _table(doc.get("limits", {}), "limits", {"position", "velocity", "acceleration", "force", "max_condition"})
+    if kind == "constant_velocity":
+        unchecked = sorted({"force", "max_condition"} & set(lim_t))
+        if unchecked:
+            raise ConfigError(f"limits: {unchecked} are not checked by design.kind = 'constant_velocity' (it bounds "
+                              "positions, velocities and accelerations); remove them")
     limits: dict[str, Any] = {}
     if "position" in lim_t:
         limits["position"] = _range(lim_t["position"], "limits.position")
@@ -121,7 +140,55 @@ def parse_design_config(doc: Mapping[str, Any], base_dir: Path, source: Path | N
         plots=_bool(out.get("plots", True), "output.plots"),
         source=source,
         raw=doc,
+        constant_velocity=cv,
     )
+
+
+_CV_KEYS = {"kind", "joints", "speeds", "speed_range", "n_speeds", "stroke", "window", "max_window", "pose", "repetitions",
+            "switch", "rest", "skip", "min_samples"}
+
+
+def _parse_constant_velocity(d: Mapping[str, Any]) -> dict[str, Any]:
+    """The keys of ``kind = "constant_velocity"`` (defaults and meaning in
+    :func:`dynid.excitation.friction_design.design_constant_velocity`)."""
+    w = "design"
+    v: dict[str, Any] = {}
+    if "joints" in d:
+        v["joints"] = joint_name_list(d, "joints", w)
+    if "speeds" in d:
+        if "speed_range" in d or "n_speeds" in d:
+            raise ConfigError(f"{w}: give speeds or speed_range / n_speeds, not both")
+        speeds = _list(d["speeds"], f"{w}.speeds", lambda x, ww: _num(x, ww, True))
+        if not speeds:
+            raise ConfigError(f"{w}.speeds: empty list; give the speed levels [rad/s or m/s]")
+        twice = sorted({x for x in speeds if speeds.count(x) > 1})
+        if twice:
+            raise ConfigError(f"{w}.speeds: {twice} given more than once")
+        v["speeds"] = tuple(sorted(speeds))
+    if "speed_range" in d:
+        rng = _list(d["speed_range"], f"{w}.speed_range", lambda x, ww: _num(x, ww, True), 2)
+        if not rng[0] < rng[1]:
+            raise ConfigError(f"{w}.speed_range: [low, high] with low < high, got {list(rng)}")
+        v["speed_range"] = rng
+    if "n_speeds" in d:
+        v["n_speeds"] = _int(d["n_speeds"], f"{w}.n_speeds", 1)
+    if "stroke" in d:
+        v["stroke"] = _num_or_list(d["stroke"], f"{w}.stroke", True)
+    if "pose" in d:
+        v["pose"] = _list(d["pose"], f"{w}.pose", _num)
+    for key in ("window", "switch"):
+        if key in d:
+            v[key] = _num(d[key], f"{w}.{key}", True)
+    if "max_window" in d:
+        v["max_window"] = _num(d["max_window"], f"{w}.max_window", True)
+    for key in ("rest", "skip"):
+        if key in d:
+            v[key] = _num(d[key], f"{w}.{key}", minimum=0.0)
+    if "repetitions" in d:
+        v["repetitions"] = _int(d["repetitions"], f"{w}.repetitions", 1)
+    if "min_samples" in d:
+        v["min_samples"] = _int(d["min_samples"], f"{w}.min_samples", 2)
+    return v
 
 
 def load_design_config(path: str | Path) -> DesignConfig:

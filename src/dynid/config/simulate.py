@@ -40,7 +40,9 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     limits), ``max_acceleration`` (default 5), ``switch`` (shortest switching phase [s],
     default 0.1), ``rest`` [s] (default 0.3), ``repetitions`` (default 1); the log gains the
     columns ``cv_joint``, ``cv_speed``, ``cv_direction``, ``cv_repetition``, see
-    :mod:`dynid.trajectories.constant_velocity`). Circles and polylines are paths of the
+    :mod:`dynid.trajectories.constant_velocity`; or ``design``: the ``design.json`` of ``dynid
+    design`` with ``kind = "constant_velocity"``, whose schedule is replayed as designed, alone).
+    Circles and polylines are paths of the
     independent coordinates of a planar mechanism (its end-effector); Fourier series run
     in the independent coordinates (the joints of a serial robot).
 ``[control]``
@@ -94,7 +96,7 @@ _TRAJ_KEYS = {
     "circle": {"centre", "radius", "speed", "turns", "clockwise", "ramp", "axes"},
     "polyline": {"vertices", "speed", "ramp", "axes"},
     "fourier": {"base_frequency_hz", "harmonics", "fill", "max_velocity", "max_acceleration", "periods", "quintic", "seed", "design"},
-    "constant_velocity": {"joints", "speeds", "window", "pose", "max_acceleration", "switch", "rest", "repetitions"},
+    "constant_velocity": {"joints", "speeds", "window", "pose", "max_acceleration", "switch", "rest", "repetitions", "design"},
 }
 
 
@@ -267,6 +269,12 @@ def _parse_constant_velocity(t: Mapping[str, Any]) -> dict[str, Any]:
     :class:`~dynid.trajectories.constant_velocity.ConstantVelocityExperiment`)."""
     w = "trajectory"
     v: dict[str, Any] = {}
+    if "design" in t:  # the experiment `dynid design` sized (its design.json)
+        given = sorted(set(t) - {"kind", "coordinates", "design"})
+        if given:
+            raise ConfigError(f"trajectory: {given} are set by the design file; give design alone")
+        v["design"] = str(Path(_str(t["design"], f"{w}.design")).expanduser())
+        return v
     if "joints" in t:
         v["joints"] = joint_name_list(t, "joints", w)
     if "speeds" in t:

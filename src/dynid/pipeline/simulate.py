@@ -169,7 +169,7 @@ def _trajectory(cfg: SimulateConfig, robot):
     lo, hi, names = _coordinate_box(robot)
     n_u = lo.size
     if tc.kind == "constant_velocity":
-        return _constant_velocity(v, robot, lo, hi, names), names
+        return _constant_velocity(v, robot, lo, hi, names, cfg.base_dir), names
     if tc.kind in ("circle", "polyline"):
         dim = 2 if tc.kind == "circle" else len(v["vertices"][0])
         axes = v.get("axes")
@@ -203,12 +203,15 @@ def _trajectory(cfg: SimulateConfig, robot):
     return (Repeated(four, v["periods"]) if v["periods"] > 1 else four), names
 
 
-def _constant_velocity(v: dict, robot, lo: np.ndarray, hi: np.ndarray, names: list[str]) -> ConstantVelocityExperiment:
+def _constant_velocity(v: dict, robot, lo: np.ndarray, hi: np.ndarray, names: list[str],
+                       base_dir: Path = Path(".")) -> ConstantVelocityExperiment:
     """``kind = "constant_velocity"``: paper 003's friction experiment on a serial robot."""
     if isinstance(robot, Mechanism):
         raise ConfigError("trajectory.kind = 'constant_velocity' is for serial robots: an actuator of a closed chain "
                           "cannot move alone (passive joints move with it, and their friction enters every actuator "
                           "force, so (tau(q, v) - tau(q, -v)) / 2 is no single joint's friction)")
+    if "design" in v:
+        return _constant_velocity_design(Path(v["design"]), base_dir, lo, hi, names)
     joints = v.get("joints") or tuple(names)
     unknown = [j for j in joints if j not in names]
     if unknown:
@@ -228,6 +231,41 @@ def _constant_velocity(v: dict, robot, lo: np.ndarray, hi: np.ndarray, names: li
                                           names=tuple(names), **keys)
     except InputError as exc:
         raise ConfigError(f"trajectory: {exc}") from None
+
+
+def _constant_velocity_design(path: Path, base_dir: Path, lo: np.ndarray, hi: np.ndarray,
+                              names: list[str]) -> ConstantVelocityExperiment:
+    """The experiment a ``dynid design`` of ``kind = "constant_velocity"`` sized (its design.json),
+    rebuilt with the same generator and the same numbers (JSON floats round-trip)."""
+    path = path if path.is_absolute() else base_dir / path
+    text = read_file_text(path, "design file")
+    try:
+        doc = json.loads(text)
+        traj = doc["trajectory"]
+        if not isinstance(traj, dict):
+            raise ValueError("'trajectory' must be an object")
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{path}: not a design.json of dynid design ({exc})") from None
+    if traj.get("kind") != "constant_velocity":
+        raise ConfigError(f"{path}: a {traj.get('kind')!r} design; trajectory.kind = 'constant_velocity' replays "
+                          "constant_velocity designs")
+    try:
+        if list(traj["names"]) != list(names):
+            raise ConfigError(f"{path}: the design is for the joints {traj['names']}, the simulated robot has {names}")
+        lower, upper = np.array(traj["lower"], dtype=float), np.array(traj["upper"], dtype=float)
+        outside = [n for n, a, b, c, d in zip(names, lower, upper, lo, hi) if a < c or b > d]
+        if lower.shape != lo.shape or upper.shape != hi.shape or outside:
+            raise ConfigError(f"{path}: the design's position limits leave the joint limits of {outside or names}")
+        return ConstantVelocityExperiment(
+            pose=np.array(traj["pose"], dtype=float), lower=lower, upper=upper,
+            joints=tuple(names.index(j) for j in traj["joints"]),
+            plan=tuple(tuple((float(sp), float(w)) for sp, w in p) for p in traj["plan"]),
+            max_acceleration=np.array(traj["max_acceleration"], dtype=float), switch=float(traj["switch"]),
+            rest=float(traj["rest"]), repetitions=int(traj["repetitions"]), names=tuple(names))
+    except ConfigError:
+        raise
+    except (KeyError, TypeError, ValueError, InputError) as exc:
+        raise ConfigError(f"{path}: not a constant_velocity design.json of dynid design ({exc})") from None
 
 
 def _design_trajectory(cfg: SimulateConfig, names: list[str]) -> FourierTrajectory:

@@ -7,7 +7,7 @@ from typing import Any
 
 from dynid.errors import require
 
-__all__ = ["plot_design", "plot_friction", "plot_montecarlo_chi2", "plot_montecarlo_history", "plot_processing", "plot_tracking", "plot_validation"]
+__all__ = ["plot_design", "plot_speed_schedule", "plot_friction", "plot_montecarlo_chi2", "plot_montecarlo_history", "plot_processing", "plot_tracking", "plot_validation"]
 
 _MAX_POINTS = 4000
 
@@ -128,6 +128,42 @@ def plot_design(t, qa, dqa, ddqa, actuators, limits, u, coordinates, path_traj, 
     fig.tight_layout()
     fig.savefig(path_spectrum, dpi=100)
     plt.close(fig)
+
+
+def plot_speed_schedule(design: Any, t, dq, path: str | Path) -> Path:
+    """A designed constant-velocity experiment (:mod:`dynid.excitation.friction_design`): per
+    tested joint, its commanded velocity over its part of the experiment (left) and the steady
+    seconds per direction of each speed (right, log speed axis; dropped speeds are not drawn,
+    summary.txt lists them)."""
+    import numpy as np
+
+    plt = _pyplot()
+    joints = design.joints
+    fig, axes = plt.subplots(len(joints), 2, figsize=(11, 1.9 * len(joints) + 0.8), squeeze=False,
+                             gridspec_kw={"width_ratios": [2.2, 1]})
+    step = max(1, t.shape[0] // (4 * _MAX_POINTS))
+    for row, j in zip(axes, joints):
+        row[0].plot(t[::step], dq[::step, j.index], lw=0.8, color="tab:blue")
+        row[0].axhline(j.velocity_limit, color="0.5", lw=0.6, ls=":")
+        row[0].axhline(-j.velocity_limit, color="0.5", lw=0.6, ls=":")
+        row[0].set_ylabel(f"{j.name}\n[rad/s or m/s]", fontsize=8)
+        row[0].grid(alpha=0.3)
+        v = np.array([lv.speed for lv in j.levels])
+        w = np.array([lv.window for lv in j.levels])
+        row[1].semilogx(v, w, marker="o", ms=4, lw=0.8, color="tab:orange")
+        row[1].axhline(design.window, color="0.5", lw=0.6, ls=":")
+        row[1].set_ylabel("steady s", fontsize=8)
+        row[1].set_title(f"stroke {j.stroke:.3g}, {len(j.levels)} speeds" + (f", {len(j.dropped)} dropped" if j.dropped else ""),
+                         fontsize=8)
+        row[1].grid(alpha=0.3, which="both")
+    axes[-1, 0].set_xlabel("t [s]")
+    axes[-1, 1].set_xlabel("speed [rad/s or m/s]")
+    fig.suptitle("constant-velocity friction experiment (paper 003, Sec. 3.1): velocity per joint (dotted: limit) "
+                 "and steady seconds per speed (dotted: window)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return Path(path)
 
 
 def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: int = 6) -> Path:

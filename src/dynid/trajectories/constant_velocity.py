@@ -16,6 +16,11 @@ displacement, so both windows cover the same stroke :math:`v\\,T_w`, centred on 
 paper 003's pairing of :math:`\\tau(q, \\dot q, 0)` and :math:`\\tau(q, -\\dot q, 0)` at equal positions.
 After its last cycle the joint returns to its pose.
 
+The schedule is either one list of ``speeds`` with one ``window`` for every joint (``dynid
+simulate``'s ``[trajectory]`` table) or a ``plan``: per joint its own (speed, window) pairs, and
+a ``max_acceleration`` per joint (the experiment ``dynid design`` sizes from the limits, see
+:func:`dynid.excitation.friction_design.design_constant_velocity`). Both build the same pieces.
+
 :meth:`ConstantVelocityExperiment.labels` marks every instant with the moving joint
 (``cv_joint``: 1-based index, 0 while nothing is measured), the speed level (``cv_speed``
 [rad/s or m/s]), the window (``cv_direction``: +1 forward, -1 backward, 0 elsewhere: moves,
@@ -32,7 +37,7 @@ from scipy.interpolate import PPoly
 from dynid._typing import FloatArray
 from dynid.errors import InputError
 
-__all__ = ["LABEL_COLUMNS", "ConstantVelocityExperiment", "default_speeds"]
+__all__ = ["LABEL_COLUMNS", "ConstantVelocityExperiment", "cycle_extent", "default_speeds", "switch_duration"]
 
 LABEL_COLUMNS = ("cv_joint", "cv_speed", "cv_direction", "cv_repetition")
 
@@ -51,6 +56,24 @@ def default_speeds() -> tuple[float, ...]:
     leave eight to fit when every other one is held out: two more than the improved Stribeck
     model's six coefficients."""
     return tuple(float(v) for v in np.geomspace(0.002, 0.8, 16))
+
+
+def switch_duration(dv: float, switch: float, max_acceleration: float) -> float:
+    """Duration of a quintic velocity switch of size ``dv``: at least ``switch`` [s] and long
+    enough that its peak acceleration :math:`\\tfrac{15}{8}|dv|/\\Delta t` stays within
+    ``max_acceleration`` (paper 003, Sec. 3.1's switching phase :math:`\\Delta t`)."""
+    return max(switch, _PEAK * abs(dv) / max_acceleration)
+
+
+def cycle_extent(v: float, window: float, switch: float, max_acceleration: float) -> tuple[float, float]:
+    """Positions a cycle at speed ``v`` reaches, relative to its centre: (below, above) [rad or m].
+
+    The windows cover :math:`v\\,T_w` centred on the pose; the start switch adds
+    :math:`\\tfrac12 v\\Delta t_a` below and the reversal reaches :math:`0.34375\\,v\\,\\Delta t_r` above."""
+    ta, tr = switch_duration(v, switch, max_acceleration), switch_duration(2 * v, switch, max_acceleration)
+    start = -(0.5 * v * ta + 0.5 * v * window)
+    top = start + 0.5 * v * ta + v * window + _REVERSAL_REACH * v * tr
+    return start, top
 
 
 def _blend(v0: float, v1: float, dt: float) -> np.ndarray:
@@ -90,11 +113,12 @@ class ConstantVelocityExperiment:
     joints : sequence of int
         Indices of the joints to test, in order.
     speeds : sequence of float
-        Speed levels [rad/s or m/s], > 0, tested in increasing order.
+        Speed levels [rad/s or m/s], > 0, tested in increasing order (ignored with ``plan``).
     window : float
-        Duration of each constant-velocity window [s].
-    max_acceleration : float
-        Largest acceleration of the switching phases and moves [rad/s² or m/s²].
+        Duration of each constant-velocity window [s] (ignored with ``plan``).
+    max_acceleration : float or array (n_joints,)
+        Largest acceleration of the switching phases and moves [rad/s² or m/s²], one for all
+        joints or one per joint.
     switch : float
         Shortest switching phase (paper 003's :math:`\\Delta t`) [s].
     rest : float
@@ -103,6 +127,10 @@ class ConstantVelocityExperiment:
         Cycles per speed (paper 003, Sec. 4.4 repeats each set point).
     names : sequence of str, optional
         Joint names for the messages.
+    plan : sequence, optional
+        For each entry of ``joints``, its ``(speed, window)`` pairs (speeds distinct, > 0, tested in
+        increasing order; windows > 0 [s]); replaces ``speeds`` and ``window``, and ``speeds``
+        becomes the sorted union of the plan's speeds.
     """
 
     pose: FloatArray
@@ -116,6 +144,7 @@ class ConstantVelocityExperiment:
     rest: float = 0.3
     repetitions: int = 1
     names: tuple[str, ...] | None = None
+    plan: tuple[tuple[tuple[float, float], ...], ...] | None = None
 
     def __post_init__(self) -> None:
         pose, lo, hi = (np.array(x, dtype=float, ndmin=1) for x in (self.pose, self.lower, self.upper))
@@ -126,18 +155,33 @@ class ConstantVelocityExperiment:
         joints = tuple(int(j) for j in self.joints)
         if not joints or any(not 0 <= j < n for j in joints) or len(set(joints)) != len(joints):
             raise InputError(f"joints {list(joints)}: give distinct joint indices in 0..{n - 1}")
-        speeds = tuple(sorted(float(v) for v in self.speeds))
-        if not speeds or speeds[0] <= 0 or len(set(speeds)) != len(speeds):
-            raise InputError(f"speeds {list(self.speeds)}: give distinct positive speeds")
-        for key in ("window", "max_acceleration", "switch"):
-            if not getattr(self, key) > 0:
-                raise InputError(f"{key} must be positive, got {getattr(self, key)}")
+        if self.plan is None:
+            speeds = tuple(sorted(float(v) for v in self.speeds))
+            if not speeds or speeds[0] <= 0 or len(set(speeds)) != len(speeds):
+                raise InputError(f"speeds {list(self.speeds)}: give distinct positive speeds")
+            if not self.window > 0:
+                raise InputError(f"window must be positive, got {self.window}")
+            plan = tuple(tuple((v, self.window) for v in speeds) for _ in joints)
+        else:
+            plan = tuple(tuple(sorted((float(v), float(w)) for v, w in p)) for p in self.plan)
+            if len(plan) != len(joints):
+                raise InputError(f"plan has {len(plan)} entries for {len(joints)} joints")
+            for j, p in zip(joints, plan):
+                vs = [v for v, _ in p]
+                if not p or vs[0] <= 0 or len(set(vs)) != len(vs) or not all(w > 0 for _, w in p):
+                    raise InputError(f"plan of {names[j]}: give distinct positive speeds with positive windows")
+            speeds = tuple(sorted({v for p in plan for v, _ in p}))
+        acc = np.array(self.max_acceleration, dtype=float, ndmin=1)
+        if acc.size not in (1, n) or not np.all(acc > 0):
+            raise InputError(f"max_acceleration must be positive, one value or one per joint ({n}), got {self.max_acceleration}")
+        if not self.switch > 0:
+            raise InputError(f"switch must be positive, got {self.switch}")
         if self.rest < 0 or self.repetitions < 1:
             raise InputError("rest must be >= 0 and repetitions >= 1")
         outside = [names[j] for j in range(n) if not lo[j] <= pose[j] <= hi[j]]
         if outside:
             raise InputError(f"the pose {pose.tolist()} is outside the limits of {', '.join(outside)}")
-        for name, val in (("pose", pose), ("names", names), ("joints", joints), ("speeds", speeds)):
+        for name, val in (("pose", pose), ("names", names), ("joints", joints), ("speeds", speeds), ("plan", plan)):
             object.__setattr__(self, name, val)
         object.__setattr__(self, "lower", lo)
         object.__setattr__(self, "upper", hi)
@@ -158,55 +202,61 @@ class ConstantVelocityExperiment:
     _position: dict = dataclasses.field(init=False, repr=False)
 
     # ------------------------------------------------------------------ construction
-    def switch_time(self, dv: float) -> float:
-        """Duration of a velocity switch of size ``dv`` [s]."""
-        return max(self.switch, _PEAK * abs(dv) / self.max_acceleration)
+    def acceleration(self, joint: int | None = None) -> float:
+        """The acceleration limit of joint index ``joint`` (None: of all, when one is given) [rad/s² or m/s²]."""
+        acc = np.array(self.max_acceleration, dtype=float, ndmin=1)
+        return float(acc[0] if acc.size == 1 else acc[joint])
 
-    def cycle_extent(self, v: float) -> tuple[float, float]:
-        """Positions a cycle at speed ``v`` reaches, relative to the pose: (below, above) [rad or m]."""
-        ta, tr = self.switch_time(v), self.switch_time(2 * v)
-        start = -(0.5 * v * ta + 0.5 * v * self.window)
-        top = start + 0.5 * v * ta + v * self.window + _REVERSAL_REACH * v * tr
-        return start, top
+    def switch_time(self, dv: float, joint: int | None = None) -> float:
+        """Duration of a velocity switch of size ``dv`` [s] (of joint index ``joint`` when the
+        acceleration limits differ per joint)."""
+        return max(self.switch, _PEAK * abs(dv) / self.acceleration(joint))
 
-    def _move_time(self, distance: float) -> float:
-        vmax = max(self.speeds)
+    def cycle_extent(self, v: float, window: float | None = None, joint: int | None = None) -> tuple[float, float]:
+        """Positions a cycle at speed ``v`` with constant-velocity windows of ``window`` seconds
+        (default :attr:`window`) reaches, relative to the pose: (below, above) [rad or m]."""
+        return cycle_extent(v, self.window if window is None else window, self.switch, self.acceleration(joint))
+
+    def _move_time(self, distance: float, joint: int) -> float:
+        vmax = max(v for v, _ in self.plan[self.joints.index(joint)])
         d = abs(distance)
-        return max(self.switch, np.sqrt(_MOVE_ACC * d / self.max_acceleration), _PEAK * d / vmax)
+        return max(self.switch, np.sqrt(_MOVE_ACC * d / self.acceleration(joint)), _PEAK * d / vmax)
 
     def _pieces(self) -> list[_Piece]:
         pieces: list[_Piece] = []
         idle = (0, 0.0, 0, 0)
-        for j in self.joints:
+        for j, plan in zip(self.joints, self.plan):
             q = self.pose[j]
-            for v in self.speeds:
-                lo_rel, hi_rel = self.cycle_extent(v)
+            for v, window in plan:
+                lo_rel, hi_rel = self.cycle_extent(v, window, j)
                 if self.pose[j] + lo_rel < self.lower[j] or self.pose[j] + hi_rel > self.upper[j]:
                     need = hi_rel - lo_rel
                     raise InputError(
-                        f"speed {v:g}: a {self.window:g} s window at {v:g} on {self.names[j]} needs "
+                        f"speed {v:g}: a {window:g} s window at {v:g} on {self.names[j]} needs "
                         f"[{self.pose[j] + lo_rel:.4g}, {self.pose[j] + hi_rel:.4g}] ({need:.3g} wide with the switching "
                         f"phases), outside its limits [{self.lower[j]:.4g}, {self.upper[j]:.4g}] about the pose "
                         f"{self.pose[j]:.4g}; lower the speed, shorten the window or raise max_acceleration")
-                ta, tr = self.switch_time(v), self.switch_time(2 * v)
+                ta, tr = self.switch_time(v, j), self.switch_time(2 * v, j)
                 for r in range(1, self.repetitions + 1):
                     start = self.pose[j] + lo_rel
                     if abs(start - q) > 0:
-                        pieces.append(_Piece(self._move_time(start - q), _move(start - q, self._move_time(start - q)), j, idle))
+                        dt = self._move_time(start - q, j)
+                        pieces.append(_Piece(dt, _move(start - q, dt), j, idle))
                     q = start
                     if self.rest > 0:
                         pieces.append(_Piece(self.rest, _constant(0.0), j, idle))
                     lab = lambda d: (j + 1, v, d, r)  # noqa: E731
                     pieces += [
                         _Piece(ta, _blend(0.0, v, ta), j, lab(0)),
-                        _Piece(self.window, _constant(v), j, lab(1)),
+                        _Piece(window, _constant(v), j, lab(1)),
                         _Piece(tr, _blend(v, -v, tr), j, lab(0)),
-                        _Piece(self.window, _constant(-v), j, lab(-1)),
+                        _Piece(window, _constant(-v), j, lab(-1)),
                         _Piece(ta, _blend(-v, 0.0, ta), j, lab(0)),
                     ]
             back = self.pose[j] - q
             if abs(back) > 0:
-                pieces.append(_Piece(self._move_time(back), _move(back, self._move_time(back)), j, idle))
+                dt = self._move_time(back, j)
+                pieces.append(_Piece(dt, _move(back, dt), j, idle))
             pieces.append(_Piece(max(self.rest, self.switch), _constant(0.0), j, idle))
         return pieces
 
@@ -238,6 +288,13 @@ class ConstantVelocityExperiment:
         table = np.array([p.label for p in self._pieces_], dtype=float)[k]
         table[(t < 0) | (t > self.duration)] = 0.0
         return {name: table[:, i] for i, name in enumerate(LABEL_COLUMNS)}
+
+    def joint_durations(self) -> dict[int, float]:
+        """Seconds each tested joint moves or rests in its part of the experiment (joint index -> s)."""
+        out = {j: 0.0 for j in self.joints}
+        for p in self._pieces_:
+            out[p.joint] += p.duration
+        return out
 
     def windows(self) -> list[dict]:
         """Every constant-velocity window: joint index, speed, direction, repetition, start and end [s]."""
