@@ -128,16 +128,21 @@ HIER = {"method": "wls", "hierarchical": True, "friction_model": "arctan"}
 PHYS = {"physical_consistency": True, "margin": 1e-4}
 
 
+def _runs(d: Path, name: str) -> dict:
+    _log(name, d / f"{name}_train.npz", 1, 2000)
+    _log(name, d / f"{name}_valid.npz", 2, 1000)
+    return {"dir": d, (name, "linear"): identify(_config(d, name, {"method": "wls"})),
+            (name, "arctan"): identify(_config(d, name, HIER))}
+
+
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("hiermech")
-    out = {"dir": d}
-    for name in ("fivebar", "planar3"):
-        _log(name, d / f"{name}_train.npz", 1, 2000)
-        _log(name, d / f"{name}_valid.npz", 2, 1000)
-        out[name, "linear"] = identify(_config(d, name, {"method": "wls"}))
-        out[name, "arctan"] = identify(_config(d, name, HIER))
-    return out
+def fivebar(tmp_path_factory):
+    return _runs(tmp_path_factory.mktemp("hier_fivebar"), "fivebar")
+
+
+@pytest.fixture(scope="module")
+def planar3(tmp_path_factory):
+    return _runs(tmp_path_factory.mktemp("hier_planar3"), "planar3")
 
 
 def _held_out(o) -> np.ndarray:
@@ -148,7 +153,7 @@ def _nominal(o) -> np.ndarray:
     return np.array(o.nominal_validation.to_dict()["rmse_per_joint"])
 
 
-def test_regressor_and_prediction_reproduce_the_plants_actuator_forces(runs):
+def test_regressor_and_prediction_reproduce_the_plants_actuator_forces():
     """At the truth, the friction-free base regressor of the rigid system times the true base
     parameters plus the true curves through P (:meth:`HierarchicalFriction.channel_force`) equal the
     plant's actuator forces (projected for planar3) on noise-free states: to round-off, ~1e-8 of
@@ -179,8 +184,8 @@ def test_regressor_and_prediction_reproduce_the_plants_actuator_forces(runs):
         assert np.abs(pred - fr.channel_force(st.dq[:, act], rows.Ga) - rows.y).max() > 0.1
 
 
-def test_fivebar_loop_converges_by_the_papers_rules_before_50_iterations(runs):
-    o = runs["fivebar", "arctan"]
+def test_fivebar_loop_converges_by_the_papers_rules_before_50_iterations(fivebar):
+    o = fivebar["fivebar", "arctan"]
     h = o.result.solver["hierarchical"]
     assert h["stop"] == "converged" and h["iterations"] < MAX_ITER, h["stop"]
     hist = h["history"]
@@ -207,11 +212,11 @@ def test_fivebar_loop_converges_by_the_papers_rules_before_50_iterations(runs):
         assert abs(o.result.params[k] - PASSIVE_FV) < 0.25 * PASSIVE_FV, (n, o.result.params[k], o.result.bse[k])
 
 
-def test_fivebar_friction_recovered_within_its_reported_uncertainty(runs):
+def test_fivebar_friction_recovered_within_its_reported_uncertainty(fivebar):
     """Every Eq. 15 coefficient within 4 reported standard deviations (white noise, a rigid-body part
     determined to ~1 % (mx, mz, Iyy of the proximal links): the std conditional on it is honest here),
     and the curve within 3 % of the truth over the speeds the motion covers."""
-    fr = runs["fivebar", "arctan"].result.solver["hierarchical"]["friction"]
+    fr = fivebar["fivebar", "arctan"].result.solver["hierarchical"]["friction"]
     v = np.linspace(0.1, 1.2, 50)
     for k, j in enumerate(("qa1", "qa2")):
         c = fr[j]
@@ -223,31 +228,31 @@ def test_fivebar_friction_recovered_within_its_reported_uncertainty(runs):
         np.testing.assert_allclose(fit, true, rtol=0.03, err_msg=j)
 
 
-def test_fivebar_held_out_at_the_noise_level_better_than_one_shot_and_nominal(runs):
-    hier, lin = _held_out(runs["fivebar", "arctan"]), _held_out(runs["fivebar", "linear"])
+def test_fivebar_held_out_at_the_noise_level_better_than_one_shot_and_nominal(fivebar):
+    hier, lin = _held_out(fivebar["fivebar", "arctan"]), _held_out(fivebar["fivebar", "linear"])
     np.testing.assert_allclose(hier, SIGMA, rtol=0.1)  # 1000 held-out samples: ~2.2 % (1 sigma)
     # measured: 0.0102/0.0103 N*m against the one-shot linear WLS's 0.0229/0.0259 N*m
     assert np.all(hier < 0.7 * lin)
     # the nominal model with the description's linear friction (the one-shot run's prior): 0.13/0.10 N*m
-    assert np.all(hier < 0.2 * _nominal(runs["fivebar", "linear"]))
+    assert np.all(hier < 0.2 * _nominal(fivebar["fivebar", "linear"]))
 
 
-def test_fivebar_with_lmi_constraints(runs):
+def test_fivebar_with_lmi_constraints(fivebar):
     """physical_consistency = true: each rigid-body step is WLS + LMI (dynid.estimation.physical) on
     the mechanism's rigid system; the loop still converges to the same friction."""
-    d = runs["dir"]
+    d = fivebar["dir"]
     o = identify(_config(d, "fivebar", {**HIER, **PHYS}))
     lin = identify(_config(d, "fivebar", {"method": "wls", **PHYS}))
     h = o.result.solver["hierarchical"]
     assert o.result.method.startswith("WLS+LMI") and h["stop"] == "converged" and h["iterations"] < MAX_ITER
     assert np.all(_held_out(o) < 0.7 * _held_out(lin))
-    ref = runs["fivebar", "arctan"].result.solver["hierarchical"]["friction"]
+    ref = fivebar["fivebar", "arctan"].result.solver["hierarchical"]["friction"]
     for j in ("qa1", "qa2"):
         for n in ("fc", "fs", "fv"):
             assert abs(h["friction"][j][n]["value"] - ref[j][n]["value"]) < ref[j][n]["std"], (j, n)
 
 
-def test_redundant_planar3_projected_equations(runs):
+def test_redundant_planar3_projected_equations(planar3):
     """The projected equations mix the three actuators' friction (P = G_a^T): one joint nonlinear
     refit of all three curves. The curves are recovered within 10 % over the speeds the motion covers
     (not within the std: the loop ends at 50 iterations here, see below, and the std is conditional
@@ -259,7 +264,7 @@ def test_redundant_planar3_projected_equations(runs):
     falls from 0.2 to ~3e-3 over 50 iterations while the RMSE changes are ~1e-6 N*m), because the
     mixed channels couple the curves with the rigid-body columns; the paper's parameter rule (1e-3) is
     not met by iteration 50 and the result says so (stop = "max_iterations", converged = false)."""
-    o = runs["planar3", "arctan"]
+    o = planar3["planar3", "arctan"]
     h = o.result.solver["hierarchical"]
     assert h["mechanism"]["projection"] == "projected" and h["mechanism"]["curves_on"] == ["qa1", "qa2", "qb1"]
     assert h["mechanism"]["friction_fit"].startswith("one bounded nonlinear least squares over all actuators")
@@ -276,14 +281,14 @@ def test_redundant_planar3_projected_equations(runs):
         fit = curve_force("smooth_stribeck", {n: fr[j][n]["value"] for n in fr[j]}, v)
         true = curve_force("smooth_stribeck", {n: FRICTION["planar3"][n][k] for n in FRICTION["planar3"]}, v)
         np.testing.assert_allclose(fit, true, rtol=0.10, err_msg=j)
-    hier, lin = _held_out(o), _held_out(runs["planar3", "linear"])
+    hier, lin = _held_out(o), _held_out(planar3["planar3", "linear"])
     assert np.all(hier < 1.6 * SIGMA) and np.all(hier > SIGMA * 0.9)
     # measured: 0.0144/0.0112 N*m against 0.0308/0.0241 (one-shot linear) and 0.28/0.12 (nominal)
-    assert np.all(hier < 0.7 * lin) and np.all(hier < 0.2 * _nominal(runs["planar3", "linear"]))
+    assert np.all(hier < 0.7 * lin) and np.all(hier < 0.2 * _nominal(planar3["planar3", "linear"]))
 
 
-def test_outputs_record_the_choice_history_and_plot(runs, tmp_path):
-    o = identify(_config(runs["dir"], "fivebar", HIER, plots=True))
+def test_outputs_record_the_choice_history_and_plot(fivebar, tmp_path):
+    o = identify(_config(fivebar["dir"], "fivebar", HIER, plots=True))
     files = write_outputs(o, tmp_path / "out")
     assert "hierarchical.png" in files and (tmp_path / "out" / "hierarchical.png").stat().st_size > 10_000
     doc = json.loads((tmp_path / "out" / "result.json").read_text())
@@ -299,9 +304,14 @@ def test_outputs_record_the_choice_history_and_plot(runs, tmp_path):
     assert "passive joints' friction (fv_qb1, fv_qb2) kept as linear columns" in text
 
 
-@pytest.mark.parametrize("processing, message", [
-    ({"decimate": 2, "decimate_method": "parallel"}, "does not commute"),
-])
-def test_refusals_that_remain(runs, processing, message):
-    with pytest.raises(ConfigError, match=message):
-        identify(_config(runs["dir"], "fivebar", HIER, processing=processing))
+def test_refusals_that_remain(tmp_path):
+    """Before any data is read (the logs named here do not exist): parallel decimation (a low-pass of
+    the regressor columns does not commute with the curve) and the pose domain of a platform's
+    periodic processing (not validated with the loop)."""
+    with pytest.raises(ConfigError, match="does not commute"):
+        identify(_config(tmp_path, "fivebar", HIER, processing={"decimate": 2, "decimate_method": "parallel"}))
+    doc = _doc(tmp_path, "fivebar", HIER, processing={"periodic": {"period_s": 10.0, "cutoff_hz": 0.55, "domain": "pose"}})
+    doc["robot"] = {"model": "builtin:rps3"}
+    doc["data"]["position"]["columns"] = doc["data"]["effort"]["columns"] = ["a", "b", "c"]
+    with pytest.raises(ConfigError, match="loop has not been validated"):
+        identify(parse_config(doc, tmp_path))
