@@ -210,8 +210,6 @@ def test_config_errors(tmp_path, ident, message):
 
 def test_runtime_errors(runs, tmp_path):
     d = runs["dir"]
-    with pytest.raises(ConfigError, match="serial robots"):
-        identify(_config(d, HIER, model="builtin:fivebar"))
     with pytest.raises(InputError, match="not found"):
         identify(_config(d, {**HIER, "friction_prior": str(tmp_path / "none.json")}))
     other = tmp_path / "friction.json"

@@ -276,7 +276,7 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
             kept.append(np.ones(c.y.shape, dtype=bool) if mask is None
                         else np.broadcast_to(mask if mask.ndim == 2 else mask[:, None], c.y.shape))
         pred.append(c.W @ result.params if friction is None else
-                    friction.predict(result, c.W, c.dq) if hasattr(friction, "predict")  # hierarchical
+                    friction.predict(result, c.W, c.dq, c.Ga) if hasattr(friction, "predict")  # hierarchical
                     else stribeck.predict(result, friction, c.W, c.dq))
         if nominal is not None:
             prior.append(c.W @ nominal)
@@ -821,18 +821,36 @@ def _coulomb_smoothing(spec, train_a: Dataset, pcfg, system) -> dict[str, Any] |
 
 
 def _hierarchical_fit(cfg: Config, system: System, base: BaseParameters, train: Dataset, steps, channels, names,
-                      progress: Progress, meta: dict):
+                      progress: Progress, meta: dict, original: System | None = None):
     """:func:`dynid.pipeline.hierarchical.hierarchical_fit` on every processed training row (the
-    friction-free regressor: ``[robot]`` without the friction extras, see :func:`_identify`)."""
+    friction-free regressor: ``[robot]`` without the friction extras, a mechanism without its
+    actuated joints' friction terms, see :func:`_identify`; ``original``: the mechanism's system
+    before, for the names of the terms the curves replace)."""
     from dynid.pipeline import hierarchical
 
     icfg, pcfg = cfg.identification, cfg.processing
-    chunks = list(_chunks(system, base, train, None, chunk_size=icfg.chunk_size, progress=progress,
+    force_model = system.force_model(icfg.force_model)
+    chunks = list(_chunks(system, base, train, force_model, chunk_size=icfg.chunk_size, progress=progress,
                           task="hierarchical rows", reversal_guard=pcfg.reversal_guard_s(),
                           min_velocity=pcfg.min_velocity))
     W, y, dq = (np.concatenate([getattr(c, a) for c in chunks]) for a in ("W", "y", "dq"))
     rev = None if chunks[0].reversal is None else np.concatenate([c.reversal for c in chunks])
-    mask = row_mask(system, None, dq, pcfg.min_velocity, reversal=rev)
+    jdq = None if chunks[0].joint_dq is None else np.concatenate([c.joint_dq for c in chunks])
+    Ga = None if chunks[0].Ga is None else np.concatenate([c.Ga for c in chunks])
+    mask = row_mask(system, force_model, dq, pcfg.min_velocity, joint_dq=jdq,
+                    min_velocity_passive=pcfg.min_velocity_passive, reversal=rev)
+    if mask is not None and mask.ndim == 1:  # whole samples (projected equations, passive joints)
+        mask = np.broadcast_to(mask[:, None], y.shape)
+    worst = max(float(c.inconsistency.max(initial=0.0)) for c in chunks)
+    mechanism = None
+    if system.kind != "serial":
+        replaced, passive = hierarchical.replaced_terms(system, original)
+        mechanism = {
+            "choice": ("nonlinear curves on the actuated joints (their linear friction terms "
+                       f"{', '.join(replaced) or 'none'} replaced); the passive joints' friction "
+                       f"({', '.join(passive) or 'none'}) kept as linear columns of the rigid-body step"),
+            "curves_on": list(system.actuator_names), "replaced_linear_terms": replaced,
+            "passive_linear_terms": passive, "force_model": force_model or "actuator forces (non-redundant)"}
     prior = None
     if icfg.friction_prior is not None:
         prior = hierarchical.read_prior(icfg.friction_prior, icfg.friction_model, tuple(system.actuator_names))
@@ -842,8 +860,9 @@ def _hierarchical_fit(cfg: Config, system: System, base: BaseParameters, train: 
         W, y, dq, mask, family=icfg.friction_model, joints=tuple(system.actuator_names), estimator=estimator,
         names=base.names, channels=channels,
         build_kwargs={"expressions": base.expressions(), "standard": system.standard_map(base), "meta": meta},
-        prior=prior, prior_source=None if icfg.friction_prior is None else str(icfg.friction_prior), progress=progress)
-    return result, fr, 0.0
+        prior=prior, prior_source=None if icfg.friction_prior is None else str(icfg.friction_prior), progress=progress,
+        projection=hierarchical.projection_kind(system, force_model), Ga=Ga, mechanism=mechanism)
+    return result, fr, worst
 
 
 def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
@@ -851,7 +870,13 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         from dynid.pipeline.hierarchical import rigid_robot_config
 
         cfg = dataclasses.replace(cfg, robot=rigid_robot_config(cfg.robot))
-    system = build_system(cfg.robot).with_structure(cfg.identification.structure, cfg.identification.identical_chains)
+    system = build_system(cfg.robot)
+    original = system
+    if cfg.identification.hierarchical:  # a mechanism's actuated joints lose their linear friction terms
+        from dynid.pipeline.hierarchical import rigid_system
+
+        system = rigid_system(system)
+    system = system.with_structure(cfg.identification.structure, cfg.identification.identical_chains)
     force_model = _check_config(cfg, system)
     icfg, pcfg = cfg.identification, cfg.processing
     if cfg.learning is not None:
@@ -917,7 +942,7 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         held_out, _ = preprocess(valid_a, at_fc, "validation")
     elif icfg.hierarchical:
         result, fj, worst = _hierarchical_fit(cfg, system, base, train, steps, tuple(channels), tuple(names), progress,
-                                              meta)
+                                              meta, original)
     elif icfg.friction_model == "stribeck":
         result, fj, worst = _stribeck_fit(cfg, system, base, train, force_model, periodic, progress, meta)
     elif icfg.method in ("iv", "didim"):
