@@ -142,6 +142,15 @@ def test_held_out_prediction_at_the_noise_level_and_better_than_one_shot_linear_
     assert hier.sum() < 0.8 * lin.sum()
 
 
+def test_the_nominal_baseline_keeps_the_descriptions_friction(runs):
+    """The prior every model must beat is the robot description *with* its friction terms, as in a
+    one-shot run on the same held-out rows, not the friction-free regressor the hierarchical fit
+    uses: the same nominal errors as the linear run's, to rounding."""
+    hier, lin = runs["arctan"], runs["linear"]
+    np.testing.assert_allclose(hier.nominal_validation.rmse, lin.nominal_validation.rmse, rtol=1e-9)
+    assert hier.prior is not None and hier.prior["beats_nominal"]
+
+
 def test_linear_family_lands_on_the_one_shot_least_squares(runs):
     """Alternating two least-squares fits of one objective converges to its joint minimizer: with the
     linear family (Eq. 2) the hierarchical loop predicts what one WLS with Coulomb + viscous columns does."""

@@ -236,6 +236,8 @@ def test_fivebar_held_out_at_the_noise_level_better_than_one_shot_and_nominal(fi
     assert np.all(hier < 0.7 * lin)
     # the nominal model with the description's linear friction (the one-shot run's prior): 0.13/0.10 N*m
     assert np.all(hier < 0.2 * _nominal(fivebar["fivebar", "linear"]))
+    # the hierarchical run's own prior is that model too (not the friction-free rigid regressor)
+    np.testing.assert_allclose(_nominal(fivebar["fivebar", "arctan"]), _nominal(fivebar["fivebar", "linear"]), rtol=1e-9)
 
 
 def test_fivebar_with_lmi_constraints(fivebar):

@@ -865,7 +865,30 @@ def _hierarchical_fit(cfg: Config, system: System, base: BaseParameters, train: 
     return result, fr, worst
 
 
+def _hierarchical_prior(cfg0: Config, result: IdentificationResult, force_model: str | None, held_out: Dataset,
+                        held_full: Dataset | None, rows_rule, parallel: int, progress: Progress):
+    """The nominal model of a hierarchical run as the robot description gives it, *with* its
+    friction terms (the rigid-body regressor of the fit has none: scored through it, the CAD model
+    would be scored without friction, an unfair baseline): (all held-out rows, the row-selected
+    rows or None, the full-rate rows or None) of the description's base parameters through the
+    configured robot's full regressor."""
+    icfg = cfg0.identification
+    system = build_system(cfg0.robot).with_structure(icfg.structure, icfg.identical_chains)
+    base = system.base_parameters(force_model, n_samples=icfg.base_samples, seed=icfg.base_seed)
+    nominal = base.from_standard(system.nominal_parameters())
+    as_result = dataclasses.replace(result, names=base.names, params=nominal, cov_params=None)
+    metrics, _, _, selected = validate_with_prior(as_result, system, base, held_out, None, force_model=force_model,
+                                                  parallel_decimate=parallel, chunk_size=icfg.chunk_size,
+                                                  progress=progress, selection=rows_rule)
+    full = None
+    if held_full is not None:
+        full, _, _, _ = validate_with_prior(as_result, system, base, held_full, None, force_model=force_model,
+                                            chunk_size=icfg.chunk_size, progress=progress)
+    return metrics, None if selected is None else selected.metrics, full
+
+
 def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
+    cfg0 = cfg
     if cfg.identification.hierarchical:  # the friction-free regressor Phi_br (paper 003 Eq. 37)
         from dynid.pipeline.hierarchical import rigid_robot_config
 
@@ -1002,12 +1025,19 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     metrics, prior, other, selected = validate_with_prior(
         result, system, base, held_out, nominal, force_model=force_model, parallel_decimate=parallel,
         chunk_size=icfg.chunk_size, progress=progress, friction=fj, periodic=periodic, selection=rows_rule)
-    full = None
+    full, held_full = None, None
     if pcfg.decimate > 1 and periodic is None:
         held_full, _ = preprocess(valid_a, dataclasses.replace(pcfg, decimate=1), "validation")
         fm, fn, _, _ = validate_with_prior(result, system, base, held_full, nominal, force_model=force_model,
                                            chunk_size=icfg.chunk_size, progress=progress, friction=fj)
         full = FullRate(fm, fn, decimate=pcfg.decimate)
+    if icfg.hierarchical:  # the CAD model with the description's friction, not the rigid part alone
+        prior, sel_nominal, full_nominal = _hierarchical_prior(cfg0, result, force_model, held_out, held_full,
+                                                               rows_rule, parallel, progress)
+        if selected is not None:
+            selected = dataclasses.replace(selected, nominal=sel_nominal)
+        if full is not None:
+            full = dataclasses.replace(full, nominal=full_nominal)
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     learned = None
