@@ -93,3 +93,11 @@ def test_memory_config_is_checked(tmp_path):
         parse_simulate_config(base, tmp_path)
     with pytest.raises(ModelError, match="positive"):
         FrictionMemory(STEADY, [0.01, 0.0, 0.01, 0.01, 0.01, 0.01])
+    # the constrained simulator has no friction state: a mechanism with memory is refused, not run without it
+    from dynid.pipeline.simulate import run_simulation
+
+    mech = {"robot": {"model": "builtin:shang2dof",
+                      "friction": {"model": "coulomb_viscous", "fc": 0.3, "fv": 2.0, "memory": 0.01}},
+            "trajectory": {"kind": "fourier"}}
+    with pytest.raises(ConfigError, match="serial robots only"):
+        run_simulation(parse_simulate_config(mech, tmp_path))
