@@ -299,3 +299,24 @@ def test_time_bound_and_bad_inputs(outcome, tmp_path):
         with pytest.raises(InputError, match=match) as info:
             call()
         assert "\n" not in str(info.value)
+
+
+def test_network_on_a_hierarchical_identification(logs):
+    """[learning] with hierarchical = true (paper 003 Sec. 3.4 stacked on Sec. 3.3, the +PI-LSTM row
+    of Tables 6/8): the model the network corrects is the rigid-body part plus the fitted friction
+    curves, so its held-out errors without the network are the identification's own validation,
+    and the physical loss acts on those curves (no linear friction columns are left)."""
+    from dynid.pipeline.identification import identify
+
+    text = IDENTIFY.format(learning=LEARNING.replace("epochs = 150", "epochs = 8")).replace(
+        'method = "wls"', 'method = "wls"\nhierarchical = true\nfriction_model = "arctan"')
+    (logs / "hier.toml").write_text(text)
+    out = identify(load_config(logs / "hier.toml"))
+    lo = out.learning
+    np.testing.assert_allclose(lo.without.rmse, out.validation.rmse, rtol=1e-12)
+    assert lo.networks.linear_friction == {"fc": [0.0] * 6, "fv": [0.0] * 6}
+    # the curves' friction is what the network's physical terms see: the prior fitted to it has the
+    # curves' Coulomb level, not 0
+    fr = out.result.solver["hierarchical"]["friction"]
+    for j, p in enumerate(lo.networks.priors):
+        assert p["fc"] > 0.3 * fr[f"joint_{j + 1}"]["fc"]["value"]

@@ -110,7 +110,7 @@ def test_twins_run(path):
     cfg = dataclasses.replace(load_simulate_config(path), duration=0.3)
     out = run_simulation(cfg)
     m = out.metadata
-    assert m["n_samples"] > 100
+    assert m["n_samples"] > 50  # 0.3 s: 61 samples at the 200 Hz log rate of the paper 003 twin
     if m["kind"] == "closed-loop":
         assert m["constraint_error_max"] < 1e-8
     if path.stem == "hexapod_fourier":  # task-space excitation (paper 004): pose and angular velocity logged

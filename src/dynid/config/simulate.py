@@ -13,7 +13,10 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     ``"coulomb_viscous"`` (``fc``, ``fv``, optional ``fc_neg``, ``fv_neg``, ``offset``),
     ``"stribeck"`` (paper 000 Eq. 32: ``fc``, ``fs``, ``fv``, ``vs``, ``delta``), ``"power_law"``
     or ``"smooth_stribeck"`` (paper 003: ``fc``, ``fv``, ``alpha``, ``offset`` / ``fc``, ``fs``,
-    ``fv``, ``vs``, ``kv``, ``alpha``).
+    ``fv``, ``vs``, ``kv``, ``alpha``); any model (serial robots) may add ``memory``: the time
+    constant [s] (> 0, one or one per joint) of a friction with memory whose steady state is that
+    model (Hess & Soom's frictional memory as a first-order lag,
+    :class:`dynid.model.friction.FrictionMemory`; the plant integrates the friction state).
 ``[robot.payload]``
     A load rigidly attached to one body of the true robot: ``body``, the pinocchio joint name
     whose body carries it (serial robots: default the last body; mechanisms: default the
@@ -167,12 +170,12 @@ FRICTION_MODELS = {
 
 def _parse_friction(t: Any) -> dict[str, Any]:
     where = "robot.friction"
-    keys = {"model"} | set().union(*(a | b for a, b in FRICTION_MODELS.values()))
+    keys = {"model", "memory"} | set().union(*(a | b for a, b in FRICTION_MODELS.values()))
     t = _table(t, where, keys, {"model"})
     model = _str(t["model"], f"{where}.model", tuple(FRICTION_MODELS))
     required, optional = FRICTION_MODELS[model]
     missing = sorted(required - set(t))
-    extra = sorted(set(t) - {"model"} - required - optional)
+    extra = sorted(set(t) - {"model", "memory"} - required - optional)
     if missing:
         raise ConfigError(f"{where}: model {model!r} needs {missing}")
     if extra:
@@ -186,7 +189,7 @@ def _parse_friction(t: Any) -> dict[str, Any]:
     return out
 
 
-_FRICTION_SIGN = {"fc": "nonnegative", "fv": "nonnegative", "fs": "nonnegative", "fv_neg": "nonnegative",
+_FRICTION_SIGN = {"memory": "positive", "fc": "nonnegative", "fv": "nonnegative", "fs": "nonnegative", "fv_neg": "nonnegative",
                   "vs": "positive", "delta": "positive", "alpha": "positive", "kv": "positive"}
 """Physical sign of each friction coefficient (``fc_neg``, the force at negative velocity, and
 ``offset`` may have either sign)."""

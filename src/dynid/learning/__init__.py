@@ -369,11 +369,13 @@ def _train_joint(torch, cfg: LearningConfig, x: FloatArray, y: FloatArray, flin:
 
 def fit_residual(cfg: LearningConfig, dq: FloatArray, ddq: FloatArray, residual: FloatArray,
                  linear_friction: dict[str, FloatArray] | None = None, joint_names: tuple[str, ...] | None = None,
-                 progress: Progress | None = None) -> ResidualNetworks:
+                 progress: Progress | None = None, model_friction: FloatArray | None = None) -> ResidualNetworks:
     """Train one network per joint on a processed training motion: velocities and accelerations
     (n, n_j) and the residual torque the identified model leaves (n, n_j). ``linear_friction``:
     the identified ``fc`` and ``fv`` per joint (the physical terms of the loss act on their friction
-    plus the network's; zeros without)."""
+    plus the network's; zeros without). ``model_friction`` (n, n_j): instead, the identified
+    model's friction at each training sample when it is not linear (the fitted curves of a
+    hierarchical identification, paper 003 Sec. 3.3, on which Sec. 3.4's network is stacked)."""
     torch = require_torch()
     prog = progress or (lambda task, done, total: None)
     dq, ddq, r = (np.atleast_2d(np.asarray(a, float)) for a in (dq, ddq, residual))
@@ -386,6 +388,11 @@ def fit_residual(cfg: LearningConfig, dq: FloatArray, ddq: FloatArray, residual:
     lf = {k: np.zeros(nj) for k in ("fc", "fv")}
     if linear_friction is not None:
         lf = {k: np.broadcast_to(np.asarray(linear_friction.get(k, 0.0), float), (nj,)).copy() for k in ("fc", "fv")}
+    if model_friction is not None:
+        model_friction = np.atleast_2d(np.asarray(model_friction, float))
+        if model_friction.shape != r.shape or not np.all(np.isfinite(model_friction)):
+            raise InputError(f"learning: the model friction {model_friction.shape} must be finite and shaped like the "
+                             f"residual {r.shape}")
     if cfg.stribeck_velocity is not None and len(cfg.stribeck_velocity) not in (1, nj):
         raise InputError(f"learning.stribeck_velocity: {len(cfg.stribeck_velocity)} values for {nj} joints")
     scales = {"velocity": [], "acceleration": [], "residual": []}
@@ -394,7 +401,7 @@ def fit_residual(cfg: LearningConfig, dq: FloatArray, ddq: FloatArray, residual:
     with _Deterministic(torch):
         for j in range(nj):
             v, a = dq[:, j], ddq[:, j]
-            flin = lf["fc"][j] * np.sign(v) + lf["fv"][j] * v
+            flin = lf["fc"][j] * np.sign(v) + lf["fv"][j] * v if model_friction is None else model_friction[:, j]
             measured = flin + r[:, j]  # the friction the log shows, as far as the rigid-body model is right
             prior = fit_stribeck_prior(v, measured)
             if cfg.stribeck_velocity is not None:

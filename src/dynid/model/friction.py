@@ -21,6 +21,14 @@ model                             force
                                   \\mathrm{sign}(\\dot q)` (paper 003's improved Stribeck)
 ================================  ==========================================================
 
+:class:`FrictionMemory` wraps any of them as the *steady-state* curve of a friction force with
+memory (a state per joint, integrated by the plant): Hess & Soom's frictional memory read as a
+first-order lag, :math:`\\dot z = (F_{ss}(\\dot q) - z) / T_m` (Hess, D.P. & Soom, A., "Friction at a
+lubricated line contact operating at oscillating sliding velocities", J. Tribology 112, 1990: the
+friction follows the steady-state curve with a time lag of milliseconds to tens of milliseconds;
+paper 003 §3.4 motivates its recurrent network by such history-dependent friction). At constant
+velocity :math:`z = F_{ss}`: a constant-velocity experiment measures the steady-state curve exactly.
+
 ``sign(0) = 0`` everywhere (a joint at rest has no Coulomb force in these models).
 """
 
@@ -33,7 +41,7 @@ import numpy as np
 from dynid._typing import FloatArray
 from dynid.errors import ModelError
 
-__all__ = ["CoulombViscous", "FrictionModel", "PowerLawViscous", "SmoothStribeck", "Stribeck"]
+__all__ = ["CoulombViscous", "FrictionMemory", "FrictionModel", "PowerLawViscous", "SmoothStribeck", "Stribeck"]
 
 
 def _arrays(obj, names: tuple[str, ...]) -> None:
@@ -142,3 +150,28 @@ class SmoothStribeck(FrictionModel):
         smooth = 2.0 / np.pi * np.arctan(self.kv * v)
         stribeck = self.fc + (self.fs - self.fc) * np.exp(-((v / self.vs) ** 2))
         return stribeck * smooth + self.fv * np.abs(v) ** self.alpha * np.sign(v)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class FrictionMemory(FrictionModel):
+    """Friction with memory: a first-order lag of time constant ``time_constant`` [s] per joint
+    behind the steady-state curve ``steady`` (Hess & Soom 1990; see the module docstring).
+
+    ``force(dq)`` is the steady state (what a constant-velocity experiment measures); the plant
+    integrates the friction state ``z`` with :meth:`rate` (:func:`dynid.simulation.control.simulate_control`).
+    """
+
+    steady: FrictionModel
+    time_constant: FloatArray
+
+    def __post_init__(self) -> None:
+        _arrays(self, ("time_constant",))
+        if np.any(self.time_constant <= 0):
+            raise ModelError("FrictionMemory.time_constant must be positive (0 is the steady-state model itself)")
+
+    def force(self, dq: FloatArray) -> FloatArray:
+        return self.steady.force(dq)
+
+    def rate(self, dq: FloatArray, z: FloatArray) -> FloatArray:
+        """dz/dt of the friction state ``z`` (n_joints,) at velocities ``dq`` (n_joints,)."""
+        return (self.steady.force(dq)[0] - np.asarray(z, dtype=float)) / self.time_constant

@@ -1042,7 +1042,8 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     learned = None
     if cfg.learning is not None:
-        learned = _learn(cfg, system, base, result, train, held_out, icfg.chunk_size, progress)
+        learned = _learn(cfg, system, base, result, train, held_out, icfg.chunk_size, progress,
+                         fj if icfg.hierarchical else None)
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
                            other_view=other, selected=selected, full_rate=full, learning=learned)
@@ -1059,15 +1060,22 @@ def _model_rows(system: System, base: BaseParameters, params: FloatArray, ds: Da
 
 
 def _learn(cfg: Config, system: System, base: BaseParameters, result: IdentificationResult, train: Dataset,
-           held_out: Dataset, chunk_size: int, progress: Progress):
-    """[learning]: the residual network (paper 003 Sec. 3.4) on the training log's residual."""
+           held_out: Dataset, chunk_size: int, progress: Progress, curves=None):
+    """[learning]: the residual network (paper 003 Sec. 3.4) on the training log's residual.
+    ``curves``: the friction curves of a hierarchical identification (paper 003 Sec. 3.3): the model
+    is then the rigid-body part plus them, and the network's physical loss acts on them."""
     from dynid.pipeline.learning import linear_friction, train_and_validate
 
     names = tuple(system.actuator_names)
     y_tr, p_tr = _model_rows(system, base, result.params, train, chunk_size)
     y_va, p_va = _model_rows(system, base, result.params, held_out, chunk_size)
     fr = linear_friction(base.names, result.params, len(names))
-    return train_and_validate(cfg.learning, names, train, y_tr, p_tr, held_out, y_va, p_va, fr, progress)
+    f_tr = None
+    if curves is not None:
+        f_tr = curves.force(train.dq)
+        p_tr, p_va = p_tr + f_tr, p_va + curves.force(held_out.dq)
+    return train_and_validate(cfg.learning, names, train, y_tr, p_tr, held_out, y_va, p_va, fr, progress,
+                              model_friction=f_tr)
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",

@@ -33,9 +33,11 @@ def check_learning(cfg, system) -> None:
     icfg, pcfg = cfg.identification, cfg.processing
     if system.kind != "serial":
         raise ConfigError("learning: the residual network is for serial robots (joint torques), not closed-loop mechanisms")
-    if icfg.method not in ("ols", "wls", "gm", "irls", "tls") or icfg.friction_model != "linear":
-        raise ConfigError(f"learning: needs a linear estimator (ols, wls, gm, irls, tls) with friction_model = 'linear', "
-                          f"not method {icfg.method!r} with friction_model {icfg.friction_model!r}")
+    if icfg.method not in ("ols", "wls", "gm", "irls", "tls") or (icfg.friction_model != "linear"
+                                                                 and not icfg.hierarchical):
+        raise ConfigError(f"learning: needs a linear estimator (ols, wls, gm, irls, tls) with friction_model = 'linear' "
+                          f"(or hierarchical = true with any family), not method {icfg.method!r} with friction_model "
+                          f"{icfg.friction_model!r}")
     if pcfg.periodic is not None:
         raise ConfigError("learning: needs time-domain processing, not processing.periodic")
     if pcfg.decimate > 1 and pcfg.decimate_method == "parallel":
@@ -105,12 +107,14 @@ def _rmse(err: FloatArray, mask: np.ndarray | None = None) -> list[float]:
 
 def train_and_validate(lcfg, names: tuple[str, ...], train, train_measured: FloatArray, train_model: FloatArray,
                        held_out, measured: FloatArray, model: FloatArray, friction: dict[str, FloatArray],
-                       progress=None) -> LearningOutcome:
+                       progress=None, model_friction: FloatArray | None = None) -> LearningOutcome:
     """Train on the processed training Dataset's residual (measured - model), predict the held-out
-    one; both sets of errors."""
+    one; both sets of errors. ``model_friction``: the identified model's friction at each training
+    sample when it is not linear (hierarchical identification: its fitted curves)."""
     from dynid.learning import fit_residual
 
-    nets = fit_residual(lcfg, train.dq, train.ddq, train_measured - train_model, friction, names, progress)
+    nets = fit_residual(lcfg, train.dq, train.ddq, train_measured - train_model, friction, names, progress,
+                        model_friction=model_friction)
     net_tr = nets.predict(train.dq, train.ddq)
     net = nets.predict(held_out.dq, held_out.ddq)
     src = held_out.meta.get("source")

@@ -352,15 +352,19 @@ def _friction_model(spec: dict | None, n: int):
 
     cls = {"coulomb_viscous": fr.CoulombViscous, "stribeck": fr.Stribeck, "power_law": fr.PowerLawViscous,
            "smooth_stribeck": fr.SmoothStribeck}[spec["model"]]
-    kw = {}
+    kw, memory = {}, None
     for k, v in spec.items():
         if k == "model":
             continue
         a = np.asarray(v, dtype=float)
         if a.ndim == 1 and a.size != n:
             raise ConfigError(f"robot.friction.{k} has {a.size} entries; the friction acts on {n} joints")
+        if k == "memory":
+            memory = a
+            continue
         kw[k] = a
-    return cls(**kw)
+    steady = cls(**kw)
+    return steady if memory is None else fr.FrictionMemory(steady, memory)
 
 
 def _replaced_friction(robot, mech: bool) -> list[str]:
@@ -486,6 +490,9 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
             reference = ActuatorReference(robot, traj.sample, model_params if c.kind == "feedforward_pid" else None,
                                           distribution)
             ctrl = DecentralizedPID(robot, JointPID(kp=kp, kd=kd, ki=ki))
+        if cfg.robot.friction is not None and "memory" in cfg.robot.friction:
+            raise ConfigError("robot.friction.memory: friction with memory is simulated on serial robots only (the "
+                              "constrained simulator has no friction state)")
         fmodel = _friction_model(cfg.robot.friction, robot.n_actuators)
         override = None
         if fmodel is not None and plant_params is None:

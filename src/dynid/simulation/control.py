@@ -17,6 +17,13 @@ plant's differ by :math:`2 f_c` until the next sample, and an explicit integrato
 about zero velocity while the joint would stick. Tracking errors then grow at reversals
 (millimetres for the 6R arm's 8 N·m); the smooth models of :mod:`dynid.model.friction`
 (``SmoothStribeck``) avoid it. A stick-slip (Karnopp) plant is not implemented.
+
+Friction with memory (:class:`~dynid.model.friction.FrictionMemory`): the friction state ``z``
+(one per joint, starting at the steady state of the initial velocity) is integrated together with
+``(q, v)``: one classical RK4 on the augmented state ``(q, v, z)`` with
+:math:`\\ddot q = \\mathrm{ABA}(q, \\dot q, \\tau - z)`, :math:`\\dot z = (F_{ss}(\\dot q) - z)/T_m`
+per substep (the same stages, so the coupling is integrated to the method's order). Without
+memory the loop is the unchanged (q, v) RK4.
 """
 
 from __future__ import annotations
@@ -29,7 +36,7 @@ import pinocchio as pin
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError
-from dynid.model.friction import CoulombViscous, FrictionModel
+from dynid.model.friction import CoulombViscous, FrictionMemory, FrictionModel
 from dynid.model.serial_dynamics import extras_torque, inverse_dynamics
 from dynid.model.robot import ASYMMETRIC_EXTRAS, RobotModel
 from dynid.simulation._integrate import rk4_step
@@ -93,9 +100,12 @@ class SerialPlant:
     def nv(self) -> int:
         return int(self.model.nv)
 
-    def acceleration(self, q: FloatArray, dq: FloatArray, tau: FloatArray) -> FloatArray:
-        """Joint accelerations under joint torques ``tau`` (friction subtracted), by ABA."""
-        net = np.asarray(tau, dtype=float) - self.friction.force(dq)[0]
+    def acceleration(self, q: FloatArray, dq: FloatArray, tau: FloatArray, friction: FloatArray | None = None) -> FloatArray:
+        """Joint accelerations under joint torques ``tau`` (friction subtracted), by ABA.
+        ``friction``: the friction torque now (a friction state with memory); default the
+        friction model's force at ``dq``."""
+        f = self.friction.force(dq)[0] if friction is None else np.asarray(friction, dtype=float)
+        net = np.asarray(tau, dtype=float) - f
         return pin.aba(self.model, self.data, q, dq, net).copy()
 
     def torque(self, q: FloatArray, dq: FloatArray, ddq: FloatArray) -> FloatArray:
@@ -222,6 +232,8 @@ def simulate_control(
     v = np.array(dqr[0] if dq0 is None else dq0, dtype=float)
     Q, V, A, T = (np.empty((n, nv)) for _ in range(4))
     h = dt / substeps
+    if isinstance(plant.friction, FrictionMemory):
+        return _simulate_memory(plant, controller, (t, qr, dqr, ddqr), q, v, dt, substeps, measure)
     for k in range(n):
         qm, vm = (q, v) if measure is None else measure(q, v)
         tau = np.asarray(controller(dt, qm, vm, (qr[k], dqr[k], ddqr[k])), dtype=float)
@@ -231,4 +243,33 @@ def simulate_control(
             break
         for _ in range(substeps):
             q, v = rk4_step(lambda a, b: plant.acceleration(a, b, tau), q, v, h)
+    return ControlledMotion(t=t, q=Q, dq=V, ddq=A, tau=T, q_ref=qr, dq_ref=dqr, ddq_ref=ddqr)
+
+
+def _simulate_memory(plant: SerialPlant, controller, ref, q: FloatArray, v: FloatArray, dt: float, substeps: int,
+                     measure) -> ControlledMotion:
+    """:func:`simulate_control` for a plant whose friction has memory: RK4 on (q, v, z)."""
+    t, qr, dqr, ddqr = ref
+    fm: FrictionMemory = plant.friction  # type: ignore[assignment]
+    n, nv = t.size, plant.nv
+    z = fm.force(v)[0].copy()  # the steady state of the initial velocity
+
+    def f(qq, vv, zz, tau):
+        return vv, plant.acceleration(qq, vv, tau, zz), fm.rate(vv, zz)
+
+    Q, V, A, T = (np.empty((n, nv)) for _ in range(4))
+    h = dt / substeps
+    for k in range(n):
+        qm, vm = (q, v) if measure is None else measure(q, v)
+        tau = np.asarray(controller(dt, qm, vm, (qr[k], dqr[k], ddqr[k])), dtype=float)
+        Q[k], V[k], T[k] = q, v, tau
+        A[k] = plant.acceleration(q, v, tau, z)
+        if k == n - 1:
+            break
+        for _ in range(substeps):
+            k1 = f(q, v, z, tau)
+            k2 = f(q + h / 2 * k1[0], v + h / 2 * k1[1], z + h / 2 * k1[2], tau)
+            k3 = f(q + h / 2 * k2[0], v + h / 2 * k2[1], z + h / 2 * k2[2], tau)
+            k4 = f(q + h * k3[0], v + h * k3[1], z + h * k3[2], tau)
+            q, v, z = (x + h / 6 * (a + 2 * b + 2 * c + d) for x, a, b, c, d in zip((q, v, z), k1, k2, k3, k4))
     return ControlledMotion(t=t, q=Q, dq=V, ddq=A, tau=T, q_ref=qr, dq_ref=dqr, ddq_ref=ddqr)
