@@ -252,6 +252,9 @@ class IdentificationConfig:
     start: str = "wls"  # "wls" (IDIM-WLS estimate) or "nominal" (the robot description's values)
     max_iterations: int = 10
     tolerance: float = 0.5  # stop when no parameter moves by more than this many standard deviations
+    # the replays' regularized Coulomb law: tanh(v / v_b), v_b this fraction of the largest measured
+    # actuator speed; 0: the discontinuous law (dynid.pipeline.control_loop)
+    replay_coulomb_band: float = 0.05
     # the Coulomb terms' sign: "none" (the sign), "auto" (erf of the data's velocity-noise std), or widths per actuator
     coulomb_smoothing: str | tuple[float, ...] = "none"
     # hierarchical iterative identification (paper 003 Sec. 3.3, Algorithm 1; dynid.pipeline.hierarchical):
@@ -534,7 +537,7 @@ def _chain_groups(spec: Any, where: str) -> tuple[tuple[tuple[str, ...], ...], .
     return tuple(out)
 
 
-_LOOP_KEYS = ("experiment", "start", "max_iterations", "tolerance")
+_LOOP_KEYS = ("experiment", "start", "max_iterations", "tolerance", "replay_coulomb_band")
 
 
 def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfig:
@@ -652,6 +655,7 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
         start=_str(t.get("start", "wls" if method == "iv" else "nominal"), f"{where}.start", ("wls", "nominal")),
         max_iterations=_int(t.get("max_iterations", 10), f"{where}.max_iterations", 1),
         tolerance=_num(t.get("tolerance", 0.5), f"{where}.tolerance", minimum=0.0),
+        replay_coulomb_band=_num(t.get("replay_coulomb_band", 0.05), f"{where}.replay_coulomb_band", minimum=0.0),
         noise_covariance=ncov,
         position_covariance=pcov,
         cutoff_range_hz=crange,
