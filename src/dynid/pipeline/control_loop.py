@@ -30,8 +30,8 @@ measurement noise:
   base parameters: the singular values of the column-scaled :math:`Z^T W` fall continuously
   from 1 to 1e-13 of the largest; the correlation of the two regressors along the singular
   directions is at least 0.88 down to 2e-3, 0.5 at 2.5e-4, 0.1 to 0.2 below 1e-9). The
-  estimate is the truncated-SVD IV solution over the directions above 1e-3 of the largest
-  singular value; the others keep the start's values, so from ``start = "nominal"`` they stay at
+  estimate is the truncated-SVD IV solution over the directions above ``directions_rtol``
+  (default 1e-3 for IV) of the largest singular value; the others keep the start's values, so from ``start = "nominal"`` they stay at
   the nominal model's (30 or 31 of 102 directions are estimated on that twin, 2 or 3 periods).
   The directions are chosen **once**, at the start's replay
   (:func:`dynid.estimation.instrumental.determined_directions`), and every later step is
@@ -75,31 +75,42 @@ error of each iterate, ``output_error_rmse_per_channel``: the RMS of the measure
 those simulated with it, the criterion the method is built on; its fixed point neglects
 :math:`\\partial q_s / \\partial\\beta` and is not a stationary point of it, so a step control
 that demands a falling output error stops short of that fixed point: tried, not kept, see
-bench/README, control-loop identification time). Unconstrained DIDIM estimates the same kind
-of fixed directions as IV (those of the start's replay, from :math:`\\sum_j w_j W_{s,j}^T W_{s,j}`
-with the same threshold; the others at the start's values; ``solver["iterations"][k]
-["estimated_directions"]``): its least squares over all 102 directions of the hexapod twin gave
-iterates far outside the physically consistent set (indefinite pseudo-inertias on most bodies;
-the feasibility program's total slack 2e3 to 1e4 from the second iterate on), robots that
-the simulator could not run from iteration 2 to 7 on (halvings, then a failure).
+bench/README, control-loop identification time). Unconstrained DIDIM estimates fixed directions
+too (those of the start's replay, from the column-scaled :math:`\\sum_j w_j W_{s,j}^T W_{s,j}`,
+singular values above ``directions_rtol``, default 1e-6 for DIDIM, i.e. the scaled simulated
+regressor's above 1e-3 of its largest; the others at the start's values;
+``solver["estimated_directions"]``). On the shang2dof twin that keeps all 25 (DIDIM as before;
+IV's 1e-3 would keep 16 and leave the estimate far from the truth: 3 to 5 of 25 true base
+parameters inside the 95 % intervals instead of 25). On the hexapod twin the least squares over
+all 102 directions, or over those above 1e-6, gives iterates far outside the physically
+consistent set (indefinite pseudo-inertias on most bodies; the feasibility program's total slack
+2e3 to 1e4 from the second iterate on) and a replay fails by iteration 6 or 7; with
+``directions_rtol = 1e-3`` (32 of 102) and the smooth replay below it runs, without a halving.
 
-**The replay is a smooth function of the estimate.** The replays simulate the plant's Coulomb
-friction through a regularized law, ``tanh(v / v_b)`` instead of ``sign(v)``
-(:class:`dynid.simulation.closed_loop.ConstrainedSimulator`, ``coulomb_band``), with ``v_b`` 5 %
-of the largest measured actuator speed of the training log (``replay_coulomb_band = 0.05``; 0
-keeps the discontinuous law; a parallel robot's replay: a serial robot's keeps its plant's law). With the discontinuous law the explicit integrator
-chatters about zero velocity wherever a joint sticks, so the replayed motion, and the IV or
-DIDIM step computed from it, depends discontinuously on the estimate: on the ``--quick``
-hexapod data, moving the iterate by 0.018 standard deviations moved the IV step's output by
-1.24 (by 7e-5 for a move of 2e-6), an iteration that cannot contract below about one standard
-deviation. With the regularized law the same moves give 0.004 and 1.6e-4 (ratios 0.2 to 0.5
-from 1e-4 to 1 standard deviation), and DIDIM's step is linear in the move (ratio 0.55 from
-1e-6 to 1e-2 standard deviations). The measured experiment is not changed; the replay differs
-from the discontinuous law only within a few bands of zero velocity (the law equals
-``sign(v)`` to 0.5 % beyond 3 ``v_b``), where the discontinuous simulation was no better a model
-of the robot (Olsson et al. 1998, Section 2). On that twin IV now converges (3 to 4
-iterations, no halving); DIDIM runs its iterations without a failed replay but does not converge
-to 0.5 standard deviations: its moves stall at 1.5 to 3 (bench/README). Simulated states are
+**The replay as a smooth function of the estimate** (``replay_coulomb_band``, default 0.05 for
+IV, 0 for DIDIM). The replays can simulate the plant's Coulomb friction through a regularized
+law, ``tanh(v / v_b)`` instead of ``sign(v)``
+(:class:`dynid.simulation.closed_loop.ConstrainedSimulator`, ``coulomb_band``), ``v_b`` that
+fraction of the largest measured actuator speed of the training log (a parallel robot's replay;
+a serial robot's keeps its plant's law). With the discontinuous law the explicit integrator
+chatters about zero velocity wherever a joint sticks, so the replayed motion, and the step
+computed from it, depends discontinuously on the estimate: on the ``--quick`` hexapod data,
+moving the iterate by 0.018 standard deviations moved the IV step's output by 1.24 (by 7e-5 for
+a move of 2e-6), an iteration that cannot contract below about one standard deviation. With the
+regularized law the same moves give 0.004 and 1.6e-4 (ratios 0.2 to 0.5 from 1e-4 to 1 standard
+deviation), DIDIM's step is linear in the move (ratio 0.55 from 1e-6 to 1e-2), and IV converges
+in 3 iterations. IV may use an approximate replay: its instruments need only be correlated with
+the regressor and independent of the noise, and any such instruments keep the estimate
+consistent (Janot 2014, Section III); the law equals ``sign(v)`` to 0.5 % beyond 3 ``v_b``
+(Olsson, Åström, Canudas de Wit, Gäfvert & Lischinsky, Eur. J. Control 4(3), 1998, Section 2:
+the classical law regularized near zero velocity for simulation). DIDIM may not, by default:
+it is an output-error method, its residual the measured minus the replayed force, so a replay
+law other than the data's adds an output error at every reversal that the regression then
+fits; on the shang2dof twin a band of 0.05, 0.01 or 0.002 took DIDIM from 25 of 25 true base
+parameters inside their intervals (5 iterations) to 6 to 12, two of three runs not converged.
+On the hexapod twin DIDIM with the band and ``directions_rtol = 1e-3`` runs its iterations
+without a failed replay and the same way on data that differ by rounding, but does not converge
+to 0.5 standard deviations: its moves stall at 1.5 to 4 (bench/README). Simulated states are
 taken at the processed log's instants (linear interpolation between control instants; exact
 at them), and the simulated rows go through exactly the processing of the measured rows
 (parallel decimation, ``min_velocity`` selection from the measured velocities). DIDIM's rows
@@ -161,9 +172,6 @@ from dynid.model.system import System
 __all__ = ["control_loop_estimate"]
 
 _HALVINGS = 4
-# IV: directions of the base parameters whose singular value of the (column-scaled, weighted)
-# Z^T W is below this fraction of the largest are held at the iterate's values (module docstring)
-_IV_RTOL = 1e-3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -412,8 +420,9 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
             if subspace is None:  # the directions the start's instruments determine, fixed for the run
                 w = 1.0 / sigma**2
                 subspace = (beta_used.copy(), *determined_directions(np.einsum("j,jik->ik", w, problem.ZW),
-                                                                     np.einsum("j,jik->ik", w, problem.ZZ), _IV_RTOL))
-            beta0, TU, TV, rel_sv = subspace
+                                                                     np.einsum("j,jik->ik", w, problem.ZZ),
+                                                                     icfg.directions_rtol))
+            beta0, TU, TV, _ = subspace
             rank = TV.shape[1]
             reduced = reduce_instrumental(problem, TU, TV, beta0, [f"c{i + 1}" for i in range(rank)])
             for _ in range(3):  # weights from the IV residuals (Janot 2014: weighted IV)
@@ -424,10 +433,10 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
             cov = 0.5 * (cov + cov.T)
             held = base.n_base - rank
             result = iv_result(problem, new, cov, sigma, cond, method="IV", provenance=dict(meta),
-                               solver={"instrument_rtol": _IV_RTOL, "instrumented_directions": rank},
+                               solver={"instrument_rtol": icfg.directions_rtol, "instrumented_directions": rank},
                                notes=() if not held else (
                                    f"{held} of {base.n_base} directions of the base parameters are not determined by "
-                                   f"the instruments (singular value of Z^T W below {_IV_RTOL:g} of the largest): held "
+                                   f"the instruments (singular value of Z^T W below {icfg.directions_rtol:g} of the largest): held "
                                    f"at the start's values; the standard errors are conditional on them",),
                                expressions=base.expressions())
         else:
@@ -447,8 +456,8 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
                 if subspace is None:  # the directions the start's replay determines, fixed for the run
                     w = 1.0 / _sigma(problem.rss_per_channel(beta_used), problem.n_obs, base.n_base) ** 2
                     G = np.einsum("j,jki,jkl->il", w, problem.R, problem.R)
-                    subspace = (beta_used.copy(), *determined_directions(G, G, _IV_RTOL))
-                beta0, _, TV, rel_sv = subspace
+                    subspace = (beta_used.copy(), *determined_directions(G, G, icfg.directions_rtol))
+                beta0, _, TV, _ = subspace
                 rank = TV.shape[1]
                 result = _reduced_fit(estimator, problem, beta0, TV, base)
             new = result.params
@@ -495,6 +504,15 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
                                                    "DIDIM (Gautier, Janot & Vandanjon 2013)"),
               "experiment": _relative(icfg.experiment, cfg.source), "start": icfg.start, "iterations": history, "converged": converged,
               "tolerance_std": icfg.tolerance, **fixed_point}
+    if subspace is not None:  # the fixed directions (module docstring): how far the threshold is from the spectrum
+        rel = subspace[3]
+        kept = subspace[2].shape[1]
+        solver["estimated_directions"] = {"count": kept, "of": base.n_base,
+                                          "threshold": icfg.directions_rtol,
+                                          "smallest_kept": float(rel[kept - 1]),
+                                          "largest_held": float(rel[kept]) if kept < rel.size else None}
+    if band is not None:
+        solver["replay_coulomb_band"] = band
     notes = [("instruments: the regressor on the states of the experiment replayed with the current estimate under its "
               "controller; IV covariance" if method == "iv" else
               "output error: the measured forces regressed on the regressor of the experiment replayed with the current "
