@@ -28,9 +28,10 @@ Method
   counted and timed by a wrapper installed by this script), the time spent in them, and the
   held-out error (mean over the 6 struts of the RMSE of the drive forces) next to the nominal
   model's on the same rows.
-* Check: the larger of the IV and DIDIM ratios against the 10x target; PASS or FAIL with the
-  figure (exit status 1 on FAIL, not with ``--quick``); a method whose run failed in any round is a
-  FAIL whatever its time (it identified nothing).
+* Check, per method: the median of its paired round ratios (against the WLS run of the same
+  round) against the 10x target; PASS or FAIL with the figure (exit status 1 on any FAIL, not with
+  ``--quick``); a method whose run failed or did not converge in any round is a FAIL whatever its
+  time (it identified nothing, or did not finish the method).
 
 Run: ``.venv/bin/python bench/control_loop_time.py`` (``--quick``: 2 periods, 2 iterations, 1 round;
 ``--workdir DIR`` keeps the simulated logs; ``--methods`` to time a subset).
@@ -137,6 +138,11 @@ def config_document(method: str, max_iterations: int) -> dict:
         # both from the nominal model: on this twin the WLS estimate is not a robot the simulator
         # can run (IV's default start = "wls" stops at its first replay; bench/README)
         identification.update(experiment="train.toml", max_iterations=max_iterations, start="nominal")
+    if method == "didim":
+        # DIDIM's defaults (the discontinuous Coulomb law in the replay, every direction above 1e-6)
+        # fail on this twin at a replay (bench/README, branch ivconv): the smooth replay and IV's
+        # directions make it run
+        identification.update(replay_coulomb_band=0.05, directions_rtol=1e-3)
     return {
         "robot": {"model": "builtin:hexapod"},
         "data": {"file": "train/log.csv", "time": {"column": "t", "unit": "s"},
@@ -223,18 +229,22 @@ def main(argv: list[str] | None = None) -> int:
     loop = [m for m in methods if m != "wls"]
     if not loop:
         return 0
-    # the verdict: the median of the paired ratios (each method against the WLS run of its own
-    # round), not the ratio of medians taken under different loads
-    paired = {m: [a["s"] / b["s"] for a, b in zip(runs[m], runs["wls"])] for m in loop}
-    worst = max(loop, key=lambda m: median(paired[m]))
-    ratio = median(paired[worst])
-    print(f"{worst} / WLS round by round (same round, minutes apart: load changes show here): "
-          + ", ".join(f"{r:.1f}" for r in paired[worst]))
-    failed = [m for m in loop if any("error" in x for x in runs[m])]
-    ok = ratio <= TARGET_RATIO and not failed  # a run that failed identified nothing: its time is no pass
-    print(f"\n{worst} / WLS, median of the paired round ratios: {ratio:.1f}x (target at most {TARGET_RATIO:g}x): {'PASS' if ok else 'FAIL'}"
-          + (f" ({', '.join(failed)} failed in some round)" if failed else "")
-          + (" (quick run: not enforced)" if args.quick else ""))
+    # the verdict, per method: the median of the paired ratios (each run against the WLS run of its
+    # own round), not the ratio of medians taken under different loads; a run that failed or did
+    # not converge is no pass whatever its time (it did not finish the method)
+    ok = True
+    for m in loop:
+        paired = [a["s"] / b["s"] for a, b in zip(runs[m], runs["wls"])]
+        ratio = median(paired)
+        failed = sum("error" in x for x in runs[m])
+        unconverged = sum(not x["converged"] and "error" not in x for x in runs[m])
+        good = ratio <= TARGET_RATIO and not failed and not unconverged
+        ok = ok and good
+        why = ([f"failed in {failed} of {len(runs[m])} rounds"] if failed else []) + (
+            [f"not converged in {max_iterations} iterations in {unconverged} of {len(runs[m])} rounds"] if unconverged else [])
+        print(f"{m} / WLS round by round: " + ", ".join(f"{r:.1f}" for r in paired)
+              + f"; median {ratio:.1f}x (target at most {TARGET_RATIO:g}x): {'PASS' if good else 'FAIL'}"
+              + (f" ({'; '.join(why)})" if why else "") + (" (quick run: not enforced)" if args.quick else ""))
     return 0 if ok or args.quick else 1
 
 

@@ -252,6 +252,12 @@ class IdentificationConfig:
     start: str = "wls"  # "wls" (IDIM-WLS estimate) or "nominal" (the robot description's values)
     max_iterations: int = 10
     tolerance: float = 0.5  # stop when no parameter moves by more than this many standard deviations
+    # the replays' regularized Coulomb law: tanh(v / v_b), v_b this fraction of the largest measured
+    # actuator speed; 0: the discontinuous law (dynid.pipeline.control_loop). Default 0.05 for "iv", 0 for "didim"
+    replay_coulomb_band: float = 0.05
+    # the directions estimated (fixed at the start's replay): singular values of the scaled step matrix
+    # (IV: Z^T W; DIDIM: W_s^T W_s) above this fraction of the largest. Default 1e-3 for "iv", 1e-6 for "didim"
+    directions_rtol: float = 1e-3
     # the Coulomb terms' sign: "none" (the sign), "auto" (erf of the data's velocity-noise std), or widths per actuator
     coulomb_smoothing: str | tuple[float, ...] = "none"
     # hierarchical iterative identification (paper 003 Sec. 3.3, Algorithm 1; dynid.pipeline.hierarchical):
@@ -534,7 +540,7 @@ def _chain_groups(spec: Any, where: str) -> tuple[tuple[tuple[str, ...], ...], .
     return tuple(out)
 
 
-_LOOP_KEYS = ("experiment", "start", "max_iterations", "tolerance")
+_LOOP_KEYS = ("experiment", "start", "max_iterations", "tolerance", "replay_coulomb_band", "directions_rtol")
 
 
 def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfig:
@@ -652,6 +658,10 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
         start=_str(t.get("start", "wls" if method == "iv" else "nominal"), f"{where}.start", ("wls", "nominal")),
         max_iterations=_int(t.get("max_iterations", 10), f"{where}.max_iterations", 1),
         tolerance=_num(t.get("tolerance", 0.5), f"{where}.tolerance", minimum=0.0),
+        replay_coulomb_band=_num(t.get("replay_coulomb_band", 0.05 if method == "iv" else 0.0), f"{where}.replay_coulomb_band",
+                                 minimum=0.0),
+        directions_rtol=_num(t.get("directions_rtol", 1e-3 if method == "iv" else 1e-6), f"{where}.directions_rtol",
+                             positive=True),
         noise_covariance=ncov,
         position_covariance=pcov,
         cutoff_range_hz=crange,

@@ -38,7 +38,8 @@ from dynid.errors import IdentifiabilityError, InputError
 from dynid.estimation.results import IdentificationResult
 from dynid.stats import condition_number
 
-__all__ = ["InstrumentBuilder", "InstrumentalProblem", "fixed_point_covariance", "iv_result", "iv_solve", "iv_solve_truncated"]
+__all__ = ["InstrumentBuilder", "InstrumentalProblem", "determined_directions", "fixed_point_covariance", "iv_result", "iv_solve",
+           "iv_solve_truncated", "reduce_instrumental"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -174,6 +175,52 @@ def iv_solve_truncated(problem: InstrumentalProblem, sigma: FloatArray, start: F
     x = d * x0 + P @ (b / d - As @ (d * x0))
     cov = (P @ Ss @ P.T) / np.outer(d, d)
     return x / d, 0.5 * (cov + cov.T), float(sv[0] / sv[keep][-1]), int(keep.sum())
+
+
+def determined_directions(A: FloatArray, S: FloatArray, rtol: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The parameter directions a step's normal equations determine, as fixed bases.
+
+    ``A`` (p, p): the weighted cross product of the step's instruments and regressor
+    (:math:`\\sum_j w_j Z_j^T W_j`; DIDIM's least squares: :math:`\\sum_j w_j W_j^T W_j`),
+    ``S`` (p, p) that of the instruments with themselves (column scaling ``d = sqrt(diag S)``, as
+    :func:`iv_solve`). With ``A / (d d^T) = U diag(s) V^T``, the directions with
+    ``s_i >= rtol * s_max`` are kept. Returns ``(TU, TV, s / s_max)``: ``TV = V_k / d`` (p, r),
+    the parameter directions (``beta = beta_0 + TV c``), ``TU = U_k / d`` (p, r), the
+    combinations of the instruments that determine them (``Z TU``), and the relative singular
+    values (all of them, for the record).
+
+    Fixing these bases once per run (at the start's replay) makes the iteration a map on one
+    affine subspace, ``beta_0 + range(TV)``: the parameters outside it keep their a priori
+    values, the essential-parameter practice of Gautier's IDIM (the combinations the
+    excitation does not determine are not estimated). Re-truncating at every iterate instead
+    lets the kept subspace turn from one replay to the next (and its rank flip where a
+    singular value sits at the threshold), so the held components drift with it.
+    """
+    A, S = np.asarray(A, dtype=float), np.asarray(S, dtype=float)
+    d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    As = A / np.outer(d, d)
+    if not np.all(np.isfinite(As)):
+        raise IdentifiabilityError("the instruments' cross products are not finite", ())
+    U, sv, Vt = np.linalg.svd(As)
+    if not sv[0] > 0:
+        raise IdentifiabilityError("the instruments do not determine the parameters (Z^T W is zero)", ())
+    keep = sv >= rtol * sv[0]
+    return U[:, keep] / d[:, None], Vt[keep].T / d[:, None], sv / sv[0]
+
+
+def reduce_instrumental(problem: InstrumentalProblem, TU: FloatArray, TV: FloatArray, beta0: FloatArray,
+                        names: Sequence[str]) -> InstrumentalProblem:
+    """The IV problem of ``beta = beta0 + TV c`` with the instruments ``Z TU`` (exact cross
+    products: regressor ``W TV``, outputs ``y - W beta0``). IDIM-IV on the reduced parameters
+    ``c`` (Janot 2014, Eqs. 18-25) is square and well posed when ``TU``, ``TV`` come from
+    :func:`determined_directions`."""
+    TU, TV, b0 = (np.asarray(a, dtype=float) for a in (TU, TV, beta0))
+    ZW, WW = problem.ZW, problem.WW
+    Zr = problem.Zy - np.einsum("jik,k->ji", ZW, b0)
+    Wr = problem.Wy - np.einsum("jik,k->ji", WW, b0)
+    yy = problem.yy - 2.0 * problem.Wy @ b0 + np.einsum("i,jik,k->j", b0, WW, b0)
+    return InstrumentalProblem(tuple(names), problem.channel_names, TU.T @ ZW @ TV, TU.T @ problem.ZZ @ TU,
+                               TV.T @ WW @ TV, Zr @ TU, Wr @ TV, np.maximum(yy, 0.0), problem.n_obs.copy())
 
 
 def iv_result(problem: InstrumentalProblem, beta: FloatArray, cov: FloatArray, sigma: FloatArray, cond: float, *,

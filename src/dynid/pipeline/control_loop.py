@@ -30,13 +30,22 @@ measurement noise:
   base parameters: the singular values of the column-scaled :math:`Z^T W` fall continuously
   from 1 to 1e-13 of the largest; the correlation of the two regressors along the singular
   directions is at least 0.88 down to 2e-3, 0.5 at 2.5e-4, 0.1 to 0.2 below 1e-9). The
-  estimate is the truncated-SVD IV solution over the directions above 1e-3 of the largest
-  singular value (:func:`dynid.estimation.instrumental.iv_solve_truncated`); the others keep
-  the iterate's values, so from ``start = "nominal"`` they stay at the nominal model's (30 of
-  102 directions are estimated on that twin). ``result.solver["instrumented_directions"]``
-  records the number, a note the rest; the standard errors are conditional on the held
-  directions. Without it the first IV step is noise along them and the next replay is not the
-  experiment (the regressors' correlation falls to 0.01 along every direction but the first).
+  estimate is the truncated-SVD IV solution over the directions above ``directions_rtol``
+  (default 1e-3 for IV) of the largest singular value; the others keep the start's values, so from ``start = "nominal"`` they stay at
+  the nominal model's (30 or 31 of 102 directions are estimated on that twin, 2 or 3 periods).
+  The directions are chosen **once**, at the start's replay
+  (:func:`dynid.estimation.instrumental.determined_directions`), and every later step is
+  IDIM-IV on those fixed combinations (:func:`~dynid.estimation.instrumental.reduce_instrumental`:
+  the instruments ``Z TU``, the regressor ``W TV``; square and well posed): the parameters the
+  excitation does not determine keep their a priori values, Gautier's essential-parameter
+  practice. Re-truncating at every iterate (as before) let the kept subspace turn from one
+  replay to the next, and its rank flip between 30 and 31 where a singular value sat within 1 %
+  of the threshold (0.99e-3 on the ``--quick`` data): the held components drifted with it and
+  the estimate moved by 1 to 2 standard deviations per iteration without contracting.
+  ``result.solver["instrumented_directions"]`` records the number, a note the rest; the
+  standard errors are conditional on the held directions. Without the truncation the first
+  IV step is noise along them and the next replay is not the experiment (the regressors'
+  correlation falls to 0.01 along every direction but the first).
 * **DIDIM** (Gautier, Janot & Vandanjon, "A new closed-loop output error method for
   parameter identification of robot dynamics", IEEE TCST 21(2), 2013, Eqs. 14–20): the measured
   forces are regressed on the simulated regressor alone, :math:`y = W(q_s(\\beta_k))\\beta_{k+1}`
@@ -66,10 +75,42 @@ error of each iterate, ``output_error_rmse_per_channel``: the RMS of the measure
 those simulated with it, the criterion the method is built on; its fixed point neglects
 :math:`\\partial q_s / \\partial\\beta` and is not a stationary point of it, so a step control
 that demands a falling output error stops short of that fixed point: tried, not kept, see
-bench/README, control-loop identification time). On the hexapod twin of
-``bench/control_loop_time.py`` the iteration does not contract: the output error falls for four
-iterations and rises again (strut 3 stays near 8 N against 2 N of noise), and 18 of 28 replays
-are failed halved steps (bench/README). Simulated states are
+bench/README, control-loop identification time). Unconstrained DIDIM estimates fixed directions
+too (those of the start's replay, from the column-scaled :math:`\\sum_j w_j W_{s,j}^T W_{s,j}`,
+singular values above ``directions_rtol``, default 1e-6 for DIDIM, i.e. the scaled simulated
+regressor's above 1e-3 of its largest; the others at the start's values;
+``solver["estimated_directions"]``). On the shang2dof twin that keeps all 25 (DIDIM as before;
+IV's 1e-3 would keep 16 and leave the estimate far from the truth: 3 to 5 of 25 true base
+parameters inside the 95 % intervals instead of 25). On the hexapod twin the least squares over
+all 102 directions, or over those above 1e-6, gives iterates far outside the physically
+consistent set (indefinite pseudo-inertias on most bodies; the feasibility program's total slack
+2e3 to 1e4 from the second iterate on) and a replay fails by iteration 6 or 7; with
+``directions_rtol = 1e-3`` (32 of 102) and the smooth replay below it runs, without a halving.
+
+**The replay as a smooth function of the estimate** (``replay_coulomb_band``, default 0.05 for
+IV, 0 for DIDIM). The replays can simulate the plant's Coulomb friction through a regularized
+law, ``tanh(v / v_b)`` instead of ``sign(v)``
+(:class:`dynid.simulation.closed_loop.ConstrainedSimulator`, ``coulomb_band``), ``v_b`` that
+fraction of the largest measured actuator speed of the training log (a parallel robot's replay;
+a serial robot's keeps its plant's law). With the discontinuous law the explicit integrator
+chatters about zero velocity wherever a joint sticks, so the replayed motion, and the step
+computed from it, depends discontinuously on the estimate: on the ``--quick`` hexapod data,
+moving the iterate by 0.018 standard deviations moved the IV step's output by 1.24 (by 7e-5 for
+a move of 2e-6), an iteration that cannot contract below about one standard deviation. With the
+regularized law the same moves give 0.004 and 1.6e-4 (ratios 0.2 to 0.5 from 1e-4 to 1 standard
+deviation), DIDIM's step is linear in the move (ratio 0.55 from 1e-6 to 1e-2), and IV converges
+in 3 iterations. IV may use an approximate replay: its instruments need only be correlated with
+the regressor and independent of the noise, and any such instruments keep the estimate
+consistent (Janot 2014, Section III); the law equals ``sign(v)`` to 0.5 % beyond 3 ``v_b``
+(Olsson, Åström, Canudas de Wit, Gäfvert & Lischinsky, Eur. J. Control 4(3), 1998, Section 2:
+the classical law regularized near zero velocity for simulation). DIDIM may not, by default:
+it is an output-error method, its residual the measured minus the replayed force, so a replay
+law other than the data's adds an output error at every reversal that the regression then
+fits; on the shang2dof twin a band of 0.05, 0.01 or 0.002 took DIDIM from 25 of 25 true base
+parameters inside their intervals (5 iterations) to 6 to 12, two of three runs not converged.
+On the hexapod twin DIDIM with the band and ``directions_rtol = 1e-3`` runs its iterations
+without a failed replay and the same way on data that differ by rounding, but does not converge
+to 0.5 standard deviations: its moves stall at 1.5 to 4 (bench/README). Simulated states are
 taken at the processed log's instants (linear interpolation between control instants; exact
 at them), and the simulated rows go through exactly the processing of the measured rows
 (parallel decimation, ``min_velocity`` selection from the measured velocities). DIDIM's rows
@@ -106,7 +147,7 @@ eigenvalue beyond 1, and the last step's covariance is reported with a note in
 
 An iterate whose simulation fails (a model without a positive-definite mass matrix, or a
 diverging motion) is not accepted: the step is halved up to four times, then the run stops
-with an error naming the iteration.
+with an error naming the iteration and the simulator's cause (no fallback to another method).
 """
 
 from __future__ import annotations
@@ -122,16 +163,15 @@ from dynid.config import Config
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, DynidError, InputError
 from dynid.estimation import IdentificationResult, ProblemBuilder
-from dynid.estimation.instrumental import InstrumentBuilder, fixed_point_covariance, iv_result, iv_solve_truncated
+from dynid.estimation.instrumental import (InstrumentBuilder, determined_directions, fixed_point_covariance, iv_result,
+                                           iv_solve, reduce_instrumental)
+from dynid.estimation.problem import RegressionProblem, _qr_r
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System
 
 __all__ = ["control_loop_estimate"]
 
 _HALVINGS = 4
-# IV: directions of the base parameters whose singular value of the (column-scaled, weighted)
-# Z^T W is below this fraction of the largest are held at the iterate's values (module docstring)
-_IV_RTOL = 1e-3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,7 +226,8 @@ def _instrument_processing(pcfg):
     return process
 
 
-def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, process=None) -> tuple[np.ndarray, ...]:
+def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, process=None,
+                      band: float | None = None) -> tuple[np.ndarray, ...]:
     """Actuator positions, velocities, accelerations (n, n_a) of the experiment replayed with
     the standard parameters ``standard`` (identified robot's layout), at the instants ``t``;
     ``process(ts, q, dq, ddq)``, when given, processes the states at the control instants first
@@ -198,7 +239,8 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
     Gauss–Newton step fewer and converges to the same assembly."""
     from dynid.pipeline.simulate import actuator_states, run_simulation
 
-    outcome = run_simulation(exp.cfg, plant=standard[exp.index])  # standard: the model's full layout
+    # standard: the model's full layout; band: the regularized Coulomb law of the replay (module docstring)
+    outcome = run_simulation(exp.cfg, plant=standard[exp.index], coulomb_band=band)
     ts, q, dq, ddq = actuator_states(outcome)
     if process is not None and np.all(np.isfinite(q)) and np.all(np.isfinite(dq)) and np.all(np.isfinite(ddq)):
         q, dq, ddq = process(ts, q, dq, ddq)
@@ -216,7 +258,7 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
 
 
 def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_old, beta_new, t, k: int,
-                       standard_of=None, expand=lambda pi: pi, process=None):
+                       standard_of=None, expand=lambda pi: pi, process=None, band=None):
     """Simulate at ``beta_new``; on failure halve the step from ``beta_old`` (see module doc)."""
     step = 1.0
     last = None
@@ -224,7 +266,7 @@ def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_ol
         beta = beta_new if beta_old is None else beta_old + step * (beta_new - beta_old)
         standard = standard_of(beta) if standard_of is not None and step == 1.0 else base.to_standard(beta, reference)
         try:
-            return beta, step, _simulated_states(exp, expand(standard), t, process)
+            return beta, step, _simulated_states(exp, expand(standard), t, process, band)
         except ConfigError:
             raise
         except (DynidError, FloatingPointError, RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
@@ -235,6 +277,28 @@ def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_ol
     raise InputError(f"identification: the experiment replayed with the estimate of iteration {k} does not simulate "
                      f"({last}); the estimate is not a robot the simulator can run: try "
                      "physical_consistency = true (method 'didim') or start = 'nominal'")
+
+
+def _reduced_fit(estimator, problem: RegressionProblem, beta0: np.ndarray, TV: np.ndarray,
+                 base: BaseParameters) -> IdentificationResult:
+    """DIDIM's step on the fixed directions: the least squares of ``y - W beta0`` on ``W TV``
+    (exact: each channel's factor ``[R_j TV, z_j - R_j beta0; 0, rho_j]`` re-triangularized), mapped
+    back to the base parameters ``beta0 + TV c`` with the covariance ``TV C_c TV^T``."""
+    p, r = problem.n_params, TV.shape[1]
+    f = np.zeros((problem.n_channels, r + 1, r + 1))
+    for j in range(problem.n_channels):
+        M = np.zeros((p + 1, r + 1))
+        M[:p, :r] = problem.R[j] @ TV
+        M[:p, r] = problem.z[j] - problem.R[j] @ beta0
+        M[p, r] = problem.factors[j, p, p]
+        f[j] = _qr_r(M, r + 1)[: r + 1]
+    reduced = RegressionProblem(tuple(f"c{i + 1}" for i in range(r)), problem.channel_names, f, problem.n_obs,
+                                meta=problem.meta)
+    fit = estimator.fit(reduced)
+    beta = beta0 + TV @ fit.params
+    cov = None if fit.cov_params is None else TV @ fit.cov_params @ TV.T
+    return dataclasses.replace(fit, names=base.names, params=beta, cov_params=None if cov is None else 0.5 * (cov + cov.T),
+                               rss_per_channel=problem.rss_per_channel(beta), expressions=base.expressions())
 
 
 def _relative(path, config_file) -> str:
@@ -326,6 +390,9 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
     result: IdentificationResult | None = None
     standard_of = None
     beta_prev = None
+    subspace = None  # (start, TU, TV, relative singular values): the estimated directions (module docstring)
+    # the replays' Coulomb band (module docstring; 0: the discontinuous law)
+    band = icfg.replay_coulomb_band * float(np.max(np.abs(np.asarray(train.dq, dtype=float)))) or None
     t = np.asarray(train.t, dtype=float)
     # IV: instruments processed like the measured regressor; DIDIM: the exact simulated states
     # (its simulated forces W(q_s) beta_k are the replay's own forces; module docstring)
@@ -341,7 +408,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
     for k in range(1, icfg.max_iterations + 1):
         progress(f"{method.upper()} iterations", k - 1, icfg.max_iterations)
         beta_used, step, (qs, dqs, ddqs, joint_qs) = _simulate_or_halve(exp, base, nominal_std, beta_prev, beta, t, k,
-                                                             standard_of, system.expand_parameters, process)
+                                                             standard_of, system.expand_parameters, process, band)
         sim = train.replace(q=qs, dq=dqs, ddq=ddqs)
         if method == "iv":
             builder = InstrumentBuilder(base.names, channels)
@@ -350,16 +417,26 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
             problem = builder.build()
             if sigma is None:
                 sigma = _sigma(problem.rss_per_channel(beta_used), problem.n_obs, base.n_base)
+            if subspace is None:  # the directions the start's instruments determine, fixed for the run
+                w = 1.0 / sigma**2
+                subspace = (beta_used.copy(), *determined_directions(np.einsum("j,jik->ik", w, problem.ZW),
+                                                                     np.einsum("j,jik->ik", w, problem.ZZ),
+                                                                     icfg.directions_rtol))
+            beta0, TU, TV, _ = subspace
+            rank = TV.shape[1]
+            reduced = reduce_instrumental(problem, TU, TV, beta0, [f"c{i + 1}" for i in range(rank)])
             for _ in range(3):  # weights from the IV residuals (Janot 2014: weighted IV)
-                # the directions the instruments do not determine stay at the iterate's values
-                new, cov, cond, rank = iv_solve_truncated(problem, sigma, beta_used, _IV_RTOL)
-                sigma = _sigma(problem.rss_per_channel(new), problem.n_obs, base.n_base)
+                # the directions the instruments do not determine stay at the start's values
+                c, cov_c, cond = iv_solve(reduced, sigma)
+                new, cov = beta0 + TV @ c, TV @ cov_c @ TV.T
+                sigma = _sigma(problem.rss_per_channel(new), problem.n_obs, rank)
+            cov = 0.5 * (cov + cov.T)
             held = base.n_base - rank
             result = iv_result(problem, new, cov, sigma, cond, method="IV", provenance=dict(meta),
-                               solver={"instrument_rtol": _IV_RTOL, "instrumented_directions": rank},
+                               solver={"instrument_rtol": icfg.directions_rtol, "instrumented_directions": rank},
                                notes=() if not held else (
                                    f"{held} of {base.n_base} directions of the base parameters are not determined by "
-                                   f"the instruments (singular value of Z^T W below {_IV_RTOL:g} of the largest): held "
+                                   f"the instruments (singular value of Z^T W below {icfg.directions_rtol:g} of the largest): held "
                                    f"at the start's values; the standard errors are conditional on them",),
                                expressions=base.expressions())
         else:
@@ -372,7 +449,17 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
                 else:
                     mb.add(cs.W, cs.y, mask)
             problem = mb.build(expressions=base.expressions(), standard=system.standard_map(base), meta=dict(meta))
-            result = estimator.fit(problem)
+            if icfg.physical_consistency:  # consistent iterates: every direction, under the LMIs
+                result = estimator.fit(problem)
+                rank = base.n_base
+            else:
+                if subspace is None:  # the directions the start's replay determines, fixed for the run
+                    w = 1.0 / _sigma(problem.rss_per_channel(beta_used), problem.n_obs, base.n_base) ** 2
+                    G = np.einsum("j,jki,jkl->il", w, problem.R, problem.R)
+                    subspace = (beta_used.copy(), *determined_directions(G, G, icfg.directions_rtol))
+                beta0, _, TV, _ = subspace
+                rank = TV.shape[1]
+                result = _reduced_fit(estimator, problem, beta0, TV, base)
             new = result.params
             if icfg.physical_consistency:  # the unconstrained step at the same iterate (covariance, projection)
                 from dynid.estimation import WLS
@@ -392,8 +479,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         moved = float(np.max(np.abs(new - beta_used) / np.maximum(bse, 1e-300)))
         entry = {"iteration": k, "step": step, "max_change_in_std": moved,
                  "rmse_per_channel": np.sqrt(result.rss_per_channel / np.maximum(result.n_obs, 1)).tolist()}
-        if method == "iv":
-            entry["instrumented_directions"] = rank
+        entry["estimated_directions"] = rank
         if method == "didim":  # the output error of the iterate itself: its simulated forces W(q_s) beta_k
             entry["output_error_rmse_per_channel"] = np.sqrt(problem.rss_per_channel(beta_used)
                                                              / np.maximum(problem.n_obs, 1)).tolist()
@@ -418,6 +504,15 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
                                                    "DIDIM (Gautier, Janot & Vandanjon 2013)"),
               "experiment": _relative(icfg.experiment, cfg.source), "start": icfg.start, "iterations": history, "converged": converged,
               "tolerance_std": icfg.tolerance, **fixed_point}
+    if subspace is not None:  # the fixed directions (module docstring): how far the threshold is from the spectrum
+        rel = subspace[3]
+        kept = subspace[2].shape[1]
+        solver["estimated_directions"] = {"count": kept, "of": base.n_base,
+                                          "threshold": icfg.directions_rtol,
+                                          "smallest_kept": float(rel[kept - 1]),
+                                          "largest_held": float(rel[kept]) if kept < rel.size else None}
+    if band is not None:
+        solver["replay_coulomb_band"] = band
     notes = [("instruments: the regressor on the states of the experiment replayed with the current estimate under its "
               "controller; IV covariance" if method == "iv" else
               "output error: the measured forces regressed on the regressor of the experiment replayed with the current "

@@ -416,7 +416,7 @@ def _force_covariance(s, n_a: int) -> np.ndarray:
 
 
 def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, robot=None,
-                   plant: np.ndarray | None = None) -> SimulationOutcome:
+                   plant: np.ndarray | None = None, coulomb_band: float | None = None) -> SimulationOutcome:
     """Run the virtual experiment of ``cfg`` (nothing is written).
 
     ``robot``: the model to simulate in place of loading ``cfg.robot.model``, for a variant built
@@ -431,14 +431,17 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, rob
     outcome's truth still describes the configured robot, without its base parameters
     (``truth["base_parameters"]`` is None: their computation, a regressor on random
     configurations, cost a mechanism's replay about 5 % of its time, and a replay is not written).
+
+    ``coulomb_band``: with ``plant``, the plant's Coulomb friction through the regularized law of
+    :class:`~dynid.simulation.closed_loop.ConstrainedSimulator` (a parallel robot's replay only).
     """
     t0 = time.perf_counter()
-    outcome = _run_simulation(cfg, progress, robot, plant)
+    outcome = _run_simulation(cfg, progress, robot, plant, coulomb_band)
     return dataclasses.replace(outcome, elapsed_s=time.perf_counter() - t0)
 
 
 def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None,
-                    plant_params: np.ndarray | None = None) -> SimulationOutcome:
+                    plant_params: np.ndarray | None = None, coulomb_band: float | None = None) -> SimulationOutcome:
     robot = load_model(cfg.robot.model, actuated=cfg.robot.actuated, independent=cfg.robot.independent)
     if variant is not None:
         if list(variant.parameter_names) != list(robot.parameter_names):
@@ -500,7 +503,9 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
         plant = true if payload is None else _with_payload(robot, true, payload[1], payload[2])
         if plant_params is not None:
             plant = np.asarray(plant_params, dtype=float)
-        motion = simulate_mechanism_control(ConstrainedSimulator(robot, plant, friction=override), ctrl, reference,
+        band = coulomb_band if plant_params is not None else None
+        motion = simulate_mechanism_control(ConstrainedSimulator(robot, plant, friction=override, coulomb_band=band), ctrl,
+                                            reference,
                                             duration=duration, dt=dt, substeps=c.substeps)
         q_act = motion.q[:, list(robot.actuated)]
         if c.kind != "computed_torque":  # the drives' own errors (paper 002, Fig. 10; paper 004, Fig. 6)

@@ -56,6 +56,16 @@ class ConstrainedSimulator:
         Ground-truth friction ``friction(dq (n_v,)) -> generalized forces (n_v,)`` replacing
         the joint terms' friction and offsets (rotor inertias stay), e.g. a Stribeck model of
         :mod:`dynid.model.friction` on some joints.
+    coulomb_band : float, optional
+        Velocity band of a regularized Coulomb law for the joint terms' friction: the Coulomb
+        levels act through ``tanh(dq / coulomb_band)`` instead of ``sign(dq)`` (the same forces
+        outside a few bands of zero velocity). An explicit integrator chatters about zero
+        velocity under the discontinuous law (:mod:`dynid.simulation.control`), and the motion
+        then depends discontinuously on the parameters; the continuous law is the usual remedy
+        (Olsson, Åström, Canudas de Wit, Gäfvert & Lischinsky, "Friction models and friction
+        compensation", Eur. J. Control 4(3), 1998, Section 2: the classical models regularized
+        near zero velocity for simulation). The model replays of IDIM-IV and DIDIM use it
+        (:mod:`dynid.pipeline.control_loop`). Default: the discontinuous law.
     """
 
     def __init__(
@@ -66,6 +76,7 @@ class ConstrainedSimulator:
         baumgarte: tuple[float, float] = (0.0, 0.0),
         mu: float = 1e-12,
         friction=None,
+        coulomb_band: float | None = None,
     ) -> None:
         params = np.asarray(params, dtype=float)
         self.mech = mech
@@ -106,6 +117,9 @@ class ConstrainedSimulator:
         self.prox = pin.ProximalSettings(1e-14, mu, 100)
         self.Sa = mech.actuator_selection()
         self.friction = friction
+        if coulomb_band is not None and not (np.isfinite(coulomb_band) and coulomb_band > 0):
+            raise InputError(f"coulomb_band must be positive and finite, got {coulomb_band}")
+        self.coulomb_band = coulomb_band
 
     def joint_forces(self, dq: FloatArray, tau_a: FloatArray) -> FloatArray:
         """Generalized forces on the tree: actuators minus the joint terms (rotor inertia excluded)."""
@@ -116,6 +130,10 @@ class ConstrainedSimulator:
         if self.friction is not None:
             return tau_joint - np.asarray(self.friction(dq), dtype=float).reshape(-1)
         a, b, c, d, e = self._friction_coefficients
+        if self.coulomb_band is not None:  # regularized Coulomb law (class docstring)
+            th = np.tanh(dq / self.coulomb_band)
+            return tau_joint - (a * np.maximum(dq, 0.0) + b * np.minimum(dq, 0.0) + 0.5 * (c - d) * th
+                                + 0.5 * (c + d) * np.abs(th) + e)
         if self._symmetric_friction:
             # a = b, d = -c, e = 0: the same value element by element as the general form below
             # (a v + c sign v; each of the general form's other terms is an exact zero)
