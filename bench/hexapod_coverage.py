@@ -128,52 +128,75 @@ def figure(path: Path, strut: int = 2) -> None:
     print(f"figure: {path}")
 
 
+TABLE2_PERIODS = 8
+"""Periods of the Table II twin's log after the start-up one: all but the last train, the last is held out."""
+TABLE2_LOWPASS = {"cutoff_hz": 10.0, "order": 4, "filter_effort": False}
+TABLE2_GUARD = {"lowpass": TABLE2_LOWPASS, "min_velocity": 0.01, "reversal_guard": "auto"}
+TABLE2_NOISE = {"noise_covariance": (4.0 * (0.2 * np.ones((6, 6)) + 0.8 * np.eye(6))).tolist(),
+                "position_covariance": (25e-12 * np.eye(6)).tolist()}
+"""The simulation's own noise: 2 N correlated 0.2 across the drives; 5 um position noise (ML is given them)."""
+
+
+def table2_log(d: Path, periods: int = TABLE2_PERIODS) -> tuple[dict, dict]:
+    """Simulate the Table II twin into ``d/log.npz``: the nominal hexapod (its truth) on the stored
+    D-optimal design (bench/README §7: the optimizer ends in another design on every BLAS kernel
+    and rounding, and the table changed with it), ``periods`` + 1 periods at 500 Hz, the first
+    (start-up) dropped. Returns the identify document (without processing and identification)
+    and the simulation's truth."""
+    from processing_study import DESIGN
+
+    from dynid._files import save_npz
+    from dynid.config.simulate import parse_simulate_config
+    from dynid.pipeline.simulate import run_simulation
+
+    f0 = 0.2
+    traj = {"kind": "fourier", "coordinates": "task", "design": str(DESIGN), "periods": periods + 1}
+    sim = run_simulation(parse_simulate_config({
+        "robot": {"model": "builtin:hexapod"}, "trajectory": traj,
+        "control": {"rate_hz": 500, "kp": 2500, "kd": 100, "model": "true", "substeps": 2},
+        "sensors": {"encoder_resolution": 1e-6, "position_noise_std": 5e-6, "force_noise_std": 2.0,
+                    "force_correlation": 0.2, "seed": 1},
+    }, d))
+    n_per = int(round(500 / f0))  # the first period (start-up) is dropped, as in estimator_study
+    cols = {k: v[n_per:] for k, v in sim.columns.items()}
+    cols["t"] = cols["t"] - cols["t"][0]
+    save_npz(d / "log.npz", cols)
+    q = [f"q_P{j}" for j in range(1, 7)]
+    doc = {"robot": {"model": "builtin:hexapod"},
+           "data": {"file": str(d / "log.npz"), "time": {"column": "t", "unit": "s"},
+                    "position": {"columns": q, "unit": "m"},
+                    "effort": {"columns": [c.replace("q_", "tau_") for c in q], "kind": "torque", "unit": "N"},
+                    "rows": [0, (periods - 1) * n_per]},
+           "validation": {"rows": [(periods - 1) * n_per, periods * n_per]}, "output": {"plots": False}}
+    return doc, sim.truth
+
+
+def table2_z(out, truth: dict) -> tuple[list[str], np.ndarray]:
+    """|estimate - truth| / std of Table II's 24 rows of an identify outcome."""
+    from estimator_study import PAPER_TABLE2, TABLE2_PARAMS
+
+    true = out.base.from_standard(out.system.reduce_parameters(np.asarray(truth["true_parameters"])))
+    names = list(out.result.names)
+    idx = [names.index(TABLE2_PARAMS[n]) for n in PAPER_TABLE2]
+    return list(PAPER_TABLE2), np.abs(out.result.params - true)[idx] / out.result.bse[idx]
+
+
 def table2(methods: list[str] | None = None, smoothing: list[str] | None = None) -> None:
     """Paper 004 Table II's twin in the time domain, with and without the guard (module docstring)."""
     import tempfile
 
-    from estimator_study import PAPER_TABLE2, TABLE2_PARAMS
-    from processing_study import DESIGN
-
-    from dynid._files import save_npz
     from dynid.config import parse_config
-    from dynid.config.simulate import parse_simulate_config
     from dynid.errors import DynidError
     from dynid.pipeline.identification import identify
-    from dynid.pipeline.simulate import run_simulation
 
-    f0, periods = 0.2, 8
-    lp = {"cutoff_hz": 10.0, "order": 4, "filter_effort": False}
-    guard = {"lowpass": lp, "min_velocity": 0.01, "reversal_guard": "auto"}
+    lp, guard = TABLE2_LOWPASS, TABLE2_GUARD
     variants = [("WLS, no selection", {"lowpass": lp}, "wls"), ("WLS, min_velocity + reversal_guard", guard, "wls"),
                 ("GM, min_velocity + reversal_guard (per strut, Sigma_KK)", guard, "gm"),
                 ("ML (f_c in 5-20 Hz), min_velocity + reversal_guard", guard, "ml"),
                 ("ML (f_c in 5-80 Hz), min_velocity + reversal_guard", guard, "ml")]
-    # the simulation's own noise: 2 N correlated 0.2 across the drives; 5 um position noise
-    cov_f = (4.0 * (0.2 * np.ones((6, 6)) + 0.8 * np.eye(6))).tolist()
-    cov_q = (25e-12 * np.eye(6)).tolist()
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        # the stored D-optimal design (bench/README §7): the optimizer ends in another design on every
-        # BLAS kernel and rounding, and the table changed with it (21 -> 23 of 24 for GM)
-        traj = {"kind": "fourier", "coordinates": "task", "design": str(DESIGN), "periods": periods + 1}
-        sim = run_simulation(parse_simulate_config({
-            "robot": {"model": "builtin:hexapod"}, "trajectory": traj,
-            "control": {"rate_hz": 500, "kp": 2500, "kd": 100, "model": "true", "substeps": 2},
-            "sensors": {"encoder_resolution": 1e-6, "position_noise_std": 5e-6, "force_noise_std": 2.0,
-                        "force_correlation": 0.2, "seed": 1},
-        }, d))
-        n_per = int(round(500 / f0))  # the first period (start-up) is dropped, as in estimator_study
-        cols = {k: v[n_per:] for k, v in sim.columns.items()}
-        cols["t"] = cols["t"] - cols["t"][0]
-        save_npz(d / "log.npz", cols)
-        q = [f"q_P{j}" for j in range(1, 7)]
-        doc = {"robot": {"model": "builtin:hexapod"},
-               "data": {"file": str(d / "log.npz"), "time": {"column": "t", "unit": "s"},
-                        "position": {"columns": q, "unit": "m"},
-                        "effort": {"columns": [c.replace("q_", "tau_") for c in q], "kind": "torque", "unit": "N"},
-                        "rows": [0, (periods - 1) * n_per]},
-               "validation": {"rows": [(periods - 1) * n_per, periods * n_per]}, "output": {"plots": False}}
+        doc, truth = table2_log(d)
         rows = []
         runs = [(f"{label}{'' if sm is None else f', coulomb_smoothing {sm}'}", proc, method, sm)
                 for label, proc, method in variants for sm in (smoothing or [None])
@@ -185,17 +208,13 @@ def table2(methods: list[str] | None = None, smoothing: list[str] | None = None)
                 if sm is not None:
                     ident["coulomb_smoothing"] = sm
                 if method == "ml":
-                    ident.update(noise_covariance=cov_f, position_covariance=cov_q,
-                                 cutoff_range_hz=[5.0, 20.0] if "5-20" in label else [5.0, 80.0])
+                    ident.update(**TABLE2_NOISE, cutoff_range_hz=[5.0, 20.0] if "5-20" in label else [5.0, 80.0])
                 out = identify(parse_config({**doc, "processing": proc, "identification": ident}, d))
             except DynidError as exc:
                 rows.append([label, "refused", "", "", "", str(exc)[:90]])
                 continue
-            truth = out.base.from_standard(out.system.reduce_parameters(np.asarray(sim.truth["true_parameters"])))
-            names = list(out.result.names)
-            idx = [names.index(TABLE2_PARAMS[n]) for n in PAPER_TABLE2]
-            z = np.abs(out.result.params - truth)[idx] / out.result.bse[idx]
-            worst = ", ".join(f"{n} {zz:.1f}" for n, zz in sorted(zip(PAPER_TABLE2, z), key=lambda x: -x[1])[:3])
+            rows_names, z = table2_z(out, truth)
+            worst = ", ".join(f"{n} {zz:.1f}" for n, zz in sorted(zip(rows_names, z), key=lambda x: -x[1])[:3])
             fc = ""
             if method == "ml":
                 sv = out.result.solver
