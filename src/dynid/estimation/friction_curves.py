@@ -42,7 +42,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError
 from dynid.model.friction import CoulombViscous, PowerLawViscous, SmoothStribeck, Stribeck
 
-__all__ = ["MODELS", "CurveFit", "curve_force", "fit_curve", "held_out_split"]
+__all__ = ["MODELS", "CurveFit", "curve_force", "fit_curve", "fit_statistics", "held_out_split"]
 
 MODELS: dict[str, tuple[str, ...]] = {
     "coulomb_viscous": ("fc", "fv"),
@@ -145,6 +145,30 @@ def _jacobian(fun, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.column_stack(cols)
 
 
+def fit_statistics(resid, x: FloatArray, lo: FloatArray, hi: FloatArray):
+    """At the bounded least-squares solution ``x`` of the residual function ``resid``: which
+    coefficients sit at a bound (within 1e-6 of the span), the covariance
+    :math:`s^2 (J_f^T J_f)^{-1}` of the free ones (NaN rows for those at a bound;
+    :math:`s^2` = the reduced chi-square), their standard errors and the reduced chi-square."""
+    e = resid(x)
+    span = np.where(np.isfinite(hi), hi - lo, np.maximum(np.abs(x), 1.0))
+    at_bound = (x - lo <= 1e-6 * span) | (hi - x <= 1e-6 * span)
+    J = _jacobian(resid, x, lo, hi)
+    dof = e.size - x.size
+    chi2_red = float(e @ e / dof) if dof > 0 else float("nan")
+    cov = np.full((x.size, x.size), np.nan)
+    free = ~at_bound
+    if dof > 0 and free.any():
+        Jf = J[:, free]
+        try:
+            inv = np.linalg.inv(Jf.T @ Jf)
+        except np.linalg.LinAlgError:
+            inv = np.linalg.pinv(Jf.T @ Jf)
+        cov[np.ix_(free, free)] = chi2_red * inv
+    std = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
+    return at_bound, cov, std, chi2_red
+
+
 def fit_curve(model: str, v: FloatArray, f: FloatArray, sigma: FloatArray | None = None, *,
               speed_range: tuple[float, float] | None = None, start: FloatArray | None = None) -> CurveFit:
     """Fit ``model`` to points ``(v, f)`` with uncertainties ``sigma`` (see the module docstring).
@@ -192,22 +216,7 @@ def fit_curve(model: str, v: FloatArray, f: FloatArray, sigma: FloatArray | None
         if best is None or res.cost < best.cost:
             best = res
     x = best.x
-    r = resid(x)
-    span = np.where(np.isfinite(hi), hi - lo, np.maximum(np.abs(x), 1.0))
-    at_bound = (x - lo <= 1e-6 * span) | (hi - x <= 1e-6 * span)
-    J = _jacobian(resid, x, lo, hi)
-    dof = m - p
-    chi2_red = float(r @ r / dof) if dof > 0 else float("nan")
-    cov = np.full((p, p), np.nan)
-    free = ~at_bound
-    if dof > 0 and free.any():
-        Jf = J[:, free]
-        try:
-            inv = np.linalg.inv(Jf.T @ Jf)
-        except np.linalg.LinAlgError:
-            inv = np.linalg.pinv(Jf.T @ Jf)
-        cov[np.ix_(free, free)] = chi2_red * inv
-    std = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
+    at_bound, cov, std, chi2_red = fit_statistics(resid, x, lo, hi)
     rmse = float(np.sqrt(np.mean((curve_force(model, x, v) - f) ** 2)))
     return CurveFit(model=model, names=names, params=x, std=std, at_bound=at_bound, cov=cov, rmse=rmse,
                     chi2_red=chi2_red, n_points=m, success=bool(best.success), message=str(best.message))

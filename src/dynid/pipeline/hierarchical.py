@@ -369,7 +369,7 @@ def _fit_projected(model: str, dq: FloatArray, r: FloatArray, keep: np.ndarray, 
     joint; warm-started from ``start`` (n_joints, p) or from :func:`_grid_starts`."""
     from scipy.optimize import least_squares
 
-    from dynid.estimation.friction_curves import _bounds, _jacobian, curve_force
+    from dynid.estimation.friction_curves import _bounds, curve_force, fit_statistics
 
     names = MODELS[model]
     p, nj = len(names), dq.shape[1]
@@ -393,23 +393,7 @@ def _fit_projected(model: str, dq: FloatArray, r: FloatArray, keep: np.ndarray, 
         if best is None or res.cost < best.cost:
             best = res
     x = best.x
-    e = resid(x)
-    span = np.where(np.isfinite(hi), hi - lo, np.maximum(np.abs(x), 1.0))
-    at_bound = (x - lo <= 1e-6 * span) | (hi - x <= 1e-6 * span)
-    J = _jacobian(resid, x, lo, hi)
-    m = e.size
-    dof = m - x.size
-    chi2_red = float(e @ e / dof) if dof > 0 else float("nan")
-    cov = np.full((x.size, x.size), np.nan)
-    free = ~at_bound
-    if dof > 0 and free.any():
-        Jf = J[:, free]
-        try:
-            inv = np.linalg.inv(Jf.T @ Jf)
-        except np.linalg.LinAlgError:
-            inv = np.linalg.pinv(Jf.T @ Jf)
-        cov[np.ix_(free, free)] = chi2_red * inv
-    std = np.sqrt(np.where(np.diag(cov) >= 0, np.diag(cov), np.nan))
+    at_bound, cov, std, chi2_red = fit_statistics(resid, x, lo, hi)
     F = np.column_stack([curve_force(model, x[j * p:(j + 1) * p], dq[:, j]) for j in range(nj)])
     rmse = float(np.sqrt(np.mean(((r - np.einsum("ncj,nj->nc", P, F)))[mask] ** 2)))  # of the whole joint fit
     out = []
