@@ -25,7 +25,7 @@ from dynid.studies.paper003 import conclusions, paper003_study, plot_fig7
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="small logs and few epochs (the tests' size)")
+    ap.add_argument("--quick", action="store_true", help="a shorter VT1 and only the PI-LSTM in Table 1 (the tests' size)")
     ap.add_argument("--json", default=None, metavar="PATH", help="write the outcome as JSON")
     ap.add_argument("--keep", default=None, metavar="DIR", help="write the logs and results here (kept)")
     ap.add_argument("--fig", default=None, metavar="PATH", help="write Fig. 7 (in kind) here")

@@ -16,7 +16,7 @@ import pytest
 from dynid.cli import main
 from dynid.config.design import parse_design_config
 from dynid.config.simulate import parse_simulate_config
-from dynid.errors import ConfigError
+from dynid.errors import ConfigError, InputError
 from dynid.model.friction import SmoothStribeck
 from dynid.model.loading import load_model
 from dynid.pipeline.design import ConstantVelocityOutcome, run_design, write_design
@@ -99,6 +99,30 @@ def test_limits_hold_on_the_sampled_trajectory(tmp_path):
     assert kept == [0.05, 0.2]
     assert [line.split(" dropped")[0] for line in out.design.dropped] == ["joint_2: speed 0.4", "joint_2: speed 0.6"]
     assert "dropped" in out.summary_text() and "joint_2: speed 0.6" in out.summary_text()
+
+
+def test_min_span_gives_long_windows_only_at_the_slow_speeds():
+    """``min_span``: each speed gets the shortest steady time covering the span, within [window,
+    min(max_window, stroke / v)] (paper 003's twin: long windows where K_v is decided, 1.5 s
+    elsewhere); without it every speed gets min(stroke / v, max_window)."""
+    from dynid.excitation.friction_design import design_constant_velocity
+
+    r = load_model(ROBOT)
+    lo, hi = r.position_limits()
+    speeds = [0.002, 0.005, 0.01, 0.02, 0.1, 0.8]
+    kw = dict(joints=["joint_1"], speeds=speeds, window=1.5, max_window=6.0, skip=0.4, rate_hz=250.0)
+    d = design_constant_velocity(r.joint_names, np.zeros(6), lo, hi, 1.0, 5.0, min_span=0.03, **kw)
+    plain = design_constant_velocity(r.joint_names, np.zeros(6), lo, hi, 1.0, 5.0, **kw)
+    s, p = d.joints[0], plain.joints[0]
+    assert s.stroke == p.stroke  # the stroke is sized as before
+    for lv, lp in zip(s.levels, p.levels):
+        expect = min(max(1.5, 0.03 / lv.speed), 6.0, s.stroke / lv.speed)
+        assert lv.window == pytest.approx(expect, rel=1e-12)
+        assert lp.window == pytest.approx(min(p.stroke / lp.speed, 6.0), rel=1e-12)
+    assert [lv.window for lv in s.levels][:2] == [6.0, 6.0] and s.levels[-1].window == 1.5
+    assert d.duration < plain.duration  # the fast speeds no longer cross the whole stroke
+    with pytest.raises(InputError, match="min_span"):
+        design_constant_velocity(r.joint_names, np.zeros(6), lo, hi, 1.0, 5.0, min_span=-1.0, **kw)
 
 
 def test_default_stroke_is_the_largest_that_fits():
@@ -237,6 +261,7 @@ def test_designed_experiment_recovers_the_truths_friction(tmp_path):
     ({"window": 0.8, "skip": 0.4}, None, ROBOT, "window = 0.8 s leaves about 0 matched samples"),
     ({"joints": ["joint_2"], "stroke": 3.5}, None, ROBOT, "stroke 3.5 of joint_2 exceeds 3.2"),
     ({"max_window": 1.0}, None, ROBOT, "max_window = 1 s is shorter than window = 2 s"),
+    ({"min_span": 0.0}, None, ROBOT, "design.min_span"),
     ({"speeds": [0.1], "n_speeds": 4}, None, ROBOT, "give speeds or speed_range / n_speeds, not both"),
 ])
 def test_bad_input_is_one_line(tmp_path, capsys, design, limits, model, message):

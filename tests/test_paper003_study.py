@@ -67,6 +67,39 @@ def test_the_example_friction_config_is_the_studys(study):
     assert (list(ex.models), ex.skip, ex.held_out) == (f["models"], f["skip"], f["held_out"])
 
 
+def test_the_friction_experiment_is_the_designed_one(study):
+    """The study runs dynid design (kind constant_velocity, min_span) -> simulate -> friction: the
+    slow speeds get the long windows where K_v is decided, the fast ones the shortest, and the
+    friction log's windows have the designed lengths."""
+    design = json.loads((study.folder / "friction_design" / "design.json").read_text())
+    doc = study.result.settings["design"]["design"]
+    log = np.genfromtxt(study.folder / "friction" / "log.csv", delimiter=",", names=True)
+    rate = 1.0 / float(np.median(np.diff(log["t"])))
+    for j in design["joints"]:
+        for lv in j["speeds"]:
+            expect = min(max(doc["window"], doc["min_span"] / lv["speed"]), doc["max_window"])
+            assert lv["window"] == pytest.approx(expect, rel=1e-9)
+        k = int(j["name"].split("_")[1])
+        for lv in (j["speeds"][0], j["speeds"][-1]):
+            on = (log["cv_joint"] == k) & np.isclose(log["cv_speed"], lv["speed"]) & (log["cv_direction"] > 0)
+            assert abs(on.sum() / rate - lv["window"]) <= 2.0 / rate
+    assert study.result.settings["friction"]["friction"]["skip"] == doc["skip"]
+    # the stored design that examples/twins/cobot6r_paper003_friction.toml replays is this design
+    stored = Path(__file__).resolve().parents[1] / "examples" / "twins" / "cobot6r_paper003_friction_design.json"
+    assert stored.read_bytes() == (study.folder / "friction_design" / "design.json").read_bytes()
+
+
+def test_friction_fit_is_the_best_the_points_allow(study):
+    """Eq. 15 fitted to each joint's points fits them at least as well as the truth's own
+    coefficients (weighted, the fit's objective): a fit worse than the truth is a local minimum
+    (joint 1's was, chi2 172 against 16, before the fits started from every Stribeck-velocity
+    level). And the points decide K_v to better than 5 % (1 std at the truth), so a 10 % target
+    on it is meaningful on every joint."""
+    for j, c in study.result.friction_identifiability.items():
+        assert c["chi2_red_fit"] <= c["chi2_red_truth"] * (1 + 1e-6), (j, c)
+        assert c["rel_std_at_truth"]["kv"] < 0.05, (j, c)
+
+
 def test_noise_floor_is_the_filtered_noise(study):
     """The floor row is the noise std times the low-pass's noise gain; by another route: the std of
     a long filtered white sequence (200 000 samples: its relative sampling error is ~0.5 %)."""
@@ -117,26 +150,26 @@ def test_target_1_proposed_fbpe_against_wls_fbpe(study):
 
 
 def test_target_2_pi_lstm(study):
-    """Item 6 asks the PI-LSTM to lower the VT2 Sum by at least 20 %. On this twin it lowers it but
-    by less (bench/README: 19 % in the full run, the truth's own friction state leaves ~22 %): the
-    test asserts what holds. The network must lower the Sum by more than the noise floor's Sum, and
-    cannot go below the plant's own friction state (the truth with memory) by more than that floor."""
+    """Item 6 asks the PI-LSTM to lower the VT2 Sum by at least 20 %. The full run gains 20.3 %
+    (bench/README; the truth's own friction state leaves 21.4 %), the quick one what the record's
+    conclusions say. Here what holds on both: the network lowers the Sum by more than the noise
+    floor's Sum, and cannot go below the plant's own friction state (the truth with memory) by more
+    than that floor."""
     s = _sums(study, "VT2")
     assert s["Proposed-FBPE"] - s["+PI-LSTM"] > s["noise floor"]
     assert s["+PI-LSTM"] > s["truth (with memory)"] - s["noise floor"]
 
 
 def test_target_3_friction_coefficients_of_the_true_family(study):
-    """dynid friction's Eq. 15 fit to the constant-velocity points (the steady state of the plant's
-    friction is exactly Eq. 15): F_c, F_s and F_v within 10 % of the truth on joints 1, 2, 3, 5, 6.
-    Joint 4 (alpha 0.47: its power-law rise hides a Stribeck hump of 0.3 N*m) and K_v (set by speeds
-    below 1/K_v = 1-4 mrad/s, which the PID does not hold in the windows) miss it, as in the full run:
-    target 3 does not hold on this twin."""
+    """dynid friction's Eq. 15 fit to the points of the designed experiment (the steady state of
+    the plant's friction is exactly Eq. 15): F_c, F_s, F_v, q_s and alpha within 10 % of the truth
+    on every joint, K_v within 15 % (bench/README: 35 of 36 within 10 %, joint 4's K_v -11.4 %, 2.5
+    of its std, is the one miss, a bias of its 0.005 rad/s point: target 3 does not hold)."""
     fit = study.result.friction_fit
-    for j in ("joint_1", "joint_2", "joint_3", "joint_5", "joint_6"):
-        for n in ("fc", "fs", "fv"):
+    for j in JOINTS:
+        for n in ("fc", "fs", "fv", "vs", "alpha"):
             assert abs(fit[j][n]["rel_error"]) <= 0.10, (j, n, fit[j][n])
-    assert not study.result.targets()["target_3_holds"]
+        assert abs(fit[j]["kv"]["rel_error"]) <= 0.15, (j, fit[j]["kv"])
 
 
 def test_target_4_nonlinear_friction_beats_coulomb_viscous(study):

@@ -7,7 +7,7 @@
     one-line design, evaluated, not optimized: ``centre``, ``radius``, ``speed``, ``turns``) or
     ``"constant_velocity"`` (serial robots: paper 003, Sec. 3.1's friction experiment sized from
     ``[limits]``: ``joints``, ``speeds`` or ``speed_range`` with ``n_speeds``, ``stroke``,
-    ``window``, ``max_window``, ``pose``, ``repetitions``, ``switch``, ``rest``, ``skip``,
+    ``window``, ``max_window``, ``min_span``, ``pose``, ``repetitions``, ``switch``, ``rest``, ``skip``,
     ``min_samples``; see :mod:`dynid.excitation.friction_design`; the Fourier keys below do not
     apply to it);
     ``coordinates``: ``"independent"`` or ``"task"`` (platform pose of a parallel robot);
@@ -144,7 +144,8 @@ def parse_design_config(doc: Mapping[str, Any], base_dir: Path, source: Path | N
     )
 
 
-_CV_KEYS = {"kind", "joints", "speeds", "speed_range", "n_speeds", "stroke", "window", "max_window", "pose", "repetitions",
+_CV_KEYS = {"kind", "joints", "speeds", "speed_range", "n_speeds", "stroke", "window", "max_window", "min_span", "pose",
+            "repetitions",
             "switch", "rest", "skip", "min_samples"}
 
 
@@ -179,8 +180,9 @@ def _parse_constant_velocity(d: Mapping[str, Any]) -> dict[str, Any]:
     for key in ("window", "switch"):
         if key in d:
             v[key] = _num(d[key], f"{w}.{key}", True)
-    if "max_window" in d:
-        v["max_window"] = _num(d["max_window"], f"{w}.max_window", True)
+    for key in ("max_window", "min_span"):
+        if key in d:
+            v[key] = _num(d[key], f"{w}.{key}", True)
     for key in ("rest", "skip"):
         if key in d:
             v[key] = _num(d[key], f"{w}.{key}", minimum=0.0)

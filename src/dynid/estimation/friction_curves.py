@@ -114,7 +114,10 @@ def _bounds(names: tuple[str, ...], v: np.ndarray, speed_range: tuple[float, flo
 
 def _starts(model: str, v: np.ndarray, f: np.ndarray, w: np.ndarray, lo: np.ndarray, hi: np.ndarray,
             keep: int = 3, speed_range: tuple[float, float] | None = None) -> list[np.ndarray]:
-    """Grid of the nonlinear coefficients, the linear ones by NNLS; the ``keep`` best."""
+    """Grid of the nonlinear coefficients, the linear ones by NNLS; the ``keep`` best, and for a model
+    with a Stribeck velocity also the best of each of its grid levels (the basins of these fits
+    differ mostly in ``vs``: a small hump at a low ``vs`` can mimic a steep arctan rise, so the ``keep``
+    best of the linearised grid may all lie in one wrong basin; bench/README, paper 003 twin)."""
     names = MODELS[model]
     nonlinear = [n for n in names if n not in _LINEAR]
     vmin, vmax = speed_range if speed_range is not None else (float(v.min()), float(v.max()))
@@ -130,8 +133,15 @@ def _starts(model: str, v: np.ndarray, f: np.ndarray, w: np.ndarray, lo: np.ndar
         coef, res = nnls(np.column_stack([cols[n] for n in lin]) * w[:, None], f * w)
         p.update(zip(lin, coef))
         trials.append((res, np.clip([p[n] for n in names], lo, hi)))
-    trials.sort(key=lambda x: x[0])
-    return [x for _, x in trials[:keep]]
+    order = sorted(range(len(trials)), key=lambda k: trials[k][0])
+    chosen = order[:keep]
+    if "vs" in nonlinear:
+        iv = names.index("vs")
+        for level in grids["vs"]:
+            k = next(k for k in order if trials[k][1][iv] == np.clip(level, lo[iv], hi[iv]))
+            if k not in chosen:
+                chosen.append(k)
+    return [trials[k][1] for k in chosen]
 
 
 def _jacobian(fun, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -15,9 +15,14 @@ inside given position, velocity and acceleration limits:
   limits at the fastest speed that still gets ``window`` seconds of steady motion over it;
 * each speed's **steady time** :math:`T_v = \\min(S/v, T_{max})` (``max_window``): the fast
   speeds cross the whole stroke, the slow ones run :math:`T_{max}` seconds on its middle (a
-  full stroke at 0.002 rad/s would take minutes); a speed with :math:`T_v` below ``window``, or
-  whose cycle leaves the limits, is **dropped with a line saying why** (never silently); a
-  joint left without speeds is an error;
+  full stroke at 0.002 rad/s would take minutes); with ``min_span`` :math:`s` given, each speed
+  gets instead the shortest steady time that covers :math:`s`, within the same bounds:
+  :math:`T_v = \\min(\\max(T_{min}, s/v), T_{max}, S/v)` (``window`` :math:`T_{min}`): long windows
+  only at the low speeds, where a controller's position transient :math:`e` makes the measured
+  speed off by about :math:`e/(vT)` and where Eq. 15's :math:`K_v` is decided
+  (:math:`\\arctan(K_v v)` saturates above a few :math:`1/K_v`), short ones elsewhere; a speed
+  with :math:`\\min(S/v, T_{max})` below ``window``, or whose cycle leaves the limits, is
+  **dropped with a line saying why** (never silently); a joint left without speeds is an error;
 * the **switching phases** from the joint's acceleration limit (a quintic velocity switch of
   :math:`\\Delta v` lasts :math:`\\max(\\Delta t, \\tfrac{15}{8}|\\Delta v|/a_{max})`);
 * the **matched samples** per speed at the output rate: the forward window's samples after
@@ -82,6 +87,7 @@ class FrictionDesign:
     min_samples: int
     window: float
     max_window: float
+    min_span: float | None = None
 
     @property
     def duration(self) -> float:
@@ -116,7 +122,7 @@ def design_constant_velocity(names, pose: FloatArray, lower: FloatArray, upper: 
                              joints=None, speeds=None, speed_range=None, n_speeds: int = 16, stroke=None,
                              window: float = 2.0, max_window: float = 6.0, switch: float = 0.1, rest: float = 0.3,
                              repetitions: int = 1, skip: float = 0.5, min_samples: int = 10,
-                             rate_hz: float = 100.0) -> FrictionDesign:
+                             rate_hz: float = 100.0, min_span: float | None = None) -> FrictionDesign:
     """Size paper 003's constant-velocity experiment from limits (see the module docstring).
 
     Parameters
@@ -136,6 +142,10 @@ def design_constant_velocity(names, pose: FloatArray, lower: FloatArray, upper: 
         Span of the constant-velocity windows [rad or m]; default the largest that fits.
     window, max_window : float
         Least and most steady seconds per speed and direction.
+    min_span : float, optional
+        Least span [rad or m] each window should cover: the steady seconds become
+        ``min(max(window, min_span / v), max_window, stroke / v)`` (module docstring); default
+        None: ``min(stroke / v, max_window)``.
     switch, rest, repetitions
         As :class:`~dynid.trajectories.constant_velocity.ConstantVelocityExperiment`.
     skip, min_samples : float, int
@@ -160,6 +170,8 @@ def design_constant_velocity(names, pose: FloatArray, lower: FloatArray, upper: 
     outside = [f"{nm} = {p:g} not in [{a:g}, {b:g}]" for nm, p, a, b in zip(names, pose, lower, upper) if not a < p < b]
     if outside:
         raise InputError(f"pose: not strictly inside the position limits: {'; '.join(outside)}")
+    if min_span is not None and not min_span > 0:
+        raise InputError(f"min_span = {min_span:g}: give a positive span [rad or m]")
     if not max_window >= window:
         raise InputError(f"max_window = {max_window:g} s is shorter than window = {window:g} s")
     if (window - 2 * skip) * rate_hz < min_samples:
@@ -220,6 +232,8 @@ def design_constant_velocity(names, pose: FloatArray, lower: FloatArray, upper: 
             if v in gone:
                 continue
             steady = float(min(s_k / v, max_window))
+            if min_span is not None and steady >= window:
+                steady = float(min(max(window, min_span / v), steady))
             if steady < window:
                 dropped.append(f"{nm}: speed {v:.4g} dropped: the stroke {s_k:.4g} takes {s_k / v:.3g} s at it, "
                                f"less than window = {window:g} s")
@@ -255,4 +269,4 @@ def design_constant_velocity(names, pose: FloatArray, lower: FloatArray, upper: 
         schedules.append(JointSchedule(k, nm, float(s_k), float(vel[k]), float(acc[k]),
                                        tuple(out), tuple(dropped), durations[k]))
     return FrictionDesign(exp, tuple(schedules), float(rate_hz), float(skip), int(min_samples), float(window),
-                          float(max_window))
+                          float(max_window), None if min_span is None else float(min_span))

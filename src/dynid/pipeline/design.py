@@ -193,7 +193,7 @@ class ConstantVelocityOutcome:
             "design      : constant_velocity (paper 003, Sec. 3.1): one joint at a time, forward and back at each speed",
             f"duration    : {d.duration:.3f} s ({len(d.joints)} joint(s), {e.repetitions} repetition(s) per speed)",
             f"windows     : at least {d.window:g} s and at most {d.max_window:g} s of steady motion per speed and "
-            f"direction; samples at {d.rate_hz:g} Hz, matched = after skip = {d.skip:g} s at each end "
+            f"direction{'' if d.min_span is None else f', the shortest covering {d.min_span:g}'}; samples at {d.rate_hz:g} Hz, matched = after skip = {d.skip:g} s at each end "
             f"(the extraction needs {d.min_samples})",
             f"switching   : quintic, at least {e.switch:g} s, within each joint's acceleration limit; rest {e.rest:g} s",
         ]
@@ -282,7 +282,8 @@ def _write_constant_velocity(outcome: ConstantVelocityOutcome, out_dir: str | Pa
     doc = {
         "robot": outcome.robot, "model": cfg.model, "kind": "constant_velocity", "coordinates": list(outcome.names),
         "duration_s": d.duration,
-        "rate_hz": cfg.rate_hz, "window": d.window, "max_window": d.max_window, "skip": d.skip,
+        "rate_hz": cfg.rate_hz, "window": d.window, "max_window": d.max_window, "min_span": d.min_span,
+        "skip": d.skip,
         "min_samples": d.min_samples,
         "limits": {"position": {"lower": outcome.lower.tolist(), "upper": outcome.upper.tolist()},
                    "velocity": outcome.velocity.tolist(), "acceleration": outcome.acceleration.tolist()},
