@@ -866,7 +866,7 @@ def _hierarchical_fit(cfg: Config, system: System, base: BaseParameters, train: 
 
 
 def _hierarchical_prior(cfg0: Config, result: IdentificationResult, force_model: str | None, held_out: Dataset,
-                        held_full: Dataset | None, rows_rule, parallel: int, progress: Progress):
+                        held_full: Dataset | None, rows_rule, parallel: int, progress: Progress, periodic=None):
     """The nominal model of a hierarchical run as the robot description gives it, *with* its
     friction terms (the rigid-body regressor of the fit has none: scored through it, the CAD model
     would be scored without friction, an unfair baseline): (all held-out rows, the row-selected
@@ -879,7 +879,7 @@ def _hierarchical_prior(cfg0: Config, result: IdentificationResult, force_model:
     as_result = dataclasses.replace(result, names=base.names, params=nominal, cov_params=None)
     metrics, _, _, selected = validate_with_prior(as_result, system, base, held_out, None, force_model=force_model,
                                                   parallel_decimate=parallel, chunk_size=icfg.chunk_size,
-                                                  progress=progress, selection=rows_rule)
+                                                  progress=progress, periodic=periodic, selection=rows_rule)
     full = None
     if held_full is not None:
         full, _, _, _ = validate_with_prior(as_result, system, base, held_full, None, force_model=force_model,
@@ -1033,7 +1033,7 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         full = FullRate(fm, fn, decimate=pcfg.decimate)
     if icfg.hierarchical:  # the CAD model with the description's friction, not the rigid part alone
         prior, sel_nominal, full_nominal = _hierarchical_prior(cfg0, result, force_model, held_out, held_full,
-                                                               rows_rule, parallel, progress)
+                                                               rows_rule, parallel, progress, periodic)
         if selected is not None:
             selected = dataclasses.replace(selected, nominal=sel_nominal)
         if full is not None:
