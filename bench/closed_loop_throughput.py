@@ -1,8 +1,9 @@
 """Actuator-space regressor of the hexapod (6-UPS, 24 joints) in samples per second, next to
 the serial 6R regressor, in the same run, on one core.
 
-Target (project issue 3): ``>= 20 000`` samples/s for the hexapod's actuator-space regressor
-on one core.
+Target (project issue 3, as a ratio since issue 20): a hexapod actuator-space regressor sample costs
+at most 12.4 serial 6R regressor samples, measured in the same rounds (the project's 20 000 samples/s
+on one core, converted where it was set; see ``TARGET_RATIO``).
 
 Method
 ------
@@ -31,8 +32,7 @@ Method
   garbage collector off during a timed call. Reported: median and min microseconds per
   sample, samples per second (from the median) and the hexapod/serial ratio per round
   (median of the paired ratios).
-* Exit status 1 when the median hexapod-regressor throughput is below the target (not with
-  ``--quick``).
+* Exit status 1 when the median paired ratio is above the target (not with ``--quick``).
 
 Run: ``.venv/bin/python bench/closed_loop_throughput.py`` (``--quick`` for a smoke run).
 """
@@ -55,7 +55,9 @@ from dynid.model.serial_dynamics import regressor
 from dynid.model.robots import build_mechanism
 from dynid.model.robots import hexapod
 
-TARGET = 20_000.0
+# the project's 20 000 samples/s, set on a machine whose serial 6R regressor ran at 248 835 samples/s
+# (4.02 us/sample, bench/README section 3): 12.4 serial samples' time per hexapod sample
+TARGET_RATIO = 12.4
 
 
 def hexapod_motion(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -129,9 +131,10 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(table(["variant", "median us/sample", "min", "samples/s", "x serial (paired)"], rows))
     rate = 1e6 / median(times["hexapod regressor"])
-    ok = rate >= TARGET
-    print(f"\nhexapod actuator-space regressor: {rate:,.0f} samples/s on one core "
-          f"(target >= {TARGET:,.0f}): {'OK' if ok else 'BELOW TARGET'}")
+    ratio = median([a / b for a, b in zip(times["hexapod regressor"], times["serial 6R"])])
+    ok = ratio <= TARGET_RATIO
+    print(f"\nhexapod actuator-space regressor: {rate:,.0f} samples/s on one core, {ratio:.2f} x a serial 6R sample "
+          f"(paired rounds; target <= {TARGET_RATIO:g} x): {'PASS' if ok else 'FAIL'}")
     return 0 if ok or args.quick else 1
 
 

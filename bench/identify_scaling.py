@@ -26,6 +26,7 @@ Method
   ``(t(N2) - t(N1)) / (N2 - N1)`` between consecutive sizes (equal marginal costs
   mean a straight line with a fixed offset).
 * Exit status 1 when the peak RSS at the largest size (highest of its runs) is >= 1500 MB,
+  when the time is not linear in N (log-log slope between the two largest sizes above 1.1),
   or when a run fails.
 * ``--blas-threads K`` sets ``OPENBLAS_NUM_THREADS`` (and OMP/MKL) in the measured
   process; by default it inherits the environment, as a user's run would.
@@ -58,6 +59,9 @@ FS = 1000.0
 SEED = 2026
 TORQUE_NOISE = (1.0, 1.5, 0.6, 0.08, 0.08, 0.05)  # N*m, as in `dynid demo`
 POSITION_NOISE = 2e-5  # rad
+# time linear in N: the log-log slope between the two largest sizes (1 for a line through 0, below 1 with a
+# fixed offset, 1.08 for N log N from 1e5 to 1e6, 2 for quadratic): at most 1.1
+MAX_SLOPE = 1.1
 MEMORY_LIMIT_MB = 1500.0
 
 CONFIG = """\
@@ -191,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--blas-threads", type=int, default=None,
                     help="set OPENBLAS/OMP/MKL_NUM_THREADS in the measured process (default: inherit)")
     ap.add_argument("--profile", action="store_true", help="also profile one run of the largest size")
-    ap.add_argument("--quick", action="store_true", help="smoke run: sizes 1e4, 3e4; 1 run each")
+    ap.add_argument("--quick", action="store_true", help="smoke run: sizes 1e4, 3e4; 1 run each; linearity not enforced")
     args = ap.parse_args(argv)
     if args.quick:
         args.sizes, args.runs, args.runs_large = [10_000, 30_000], 1, 1
@@ -249,10 +253,18 @@ def main(argv: list[str] | None = None) -> int:
                     blas_threads=args.blas_threads)
 
         peak_mb = max(r["peak_kb"] for r in results[sizes[-1]]) / 1024
-        ok = peak_mb < MEMORY_LIMIT_MB
+        mem_ok = peak_mb < MEMORY_LIMIT_MB
         print(f"\npeak RSS at N = {sizes[-1]} (highest of its runs): {peak_mb:.0f} MB vs limit < {MEMORY_LIMIT_MB:.0f} MB: "
-              f"{'PASS' if ok else 'FAIL'}")
-        return 0 if ok else 1
+              f"{'PASS' if mem_ok else 'FAIL'}")
+        lin_ok = True
+        if len(sizes) >= 2:
+            n1, n2 = sizes[-2], sizes[-1]
+            slope = float(np.log(med[n2]["run_s"] / med[n1]["run_s"]) / np.log(n2 / n1))
+            lin_ok = slope <= MAX_SLOPE or args.quick
+            print(f"time against N between {n1} and {n2}: slope {slope:.2f} on log-log axes (1: linear; below 1: a fixed "
+                  f"offset still shows) vs at most {MAX_SLOPE:g}: {'PASS' if slope <= MAX_SLOPE else 'FAIL'}"
+                  + (" (not enforced with --quick: small sizes, one run)" if args.quick else ""))
+        return 0 if mem_ok and lin_ok else 1
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -1,7 +1,8 @@
 """Virtual experiment speed: 10 s of the hexapod under 1 kHz digital control, on one core,
 next to 10 s of the serial 6R arm under the same kind of control in the same run.
 
-Target (project issue 4, item 9): the hexapod run takes under 30 s of wall time.
+Target (project issue 4, item 9, as a ratio since issue 20): the hexapod run takes at most 23 times
+the serial run of its round (the project's 30 s, converted where it was set; see ``TARGET_RATIO``).
 
 Method
 ------
@@ -15,8 +16,8 @@ Method
 * Serial reference: ``builtin:generic6r`` under computed torque
   (:class:`dynid.simulation.control.ComputedTorque`), 1 kHz, 2 RK4 substeps of ABA.
 * ``--repeats`` runs of each (default 2), alternating; reported: median wall time, time per
-  control period, and the hexapod/serial ratio. Exit status 1 when the hexapod median is
-  30 s or more (not with ``--quick``, which simulates 1 s).
+  control period, and the hexapod/serial ratio. Exit status 1 when the median paired ratio
+  is above the target (not with ``--quick``, which simulates 1 s).
 
 Run: ``.venv/bin/python bench/simulate_hexapod.py`` (``--quick`` for a smoke run).
 """
@@ -38,7 +39,9 @@ from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simu
 from dynid.simulation.control import ComputedTorque, SerialPlant, model_inverse, simulate_control
 from dynid.trajectories import FourierTrajectory
 
-TARGET_S = 30.0
+# the project's 30 s for 10 s of the hexapod, set where 10 s of the serial 6R under the same kind of
+# control took 1.30 s (bench/README section 4): 23 times the serial run, paired round by round
+TARGET_RATIO = 23.0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,9 +93,9 @@ def main(argv: list[str] | None = None) -> int:
     h = median(times["hexapod"])
     ratio = median([a / b for a, b in zip(times["hexapod"], times["serial 6R"])])
     print(f"\nhexapod / serial 6R (paired): {ratio:.1f}")
-    ok = h < TARGET_S * args.duration / 10.0
-    print(f"hexapod, {args.duration:g} s at 1 kHz on one core: {h:.1f} s (target < {TARGET_S * args.duration / 10:g} s): "
-          f"{'OK' if ok else 'ABOVE TARGET'}")
+    ok = ratio <= TARGET_RATIO
+    print(f"hexapod, {args.duration:g} s at 1 kHz on one core: {h:.1f} s, {ratio:.1f} x the serial 6R run of its round "
+          f"(target <= {TARGET_RATIO:g} x): {'PASS' if ok else 'FAIL'}")
     return 0 if ok or args.quick else 1
 
 
