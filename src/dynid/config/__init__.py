@@ -440,9 +440,15 @@ _DATA_KEYS = {"file", "time", "sample_rate_hz", "position", "effort", "velocity"
 _BAG_ONLY = ("topic",)
 
 
+def _reads_bag(file: Path, t: Mapping[str, Any]) -> bool:
+    """Whether a [data] table whose file is ``file`` reads a ROS bag: a .bag, .db3, .mcap, a ROS 2 bag folder, or
+    a path without a suffix given a topic (a folder that is not a bag, or is not there: the bag reader says so)."""
+    return is_bag(file) or ("topic" in t and file.suffix == "")
+
+
 def is_bag(path: Path) -> bool:
-    """A ROS bag (:func:`dynid.io.bags.is_bag`: .bag, .db3, .mcap, or a folder)."""
-    return path.suffix.lower() in (".bag", ".db3", ".mcap") or path.is_dir()
+    """A ROS bag (:func:`dynid.io.bags.is_bag`: .bag, .db3, .mcap, or a folder with metadata.yaml)."""
+    return path.suffix.lower() in (".bag", ".db3", ".mcap") or (path / "metadata.yaml").is_file()
 
 
 def _parse_bag_time(t: Mapping[str, Any], where: str) -> TimeConfig:
@@ -460,7 +466,7 @@ def _parse_bag_time(t: Mapping[str, Any], where: str) -> TimeConfig:
 def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
     t = _table(t, where, _DATA_KEYS, {"position", "effort"})
     file = _path(t["file"], f"{where}.file", base) if "file" in t else None
-    bag = file is not None and is_bag(file)
+    bag = file is not None and _reads_bag(file, t)
     if bag:
         if "header" in t:
             raise ConfigError(f"{where}.header is for CSV files; {file.name} is a ROS bag")
@@ -478,8 +484,8 @@ def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
     time = None
     if "time" in t:
         if isinstance(t["time"], str):
-            raise ConfigError(f"{where}.time = {t['time']!r} is for ROS bags; a table's time is a column: "
-                              f"{where}.time = {{ column = ... }}")
+            raise ConfigError(f"{where}.time: expected a table, got str ({t['time']!r}); a table's time is a column, "
+                              f"{where}.time = {{ column = ... }} (time = 'header' or 'receive' is for ROS bags)")
         tt = _table(t["time"], f"{where}.time", {"column", "unit", "file"}, {"column"})
         time = TimeConfig(
             column=_column(tt["column"], f"{where}.time.column", header),
@@ -794,8 +800,8 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
                 inherited[key] = {k: v for k, v in inherited[key].items() if k != "file"}
         # a validation log of the other kind (a bag for a CSV, a CSV for a bag) inherits no keys of that kind
         if isinstance(val_t["file"], str) and isinstance(data_t.get("file"), str):
-            val_bag = is_bag(_path(val_t["file"], "validation.file", data_base))
-            if val_bag != is_bag(_path(data_t["file"], "data.file", data_base)):
+            val_bag = _reads_bag(_path(val_t["file"], "validation.file", data_base), {**data_t, **val_t})
+            if val_bag != _reads_bag(_path(data_t["file"], "data.file", data_base), data_t):
                 for key in ("topic", "header", "time", "sample_rate_hz"):
                     inherited.pop(key, None)
                 for key in ("position", "effort", "velocity"):

@@ -20,16 +20,11 @@ import numpy as np
 from dynid._typing import FloatArray
 from dynid.errors import InputError, MissingExtraError
 
-__all__ = ["BAG_SUFFIXES", "JOINT_STATE", "BagReader", "is_bag"]
+__all__ = ["BAG_SUFFIXES", "JOINT_STATE", "BagReader"]
 
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 JOINT_STATE = "sensor_msgs/msg/JointState"
 FIELDS = ("position", "velocity", "effort")
-
-
-def is_bag(path: Path) -> bool:
-    """Whether ``path`` names a ROS bag: a ``.bag``/``.db3``/``.mcap`` file or a folder (a ROS 2 bag)."""
-    return path.suffix.lower() in BAG_SUFFIXES or path.is_dir()
 
 
 class _Topic:
