@@ -343,3 +343,12 @@ def test_readme_shows_each_new_input(tmp_path, table):
         assert cfg.data.bag == ("topic" in doc["data"])
         if "data_root" in doc:
             assert cfg.data.file == tmp_path / "lab3" / "2026-11-20" / "run.csv"
+
+
+def test_bag_without_rosbags_names_the_extra(tmp_path, table, capfd, monkeypatch):
+    """Without rosbags installed (its import fails), reading a bag names the extra to install."""
+    import sys
+
+    write_table_bag(tmp_path / "log.bag", "ros1", table)
+    monkeypatch.setitem(sys.modules, "rosbags.highlevel", None)  # import rosbags.highlevel raises ImportError
+    _refused(tmp_path, table, capfd, bag_data("log.bag"), "reading ROS bags needs rosbags: pip install 'dynid[ros]'")
