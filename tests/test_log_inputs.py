@@ -352,3 +352,25 @@ def test_bag_without_rosbags_names_the_extra(tmp_path, table, capfd, monkeypatch
     write_table_bag(tmp_path / "log.bag", "ros1", table)
     monkeypatch.setitem(sys.modules, "rosbags.highlevel", None)  # import rosbags.highlevel raises ImportError
     _refused(tmp_path, table, capfd, bag_data("log.bag"), "reading ROS bags needs rosbags: pip install 'dynid[ros]'")
+
+
+def test_measured_velocities_from_the_velocity_field(tmp_path, table):
+    """velocity = { columns = [...] } reads the JointState velocity field, by name like the others."""
+    from dynid.config import parse_config
+    from dynid.pipeline.data import read_log
+
+    dq = np.column_stack([np.cos(table[:, 0]), -2.0 * np.sin(table[:, 0])])
+    w = BagWriter(tmp_path / "log_ros2", "sqlite3")
+    for k, row in enumerate(table):
+        idx = swap_odd(k)
+        names = [("shoulder", "slide")[i] for i in idx]
+        w.joint_state("/joint_states", int(stamps_ns(row[:1])[0]), names, position=row[1:3][list(idx)],
+                      velocity=dq[k][list(idx)], effort=row[3:5][list(idx)])
+    w.close()
+    text = IDENTIFY.replace(CSV_DATA, bag_data("log_ros2", extra='velocity = { columns = ["shoulder", "slide"] }'))
+    text = text.replace("lowpass = { cutoff_hz = 10.0, order = 2, filter_effort = false }", 'derivatives = "measured"')
+    cfg = parse_config(tomllib.loads(text), tmp_path)
+    ds = read_log(cfg.data, 2, ("shoulder", "slide"), "data")
+    np.testing.assert_array_equal(ds.dq, dq[:240])
+    np.testing.assert_array_equal(ds.q, table[:240, 1:3])
+    np.testing.assert_array_equal(ds.tau, table[:240, 3:5])

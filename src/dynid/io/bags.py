@@ -53,6 +53,9 @@ class BagReader:
         self.path = Path(path)
         if not self.path.exists():
             raise InputError(f"ROS bag not found: {self.path}")
+        if self.path.is_dir() and self.path.suffix.lower() in BAG_SUFFIXES:
+            raise InputError(f"{self.path} is a folder named like a bag file ({self.path.suffix}); rosbags reads that name "
+                             "as a file: rename the ROS 2 bag folder")
         if self.path.is_dir() and not (self.path / "metadata.yaml").is_file():
             raise InputError(f"{self.path} is a folder without metadata.yaml, not a ROS 2 bag")
         if self.path.is_file() and self.path.suffix.lower() not in BAG_SUFFIXES:
