@@ -374,3 +374,15 @@ def test_measured_velocities_from_the_velocity_field(tmp_path, table):
     np.testing.assert_array_equal(ds.dq, dq[:240])
     np.testing.assert_array_equal(ds.q, table[:240, 1:3])
     np.testing.assert_array_equal(ds.tau, table[:240, 3:5])
+
+
+@pytest.mark.parametrize("data, what", [(bag_data("log.bag"), "a ROS bag"), (HEADERLESS, "a headerless CSV")])
+def test_friction_refuses_a_bag_and_a_headerless_csv(data, what, tmp_path):
+    """dynid friction reads its label columns by name: a bag or a headerless CSV is refused at once."""
+    from dynid.config.friction import parse_friction_config
+    from dynid.errors import ConfigError
+
+    doc = tomllib.loads(data)
+    doc["data"].pop("rows")
+    with pytest.raises(ConfigError, match=f"dynid friction reads the label columns .* not {what}$"):
+        parse_friction_config({"robot": {"model": "builtin:puma560"}, **doc}, tmp_path)
