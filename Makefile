@@ -7,7 +7,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 LOCK   := requirements.lock
-EXTRAS := test,plot,sdp,montecarlo,learning
+EXTRAS := test,plot,sdp,montecarlo,learning,parquet,ros
 # the constraints reach pip's isolated build environment too (setuptools, wheel)
 PIP    := PIP_CONSTRAINT=$(CURDIR)/$(LOCK) $(BIN)/python -m pip
 # test workers: 2 by default (CI machines have 2 cores), one test module per worker at a time

@@ -96,11 +96,12 @@ class SignalConfig:
     side: str = "joint"
     kind: str = "torque"
     file: Path | None = None
+    topic: str | None = None  # ROS bags: the JointState topic of this signal (None: [data] topic)
 
 
 @dataclasses.dataclass(frozen=True)
 class TimeConfig:
-    column: str
+    column: str  # ROS bags: "header" (header.stamp) or "receive" (the bag's receive time)
     unit: str = "s"
     file: Path | None = None
 
@@ -118,6 +119,9 @@ class DataConfig:
     acceleration: SignalConfig | None = None
     rows: tuple[int, int] | None = None
     time_window: tuple[float, float] | None = None
+    header: bool = True  # CSV: False reads a headerless file whose columns are named by index (0, 1, ...)
+    topic: str | None = None  # ROS bags: the JointState topic of every signal without its own topic
+    bag: bool = False  # file is a ROS bag (dynid.io.bags): columns are joint names, time the messages' stamps
 
     def files(self) -> tuple[Path, ...]:
         """Every file this spec reads."""
@@ -382,11 +386,27 @@ def joint_name_list(t: Mapping[str, Any], key: str, where: str) -> tuple[str, ..
     return tuple(names)
 
 
-def _parse_signal(t: Any, where: str, base: Path, what: str) -> SignalConfig:
-    allowed = {"columns", "unit", "side", "file"} | ({"kind"} if what == "effort" else set())
+def _column(v: Any, where: str, header: bool) -> str:
+    """A column name; without a header row (``header = false``) a column index 0, 1, ... (kept as its text)."""
+    if header:
+        return _str(v, where)
+    if isinstance(v, str):
+        raise ConfigError(f"{where}: the file has no header row (header = false): name columns by index "
+                          f"(0 is the first column), got {v!r}")
+    return str(_int(v, where, 0))
+
+
+def _parse_signal(t: Any, where: str, base: Path, what: str, header: bool = True, bag: bool = False) -> SignalConfig:
+    allowed = {"columns", "unit", "side", "file", "topic"} | ({"kind"} if what == "effort" else set())
     t = _table(t, where, allowed, {"columns"})
+    if bag and "file" in t:
+        raise ConfigError(f"{where}.file: every signal of a ROS bag log comes from the bag of {where.split('.')[0]}.file; "
+                          f"give a signal its own topic with {where}.topic")
+    if "topic" in t and not bag:
+        raise ConfigError(f"{where}.topic is for ROS bags (file = a .bag, a ROS 2 bag folder, .db3 or .mcap)")
     cols = t["columns"]
-    columns = (_str(cols, f"{where}.columns"),) if isinstance(cols, str) else _list(cols, f"{where}.columns", _str)
+    column = lambda v, w: _column(v, w, header)  # noqa: E731
+    columns = (column(cols, f"{where}.columns"),) if not isinstance(cols, list) else _list(cols, f"{where}.columns", column)
     if not columns:
         raise ConfigError(f"{where}.columns: empty")
     twice = sorted({c for c in columns if columns.count(c) > 1})
@@ -409,25 +429,113 @@ def _parse_signal(t: Any, where: str, base: Path, what: str) -> SignalConfig:
         if isinstance(unit, tuple) and len(unit) != len(columns) and len(columns) > 1:
             raise ConfigError(f"{where}.unit: {len(unit)} units for {len(columns)} columns")
     file = _path(t["file"], f"{where}.file", base) if "file" in t else None
-    return SignalConfig(columns=columns, unit=unit, side=side, kind=kind, file=file)
+    if file is not None and is_bag(file):
+        raise ConfigError(f"{where}.file: {file.name} is a ROS bag; a bag is the file of the whole log ({where.split('.')[0]}.file)")
+    topic = _str(t["topic"], f"{where}.topic") if "topic" in t else None
+    return SignalConfig(columns=columns, unit=unit, side=side, kind=kind, file=file, topic=topic)
 
 
-_DATA_KEYS = {"file", "time", "sample_rate_hz", "position", "effort", "velocity", "acceleration", "rows", "time_window"}
+_DATA_KEYS = {"file", "time", "sample_rate_hz", "position", "effort", "velocity", "acceleration", "rows", "time_window",
+              "header", "topic"}
+_BAG_ONLY = ("topic",)
+
+
+def _reads_bag(file: Path, t: Mapping[str, Any]) -> bool:
+    """Whether a [data] table whose file is ``file`` reads a ROS bag: a .bag, .db3, .mcap, a ROS 2 bag folder, or
+    a path without a suffix given a topic (a folder that is not a bag, or is not there: the bag reader says so)."""
+    return is_bag(file) or ("topic" in t and file.suffix == "")
+
+
+def is_bag(path: Path) -> bool:
+    """A ROS bag (:func:`dynid.io.bags.is_bag`: .bag, .db3, .mcap, or a folder with metadata.yaml)."""
+    return path.suffix.lower() in (".bag", ".db3", ".mcap") or (path / "metadata.yaml").is_file()
+
+
+def _parse_bag_time(t: Mapping[str, Any], where: str) -> TimeConfig:
+    """``time`` of a ROS bag log: ``"header"`` (default) or ``"receive"``."""
+    if "sample_rate_hz" in t:
+        raise ConfigError(f"{where}.sample_rate_hz: a ROS bag's messages carry their own time; use {where}.time = "
+                          "'header' (the messages' header stamps, default) or 'receive' (the bag's receive time)")
+    v = t.get("time", "header")
+    if not isinstance(v, str):
+        raise ConfigError(f"{where}.time of a ROS bag log is 'header' (the messages' header stamps, default) or "
+                          f"'receive' (the bag's receive time), got {v!r}")
+    return TimeConfig(column=_str(v, f"{where}.time", ("header", "receive")))
 
 
 def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
     t = _table(t, where, _DATA_KEYS, {"position", "effort"})
+    file = _path(t["file"], f"{where}.file", base) if "file" in t else None
+    bag = file is not None and _reads_bag(file, t)
+    if bag:
+        if "header" in t:
+            raise ConfigError(f"{where}.header is for CSV files; {file.name} is a ROS bag")
+        if "topic" not in t and not all(isinstance(t.get(k), dict) and "topic" in t[k]
+                                        for k in ("position", "effort", "velocity", "acceleration") if k in t):
+            raise ConfigError(f"{where}.topic: name the sensor_msgs/JointState topic of the bag {file.name} "
+                              f"(or a topic per signal)")
+        if "acceleration" in t:
+            raise ConfigError(f"{where}.acceleration: a JointState message has no accelerations (position, velocity, effort)")
+        return _parse_bag_data(t, where, base, file)
+    given = [k for k in _BAG_ONLY if k in t]
+    if given:
+        raise ConfigError(f"{where}.{given[0]} is for ROS bags (file = a .bag, a ROS 2 bag folder, .db3 or .mcap)")
+    header = _bool(t.get("header", True), f"{where}.header")
     time = None
     if "time" in t:
+        if isinstance(t["time"], str):
+            raise ConfigError(f"{where}.time: expected a table, got str ({t['time']!r}); a table's time is a column, "
+                              f"{where}.time = {{ column = ... }} (time = 'header' or 'receive' is for ROS bags)")
         tt = _table(t["time"], f"{where}.time", {"column", "unit", "file"}, {"column"})
         time = TimeConfig(
-            column=_str(tt["column"], f"{where}.time.column"),
+            column=_column(tt["column"], f"{where}.time.column", header),
             unit=_str(tt.get("unit", "s"), f"{where}.time.unit", tuple(TIME_UNITS)),
             file=_path(tt["file"], f"{where}.time.file", base) if "file" in tt else None,
         )
     fs = _num(t["sample_rate_hz"], f"{where}.sample_rate_hz", positive=True) if "sample_rate_hz" in t else None
     if (time is None) == (fs is None):
         raise ConfigError(f"{where}: give exactly one of 'time' (a time column) or 'sample_rate_hz'")
+    rows, window = _windows(t, where)
+    spec = DataConfig(
+        file=file,
+        time=time,
+        sample_rate_hz=fs,
+        position=_parse_signal(t["position"], f"{where}.position", base, "position", header),
+        effort=_parse_signal(t["effort"], f"{where}.effort", base, "effort", header),
+        velocity=_parse_signal(t["velocity"], f"{where}.velocity", base, "velocity", header) if "velocity" in t else None,
+        acceleration=_parse_signal(t["acceleration"], f"{where}.acceleration", base, "acceleration", header)
+        if "acceleration" in t
+        else None,
+        rows=rows,
+        time_window=window,
+        header=header,
+    )
+    for s, label in ((spec.position, "position"), (spec.effort, "effort"), (spec.velocity, "velocity"),
+                     (spec.acceleration, "acceleration"), (spec.time, "time")):
+        if s is not None and s.file is None and spec.file is None:
+            raise ConfigError(f"{where}.{label}: no file (set {where}.file or {where}.{label}.file)")
+    return spec
+
+
+def _parse_bag_data(t: Mapping[str, Any], where: str, base: Path, file: Path) -> DataConfig:
+    """``[data]`` reading a ROS bag: columns are joint names of sensor_msgs/JointState messages."""
+    rows, window = _windows(t, where)
+    signal = lambda key: _parse_signal(t[key], f"{where}.{key}", base, key, bag=True) if key in t else None  # noqa: E731
+    return DataConfig(
+        file=file,
+        time=_parse_bag_time(t, where),
+        position=signal("position"),
+        effort=signal("effort"),
+        velocity=signal("velocity"),
+        rows=rows,
+        time_window=window,
+        topic=_str(t["topic"], f"{where}.topic") if "topic" in t else None,
+        bag=True,
+    )
+
+
+def _windows(t: Mapping[str, Any], where: str) -> tuple[tuple[int, int] | None, tuple[float, float] | None]:
+    """``rows`` and ``time_window`` (at most one)."""
     rows = None
     if "rows" in t:
         rows = _list(t["rows"], f"{where}.rows", lambda v, w: _int(v, w, 0), 2)
@@ -440,24 +548,7 @@ def _parse_data(t: Any, where: str, base: Path) -> DataConfig:
             raise ConfigError(f"{where}.time_window: end must exceed start")
     if rows is not None and window is not None:
         raise ConfigError(f"{where}: give 'rows' or 'time_window', not both")
-    spec = DataConfig(
-        file=_path(t["file"], f"{where}.file", base) if "file" in t else None,
-        time=time,
-        sample_rate_hz=fs,
-        position=_parse_signal(t["position"], f"{where}.position", base, "position"),
-        effort=_parse_signal(t["effort"], f"{where}.effort", base, "effort"),
-        velocity=_parse_signal(t["velocity"], f"{where}.velocity", base, "velocity") if "velocity" in t else None,
-        acceleration=_parse_signal(t["acceleration"], f"{where}.acceleration", base, "acceleration")
-        if "acceleration" in t
-        else None,
-        rows=rows,
-        time_window=window,
-    )
-    for s, label in ((spec.position, "position"), (spec.effort, "effort"), (spec.velocity, "velocity"),
-                     (spec.acceleration, "acceleration"), (spec.time, "time")):
-        if s is not None and s.file is None and spec.file is None:
-            raise ConfigError(f"{where}.{label}: no file (set {where}.file or {where}.{label}.file)")
-    return spec
+    return rows, window
 
 
 def _parse_processing(t: Any) -> ProcessingConfig:
@@ -687,7 +778,9 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
 
 def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = None) -> Config:
     """Validate a parsed TOML document into a :class:`Config`."""
-    doc = _table(dict(doc), "config", {"robot", "data", "validation", "processing", "identification", "output", "learning"}, {"robot", "data", "validation"})
+    doc = _table(dict(doc), "config", {"robot", "data", "validation", "processing", "identification", "output", "learning",
+                                       "data_root"}, {"robot", "data", "validation"})
+    data_base = data_root(doc, base_dir)
     data_t = _table(doc["data"], "data", _DATA_KEYS)
     val_t = doc["validation"]
     if not isinstance(val_t, dict):
@@ -705,8 +798,17 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
         for key in ("time", "position", "effort", "velocity", "acceleration"):
             if key in inherited and key not in val_t and isinstance(inherited[key], dict):
                 inherited[key] = {k: v for k, v in inherited[key].items() if k != "file"}
-    data = _parse_data(data_t, "data", base_dir)
-    validation = _parse_data({**inherited, **val_t}, "validation", base_dir)
+        # a validation log of the other kind (a bag for a CSV, a CSV for a bag) inherits no keys of that kind
+        if isinstance(val_t["file"], str) and isinstance(data_t.get("file"), str):
+            val_bag = _reads_bag(_path(val_t["file"], "validation.file", data_base), {**data_t, **val_t})
+            if val_bag != _reads_bag(_path(data_t["file"], "data.file", data_base), data_t):
+                for key in ("topic", "header", "time", "sample_rate_hz"):
+                    inherited.pop(key, None)
+                for key in ("position", "effort", "velocity"):
+                    if isinstance(inherited.get(key), dict):
+                        inherited[key] = {k: v for k, v in inherited[key].items() if k != "topic"}
+    data = _parse_data(data_t, "data", data_base)
+    validation = _parse_data({**inherited, **val_t}, "validation", data_base)
     if set(validation.files()) == set(data.files()):
         if validation.rows is None and validation.time_window is None:
             raise ConfigError("validation: uses the training file without 'rows' or 'time_window'; hold out samples")
@@ -736,6 +838,17 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
         raw=doc,
         learning=_learning(doc.get("learning")),
     )
+
+
+def data_root(doc: Mapping[str, Any], base_dir: Path) -> Path:
+    """``data_root``: the folder the logs' relative paths start from (``${VAR}`` expanded; itself relative
+    to the config file); without it, the config file's folder."""
+    if "data_root" not in doc:
+        return base_dir
+    root = _path(doc["data_root"], "data_root", base_dir)
+    if not root.is_dir():
+        raise ConfigError(f"data_root: {root} is {'not a folder' if root.exists() else 'not found'}")
+    return root
 
 
 def _learning(t: Any):

@@ -4,6 +4,8 @@ that raise :class:`~dynid.errors.ConfigError` naming the dotted key, and the rea
 from __future__ import annotations
 
 import math
+import os
+import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
@@ -87,8 +89,29 @@ def _num_or_list(value: Any, where: str, positive: bool = False, *, minimum: flo
     return _num(value, where, positive, minimum=minimum)
 
 
+_VAR = re.compile(r"\$\{([^}]*)\}")
+
+
+def _expand(text: str, where: str) -> str:
+    """``${NAME}`` replaced by the environment variable NAME; an unset (or empty) variable is an error
+    naming it, never a path that silently points elsewhere."""
+
+    def value(m: re.Match) -> str:
+        name = m.group(1)
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+            raise ConfigError(f"{where}: {m.group(0)!r} is not a variable name (letters, digits, _)")
+        v = os.environ.get(name)
+        if not v:
+            raise ConfigError(f"{where}: environment variable {name} is {'empty' if v == '' else 'not set'} "
+                              f"(in {text!r})")
+        return v
+
+    return _VAR.sub(value, text)
+
+
 def _path(value: Any, where: str, base: Path) -> Path:
-    p = Path(_str(value, where)).expanduser()
+    """A path: ``${VAR}`` expanded, ``~`` expanded, relative to ``base``, canonical."""
+    p = Path(_expand(_str(value, where), where)).expanduser()
     # canonical, so that one file named two ways is recognised as the same file
     return (p if p.is_absolute() else (base / p)).resolve()
 

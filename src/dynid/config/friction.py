@@ -70,9 +70,14 @@ def parse_friction_config(doc: Mapping[str, Any], base_dir: Path, source: Path |
         lt = _table(f["labels"], "friction.labels", set(_LABELS))
         labels.update({k: _str(v, f"friction.labels.{k}") for k, v in lt.items()})
     out = _table(doc.get("output", {}), "output", {"plots"})
+    data = _parse_data(doc["data"], "data", base_dir)
+    if data.bag or not data.header:
+        raise ConfigError("data.file: dynid friction reads the label columns of a constant-velocity log by name "
+                          f"(friction.labels), from a CSV with a header row, NPZ or Parquet file, not "
+                          f"{'a ROS bag' if data.bag else 'a headerless CSV'}")
     return FrictionConfig(
         robot=_parse_robot(doc["robot"], base_dir),
-        data=_parse_data(doc["data"], "data", base_dir),
+        data=data,
         models=models,
         joints=joint_name_list(f, "joints", "friction"),
         skip=_num(f.get("skip", 0.5), "friction.skip", minimum=0.0),

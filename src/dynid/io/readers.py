@@ -46,11 +46,15 @@ class TableReader:
     Parameters
     ----------
     path : path
-        ``.csv``/``.tsv``/``.txt`` (header row required), ``.npz`` or ``.parquet``.
+        ``.csv``/``.tsv``/``.txt``, ``.npz`` or ``.parquet``.
+    header : bool
+        CSV only: True (default), the first row names the columns; False, the file has no header row
+        and its columns are named by index, ``"0"``, ``"1"``, ... (0 is the first column).
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, header: bool = True) -> None:
         self.path = existing_file(path, "data file")
+        self.header = header
         suffix = self.path.suffix.lower()
         if suffix in (".csv", ".tsv", ".txt"):
             self.kind = "csv"
@@ -60,6 +64,8 @@ class TableReader:
             self.kind = "parquet"
         else:
             raise InputError(f"{self.path}: unknown data file type {suffix!r} (use .csv, .npz or .parquet)")
+        if not header and self.kind != "csv":
+            raise InputError(f"{self.path}: header = false is for CSV files; a {self.kind} file names its columns")
         self._frame = None
         self._header: list[str] = []
         self._npz: dict[str, np.ndarray] | None = None
@@ -95,6 +101,8 @@ class TableReader:
                 raise InputError(f"data file {self.path} is not UTF-8 text (byte 0x{line[exc.start]:02x} at offset "
                                  f"{exc.start} of the header)") from None
             text = line[: exc.start].decode("utf-8")
+        if not self.header:
+            return
         self._header = next(csv.reader([text.removeprefix("\ufeff")], delimiter=self._sep), [])
         seen: dict[str, list[int]] = {}
         for i, name in enumerate(self._header):
@@ -125,13 +133,16 @@ class TableReader:
             else:
                 self._head()
             try:
-                if self.kind == "csv":
+                if self.kind == "csv" and not self.header:
+                    self._frame = pd.read_csv(self.path, sep=self._sep, header=None)
+                    self._frame.columns = [str(c) for c in range(self._frame.shape[1])]
+                elif self.kind == "csv":
                     self._frame = pd.read_csv(self.path, sep=self._sep)
                 else:
                     try:
                         self._frame = pd.read_parquet(self.path)
                     except ImportError as exc:
-                        raise MissingExtraError(f"reading Parquet needs pyarrow: pip install pyarrow ({exc})") from None
+                        raise MissingExtraError(f"reading Parquet needs pyarrow: pip install 'dynid[parquet]' ({exc})") from None
             except UnicodeDecodeError as exc:
                 raise InputError(f"data file {self.path} is not UTF-8 text ({exc})") from None
             except pd.errors.EmptyDataError:
@@ -173,6 +184,9 @@ class TableReader:
         frame = self._load_frame()
         missing = [n for n in names if n not in frame.columns]
         if missing:
+            if not self.header:
+                raise InputError(f"{self.path.name}: missing columns {missing}; the file has {frame.shape[1]} columns "
+                                 f"(0 to {frame.shape[1] - 1}; header = false names columns by index)")
             raise InputError(
                 f"{self.path.name}: missing columns {missing}; "
                 + (self._separator_hint() or f"the file has {self.available[:20]}")

@@ -26,6 +26,7 @@ from dynid._typing import FloatArray
 from dynid.config import EFFORT_UNITS, POSITION_UNITS, TIME_UNITS, DataConfig, ProcessingConfig, RobotConfig
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, IdentifiabilityError, InputError
+from dynid.io.bags import BagReader
 from dynid.io.readers import TableReader
 from dynid.model.mechanism import Mechanism
 from dynid.model.system import System, as_system, with_actuator_extras, with_motor_terms
@@ -153,16 +154,19 @@ def read_log(
 
     def reader(path: Path) -> TableReader:
         if path not in readers:
-            readers[path] = TableReader(path)
+            readers[path] = BagReader(path) if spec.bag else TableReader(path, header=spec.header)
         return readers[path]
 
     def columns(sig, what: str, scale: float) -> tuple[FloatArray, Path]:
         path = sig.file or spec.file
-        arr = reader(path).columns(sig.columns)
+        arr = bag_signals[what] if spec.bag else reader(path).columns(sig.columns)
         if arr.shape[1] != n_channels:
             raise InputError(f"{label}.{what}: {arr.shape[1]} columns for a robot with {n_channels} joints")
         return arr * scale, path
 
+    bag_signals: dict[str, FloatArray] = {}
+    if spec.bag:
+        t, bag_signals, topics = _read_bag(spec, reader(spec.file), label)
     q, q_file = columns(spec.position, "position", _scale(POSITION_UNITS, spec.position, n_channels, f"{label}.position"))
     tau, tau_file = columns(spec.effort, "effort",
                             _scale(EFFORT_UNITS[spec.effort.kind], spec.effort, n_channels, f"{label}.effort"))
@@ -171,7 +175,9 @@ def read_log(
     for what, sig in (("velocity", spec.velocity), ("acceleration", spec.acceleration)):
         if sig is not None:
             extra[what], files[what] = columns(sig, what, _scale(POSITION_UNITS, sig, n_channels, f"{label}.{what}"))
-    if spec.time is not None:
+    if spec.bag:
+        files["time"] = spec.file
+    elif spec.time is not None:
         tpath = spec.time.file or spec.file
         t = reader(tpath).columns([spec.time.column])[:, 0] * TIME_UNITS[spec.time.unit]
         files["time"] = tpath
@@ -200,6 +206,9 @@ def read_log(
         "sha256": {str(p): readers[p].sha256() for p in dict.fromkeys(files.values())},
         "window": {"rows": list(spec.rows)} if spec.rows else ({"time": list(spec.time_window)} if spec.time_window else "all"),
     }
+    if spec.bag:
+        meta["ros_topics"] = topics
+        meta["time_source"] = spec.time.column
     try:
         ds = Dataset(
             t=t[sl],
@@ -215,6 +224,57 @@ def read_log(
     _constant_efforts(ds, spec.effort.columns if len(spec.effort.columns) == n_channels else
                       tuple(f"{spec.effort.columns[0]}[{j}]" for j in range(n_channels)), tau_file, label)
     return ds
+
+
+def _read_bag(spec: DataConfig, bag: BagReader, label: str) -> tuple[FloatArray, dict[str, FloatArray], dict[str, str]]:
+    """The signals of a ROS bag log on one time base: the messages of the position topic, their time
+    (header stamps or receive times, ``spec.time.column``) in s from the first message. A signal on
+    another topic whose messages have the same stamps is taken message for message; otherwise it is
+    interpolated linearly onto the position times, and the rows outside its time span are left out
+    (both recorded in the provenance). Times must increase strictly on every topic."""
+    source = spec.time.column
+    signals = {w: s for w, s in (("position", spec.position), ("effort", spec.effort), ("velocity", spec.velocity))
+               if s is not None}
+    topics = {w: s.topic or spec.topic for w, s in signals.items()}
+    for w, topic in topics.items():
+        if topic is None:
+            raise ConfigError(f"{label}.{w}.topic: no topic (set {label}.topic or {label}.{w}.topic)")
+    stamps = {}
+    for topic in dict.fromkeys(topics.values()):
+        ns = bag.stamps(topic, source)
+        back = np.flatnonzero(np.diff(ns) <= 0)
+        if back.size:
+            k = int(back[0])
+            what = "header stamps" if source == "header" else "receive times"
+            raise InputError(f"{label}: {bag.path.name}: topic {topic!r}: the {what} do not increase at message {k + 2} "
+                             f"({ns[k + 1] * 1e-9:.9f} s after {ns[k] * 1e-9:.9f} s)"
+                             + (f"; {label}.time = 'receive' uses the bag's receive times" if source == "header" else ""))
+        stamps[topic] = ns
+    base_ns = stamps[topics["position"]]
+    t0 = base_ns[0]
+    t = (base_ns - t0) * 1e-9
+    keep = np.ones(t.size, dtype=bool)
+    out: dict[str, FloatArray] = {}
+    how: dict[str, str] = {}
+    for w, sig in signals.items():
+        topic = topics[w]
+        values = bag.joints(topic, w, sig.columns)
+        ns = stamps[topic]
+        if ns.shape == base_ns.shape and np.array_equal(ns, base_ns):
+            out[w], how[w] = values, topic
+            continue
+        ts = (ns - t0) * 1e-9
+        keep &= (t >= ts[0]) & (t <= ts[-1])
+        out[w] = np.column_stack([np.interp(t, ts, values[:, j]) for j in range(values.shape[1])])
+        how[w] = f"{topic} (interpolated linearly onto the {topics['position']} times)"
+    if not keep.all():
+        if keep.sum() < 2:
+            raise InputError(f"{label}: {bag.path.name}: the topics {sorted(set(topics.values()))} do not overlap in time")
+        first, last = np.flatnonzero(keep)[[0, -1]]
+        sl = slice(int(first), int(last) + 1)
+        t = t[sl]
+        out = {w: v[sl] for w, v in out.items()}
+    return t, out, how
 
 
 def check_held_out(train: Dataset, held_out: Dataset) -> None:
