@@ -59,10 +59,10 @@ def test_init_then_identify_round_trip_recovers_the_robot(run, tmp_path, capsys)
     assert "# columns not used: temperature" in text
     assert "# sampling rate 200 Hz" in text
     # the held-out rows: the last quarter; the cut-off: 10 x the motion's bandwidth (the motion is
-    # below 0.5 Hz, and the Hann window of a 40 s log smears it by 2 bins of 0.025 Hz), under fs/5
+    # 0.1-0.5 Hz, and the Hann window of a 40 s log smears it by 2 bins of 0.025 Hz), at least 5 Hz
     assert doc["data"]["rows"] == [0, 6000] and doc["validation"]["rows"] == [6000, 8000]
     lp = doc["processing"]["lowpass"]
-    assert 1.0 <= lp["cutoff_hz"] <= 5.6 and lp["filter_effort"] is False
+    assert 5.0 <= lp["cutoff_hz"] <= 5.5 and lp["filter_effort"] is False
     assert doc["identification"]["method"] == "wls"
     out = tmp_path / "out"
     assert main(["identify", str(cfg), "--out", str(out), "-q"]) == 0
@@ -124,7 +124,7 @@ def test_unmatched_columns_are_marked_and_identify_names_them(run, tmp_path, cap
 
 
 def test_a_log_without_time_needs_rate_and_a_parallel_robot_gets_its_actuators(tmp_path, capsys):
-    n = 400
+    n = 4000
     t = np.arange(n) / 500.0
     q = np.column_stack([0.3 * np.sin(2 * np.pi * 0.5 * t + k) for k in range(3)])
     _csv(tmp_path / "log.csv", ["q_qa1", "q_qa2", "q_qa3", "tau_qa1", "tau_qa2", "tau_qa3"], [q, q])
@@ -136,6 +136,11 @@ def test_a_log_without_time_needs_rate_and_a_parallel_robot_gets_its_actuators(t
     assert doc["data"]["sample_rate_hz"] == 500.0
     assert doc["data"]["position"]["columns"] == ["q_qa1", "q_qa2", "q_qa3"]
     assert "extras" not in doc["robot"]  # a mechanism keeps its description's joint terms
+    # the motion is 0.5 Hz, seen through the Hann window of an 8 s log (2 bins of 0.125 Hz): a cut-off
+    # of 5 to 7.5 Hz at 500 Hz; logged at 15 Hz the cut-off stays under 0.4 x Nyquist
+    assert 5.0 <= doc["processing"]["lowpass"]["cutoff_hz"] <= 7.5
+    assert main(["init", "builtin:shang2dof", str(tmp_path / "log.csv"), "--out", str(cfg), "--rate", "15", "--force"]) == 0
+    assert tomllib.loads(cfg.read_text())["processing"]["lowpass"]["cutoff_hz"] == 3.0
 
 
 def test_refusals_are_one_line_and_leave_the_file_alone(run, tmp_path, capsys):
