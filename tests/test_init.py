@@ -170,3 +170,6 @@ def test_refusals_are_one_line_and_leave_the_file_alone(run, tmp_path, capsys):
          [back, np.zeros((25, 6)), np.zeros((25, 6))])
     assert main(["init", ROBOT, str(tmp_path / "back.csv"), "--out", str(tmp_path / "a.toml")]) == 2
     assert "is not increasing (data row 11: 0.025 after 0.045)" in _error(capsys)
+    (tmp_path / "nan.csv").write_text("t,q_qa1,q_qa2,tau_qa1,tau_qa2\n0,1,2,3,4\n0.01,1,2,3,4\n,1,2,3,4\n")
+    assert main(["init", "builtin:fivebar", str(tmp_path / "nan.csv"), "--out", str(tmp_path / "a.toml")]) == 2
+    assert "time column 't': nan in data row 3" in _error(capsys)

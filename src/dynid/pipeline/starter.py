@@ -162,9 +162,12 @@ def _time_column(columns: dict[str, FloatArray]) -> str | None:
 def _time_unit(name: str, t: FloatArray) -> tuple[str, str, float]:
     """(unit, how it was found, sampling rate in Hz): the unit word in the name, else the unit
     (s, ms, us, ns in that order) that puts the median rate in :data:`PLAUSIBLE_RATE_HZ`."""
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise InputError(f"time column {name!r}: {float(t[bad[0]])} in data row {bad[0] + 1} (not a finite time)")
     dt = np.diff(t)
-    if dt.size == 0 or not np.all(np.isfinite(t)):
-        raise InputError(f"time column {name!r}: fewer than two finite samples")
+    if dt.size == 0:
+        raise InputError(f"time column {name!r}: one sample; a log needs at least two")
     if np.any(dt <= 0):
         k = int(np.flatnonzero(dt <= 0)[0])
         raise InputError(f"time column {name!r} is not increasing (data row {k + 2}: {float(t[k + 1])!r} after {float(t[k])!r})")
