@@ -134,6 +134,10 @@ def identify_arrays(robot: str, t: Any, q: Any, effort: Any, *, held_out: tuple[
         ``.nominal_validation`` and ``.prior`` (the nominal model on the same held-out rows),
         ``.summary_text()``, and an HTML table in a notebook.
 
+    The provenance names the arrays ``<arrays:training>`` and ``<arrays:held-out>`` (beside the
+    current folder) with the SHA-256 of their bytes; ``[output] plots`` is false (write the files
+    with :func:`~dynid.pipeline.identification.write_outputs`: no plots).
+
     The estimators are those of the configuration (e.g. ``"wls"``: Gautier & Poignet's weighted
     least squares, paper 000 Eq. 21; see :mod:`dynid.estimation`).
     """
