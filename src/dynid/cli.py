@@ -358,6 +358,32 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_init(args: argparse.Namespace) -> int:
+    from dynid.pipeline.starter import write_starting_config
+
+    def names(value: str | None, flag: str) -> list[str] | None:
+        if value is None:
+            return None
+        out = [n.strip() for n in value.split(",") if n.strip()]
+        if not out:
+            raise InputError(f"{flag}: no joint names (a comma-separated list, e.g. {flag} j1,j2)")
+        return out
+
+    if args.rate is not None and not (0 < args.rate < float("inf")):
+        raise InputError(f"--rate: must be a positive number of Hz, got {args.rate!r}")
+    cfg = write_starting_config(args.robot, args.log, args.out, force=args.force, actuated=names(args.actuated, "--actuated"),
+                                independent=names(args.independent, "--independent"), sample_rate_hz=args.rate)
+    print(f"wrote {args.out}: {len(cfg.joints)} actuators, sampling rate {cfg.sample_rate_hz:.6g} Hz, "
+          f"low-pass {cfg.cutoff_hz:g} Hz, method wls")
+    guessed = [f"{w} of {j} ({m.column})" for j, p, e in zip(cfg.joints, cfg.position, cfg.effort)
+               for w, m in (("position", p), ("effort", e)) if m.how == "index"]
+    if guessed:
+        print(f"guessed by index (check): {', '.join(guessed)}")
+    if cfg.unmatched:
+        print(f"UNMATCHED (edit the config before dynid identify): {', '.join(cfg.unmatched)}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="dynid", description="Identify the dynamic parameters of robot manipulators.")
     p.add_argument("--version", action="version", version=f"dynid {__version__}")
@@ -374,6 +400,17 @@ def build_parser() -> argparse.ArgumentParser:
                     help="parallel robots: joints whose positions are the independent coordinates (default: the actuated "
                          "joints; a redundantly actuated robot needs as many as its mobility)")
     pi.set_defaults(func=_cmd_info)
+
+    pn = sub.add_parser("init", help="write a commented starting config for dynid identify: the robot's joints, the "
+                                      "log's columns matched to them, safe processing defaults for its rate")
+    pn.add_argument("robot", help="builtin:<name>, or a .urdf (+ robot.yaml closures beside it) / .xml (MJCF) / DH .toml file")
+    pn.add_argument("log", help="the log: .csv/.tsv, .npz or .parquet with a header (column names)")
+    pn.add_argument("--out", required=True, help="the config file to write (refused when it exists, unless --force)")
+    pn.add_argument("--force", action="store_true", help="replace an existing --out file")
+    pn.add_argument("--rate", type=float, default=None, metavar="HZ", help="sampling rate of a log without a time column")
+    pn.add_argument("--actuated", default=None, metavar="J1,J2,...", help="parallel robots: the actuated joints, as for info")
+    pn.add_argument("--independent", default=None, metavar="J1,J2,...", help="parallel robots: the independent coordinates' joints")
+    pn.set_defaults(func=_cmd_init)
 
     pid = sub.add_parser("identify", help="identify base parameters from logs as CONFIG.toml says")
     pid.add_argument("config", help="TOML configuration (schema in the README)")

@@ -44,6 +44,9 @@ __all__ = [
     "POSITION_UNITS",
     "TIME_UNITS",
     "EFFORT_UNITS",
+    "ROBOT_KEYS",
+    "PROCESSING_KEYS",
+    "IDENTIFICATION_KEYS",
 ]
 
 POSITION_UNITS = {"rad": 1.0, "deg": 0.017453292519943295, "m": 1.0, "mm": 1e-3}
@@ -329,10 +332,16 @@ class Config:
 
 
 # ---------------------------------------------------------------------- parsing
+ROBOT_KEYS = ("extras", "gear_ratios", "couplings", "drive_gains", "position_offset", "actuated", "independent")
+"""The keys of ``[robot]`` besides ``model``."""
+PROCESSING_KEYS = ("resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity",
+                   "min_velocity_passive", "periodic", "reversal_guard")
+"""The keys of ``[processing]``."""
+
+
 def _parse_robot(t: Any, base: Path) -> RobotConfig:
     where = "robot"
-    t = _table(t, where, {"model", "extras", "gear_ratios", "couplings", "drive_gains", "position_offset", "actuated",
-                          "independent"}, {"model"})
+    t = _table(t, where, {"model", *ROBOT_KEYS}, {"model"})
     model = _str(t["model"], f"{where}.model")
     if not model.startswith("builtin:"):
         model = str(_path(model, f"{where}.model", base))
@@ -553,8 +562,7 @@ def _windows(t: Mapping[str, Any], where: str) -> tuple[tuple[int, int] | None, 
 
 def _parse_processing(t: Any) -> ProcessingConfig:
     where = "processing"
-    t = _table(t, where, {"resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity",
-                          "min_velocity_passive", "periodic", "reversal_guard"})
+    t = _table(t, where, set(PROCESSING_KEYS))
     resample: str | float = "auto"
     if "resample" in t:
         r = t["resample"]
@@ -634,14 +642,16 @@ def _chain_groups(spec: Any, where: str) -> tuple[tuple[tuple[str, ...], ...], .
 _LOOP_KEYS = ("experiment", "start", "max_iterations", "tolerance", "replay_coulomb_band", "directions_rtol")
 
 
+IDENTIFICATION_KEYS = ("method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
+                       "force_model", "noise_covariance", "iterations", "nominal_weighting", "position_covariance",
+                       "cutoff_range_hz", "structure", "identical_chains", "coulomb_smoothing", "hierarchical",
+                       "friction_prior", *_PHYSICAL_KEYS, *_COVARIANCE_KEYS, *_LOOP_KEYS)
+"""The keys of ``[identification]``."""
+
+
 def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfig:
     where = "identification"
-    t = _table(t, where, {"method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
-                          "force_model", "noise_covariance", "iterations", "nominal_weighting",
-                          "position_covariance", "cutoff_range_hz", "structure", "identical_chains", "coulomb_smoothing",
-                          "hierarchical", "friction_prior",
-                          *_PHYSICAL_KEYS,
-                          *_COVARIANCE_KEYS, *_LOOP_KEYS})
+    t = _table(t, where, set(IDENTIFICATION_KEYS))
     method = _str(t.get("method", "wls"), f"{where}.method", _METHODS)
     physical = _bool(t.get("physical_consistency", False), f"{where}.physical_consistency")
     hierarchical = _bool(t.get("hierarchical", False), f"{where}.hierarchical")

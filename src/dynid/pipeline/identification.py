@@ -446,6 +446,26 @@ class IdentifyOutcome:
             lines += self.learning.summary_lines()
         return "\n".join(lines)
 
+    def _repr_html_(self) -> str:
+        """A notebook's view: the estimates with their standard deviations
+        (:meth:`IdentificationResult.summary`), and the held-out errors of the identified model
+        beside the nominal model's on the same rows, with the verdict of :func:`prior_comparison`."""
+        import html
+
+        v, nom = self.validation, self.nominal_validation
+        head = ["channel", "RMSE", "rel RMSE %", "R^2"] + (["nominal RMSE", "nominal rel RMSE %"] if nom is not None else [])
+        rows = []
+        for j, c in enumerate(v.channel_names):
+            cells = [c, f"{v.rmse[j]:.4g}", f"{v.rel_rmse_pct[j]:.3g}", f"{v.r2[j]:.4f}"]
+            if nom is not None:
+                cells += [f"{nom.rmse[j]:.4g}", f"{nom.rel_rmse_pct[j]:.3g}"]
+            rows.append("<tr>" + "".join(f"<td>{html.escape(x)}</td>" for x in cells) + "</tr>")
+        table = ("<table><thead><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr></thead><tbody>"
+                 + "".join(rows) + "</tbody></table>")
+        verdict = f"<p>{html.escape(self.prior['verdict'])}</p>" if self.prior is not None else ""
+        return (f"<div class='dynid-outcome'>{self.result.summary().as_html()}"
+                f"<h4>{html.escape(v.heading())}</h4>{table}{verdict}</div>")
+
 
 def _versions() -> dict[str, str]:
     import numpy
@@ -461,10 +481,15 @@ def _versions() -> dict[str, str]:
     }
 
 
-def identify(cfg: Config, progress: Progress = _no_progress) -> IdentifyOutcome:
-    """Run the whole identification described by ``cfg`` (nothing is written)."""
+def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | None = None) -> IdentifyOutcome:
+    """Run the whole identification described by ``cfg`` (nothing is written).
+
+    ``readers`` maps the files of ``cfg.data`` and ``cfg.validation`` to readers already open (the
+    interface of :class:`~dynid.io.readers.TableReader`: ``columns``, ``sha256``); the array API
+    (:func:`dynid.pipeline.arrays.identify_arrays`) hands its arrays in this way, through the
+    same steps as a log on disk."""
     t0 = time.perf_counter()
-    outcome = _identify(cfg, progress)
+    outcome = _identify(cfg, progress, readers)
     validation = dataclasses.replace(outcome.validation, overlap=motion_overlap(outcome.train, outcome.held_out))
     prior = outcome.prior
     if outcome.nominal_validation is not None and prior is not None:  # the verdict names the kind of data
@@ -887,7 +912,7 @@ def _hierarchical_prior(cfg0: Config, result: IdentificationResult, force_model:
     return metrics, None if selected is None else selected.metrics, full
 
 
-def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
+def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> IdentifyOutcome:
     cfg0 = cfg
     if cfg.identification.hierarchical:  # the friction-free regressor Phi_br (paper 003 Eq. 37)
         from dynid.pipeline.hierarchical import rigid_robot_config
@@ -911,7 +936,7 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
     names, kinds = system.actuator_names, system.actuator_kinds()
     check_units(cfg.data, kinds, names, "data")
     check_units(cfg.validation, kinds, names, "validation")
-    readers: dict = {}
+    readers = dict(readers or {})
     raw_train = read_log(cfg.data, system.n_actuators, names, "data", readers)
     raw_valid = read_log(cfg.validation, system.n_actuators, names, "validation", readers)
     check_held_out(raw_train, raw_valid)

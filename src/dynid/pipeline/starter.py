@@ -1,0 +1,384 @@
+"""``dynid init ROBOT LOG``: a commented starting configuration for ``dynid identify``.
+
+The robot's actuators (the joints of a serial robot, the actuated joints of a parallel one; the
+same :func:`~dynid.pipeline.data.build_system` as ``dynid identify``) are matched to the log's
+columns by name (``q_<joint>``, ``<joint>_pos``, ``tau_<joint>``, ``<joint>_effort``,
+``current_<joint>`` ...) or, failing that, by index (``q1 ... qn``, ``tau[0] ...``: said to be
+guessed). The time column's unit is read from its name or guessed from the sampling rate it
+gives; the rate sets the processing defaults. The log is read through
+:class:`~dynid.io.readers.TableReader` only (its ``available`` names and ``columns``), so a
+format that reader learns is a format ``init`` reads.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from dynid._typing import FloatArray
+from dynid.config import TIME_UNITS, RobotConfig, parse_config
+from dynid.errors import InputError
+from dynid.io.readers import TableReader
+
+__all__ = ["StartingConfig", "starting_config", "write_starting_config"]
+
+_SEP = r"[\s_./:\-\[\]()]+"
+_ROLES = {
+    "position": {"q", "pos", "position", "positions", "angle", "angles", "theta"},
+    "velocity": {"dq", "qd", "qdot", "vel", "velocity", "velocities", "v", "speed"},
+    "acceleration": {"ddq", "qdd", "acc", "accel", "acceleration"},
+    "torque": {"tau", "torque", "torques", "effort", "efforts", "trq", "force", "forces", "f"},
+    "current": {"current", "currents", "cur", "curr", "i", "amp", "amps"},
+}
+_TIME_WORDS = {"t", "time", "times", "timestamp", "timestamps", "stamp", "sec", "secs", "seconds", "s", "ms", "msec", "us",
+               "usec", "ns", "nsec", "nsecs", "elapsed"}
+_TIME_UNIT_WORDS = {"ms": "ms", "msec": "ms", "us": "us", "usec": "us", "ns": "ns", "nsec": "ns", "nsecs": "ns",
+                    "s": "s", "sec": "s", "secs": "s", "seconds": "s"}
+MIN_CUTOFF_HZ = 5.0
+"""The default low-pass is never below this (unless the rate's fifth is): the position power
+sees the dominant harmonics only, and the accelerations need more. On the KUKA LWR4 logs
+(../shared/data/kuka_lwr4, run 1 whose motion is 0.12 Hz, validated on run 3) the held-out mean
+relative RMSE of WLS was 109 % at 1.2 Hz, 91 % at 3, 84 % at 5, 86 % at 8 Hz."""
+PLAUSIBLE_RATE_HZ = (10.0, 20000.0)
+"""Sampling rates of robot logs: the time unit that puts the rate in this range is the guess."""
+
+
+def _tokens(name: str) -> list[str]:
+    return [t for t in re.split(_SEP, name.lower()) if t]
+
+
+@dataclasses.dataclass(frozen=True)
+class Match:
+    column: str | None  # None: unmatched
+    how: str  # "name", "index" (guessed) or "unmatched"
+
+
+@dataclasses.dataclass(frozen=True)
+class StartingConfig:
+    """The text of the starting config and what was found (for the command's message and tests)."""
+
+    text: str
+    joints: tuple[str, ...]
+    position: tuple[Match, ...]
+    effort: tuple[Match, ...]
+    effort_kind: str
+    time_column: str | None
+    time_unit: str
+    sample_rate_hz: float
+    cutoff_hz: float
+
+    @property
+    def unmatched(self) -> list[str]:
+        return [f"{w} of {j}" for j, p, e in zip(self.joints, self.position, self.effort)
+                for w, m in (("position", p), ("effort", e)) if m.column is None]
+
+
+def _log_columns(reader: TableReader) -> dict[str, FloatArray]:
+    """Every single column the reader can select by name: a CSV/Parquet column, an NPZ key of a
+    1-D array, or ``key[i]`` for column ``i`` of an NPZ key's 2-D array (numeric ones only)."""
+    out: dict[str, FloatArray] = {}
+    for name in reader.available:
+        try:
+            arr = reader.columns([name])
+        except InputError:  # a non-numeric column (labels, strings)
+            continue
+        if arr.shape[1] == 1:
+            out[name] = arr[:, 0]
+        else:
+            out.update({f"{name}[{i}]": arr[:, i] for i in range(arr.shape[1])})
+    if not out:
+        raise InputError(f"{reader.path}: no numeric columns")
+    return out
+
+
+def _joint_in(col: str, joint: str) -> list[str] | None:
+    """The tokens of ``col`` left when ``joint`` is removed from it as a whole (bounded by
+    separators or the ends), or None when the joint's name is not in it."""
+    c, j = col.lower(), joint.lower()
+    for m in re.finditer(re.escape(j), c):
+        a, b = m.start(), m.end()
+        if (a == 0 or re.match(_SEP, c[a - 1])) and (b == len(c) or re.match(_SEP, c[b])):
+            return _tokens(c[:a] + " " + c[b:])
+    return None
+
+
+def _by_name(columns: Sequence[str], joints: Sequence[str], role: str) -> list[str | None]:
+    """Per joint the column that is the joint's name plus one word of ``role`` (``q_j1``,
+    ``j1_pos``, ``j1.effort``); the joint's name alone counts as its position. The longest joint
+    name wins (``joint_1`` does not take ``joint_10``'s columns: names are bounded)."""
+    out: list[str | None] = []
+    for joint in joints:
+        found = []
+        for col in columns:
+            rest = _joint_in(col, joint)
+            if rest is None:
+                continue
+            if (rest and len(rest) == 1 and rest[0] in _ROLES[role]) or (not rest and role == "position"):
+                found.append(col)
+        out.append(found[0] if len(found) == 1 else None)
+    return out
+
+
+def _by_index(columns: Sequence[str], n: int, role: str) -> list[str | None] | None:
+    """``n`` columns ``<word><k>`` / ``<word>_<k>`` / ``<word>[k]`` of one ``role`` word with the
+    indices 1..n or 0..n-1, in index order (a guess: the log's joint order is the model's)."""
+    pat = re.compile(r"^(?P<word>[a-z]+?)[\s_.\-]*\[?(?P<k>\d+)\]?$")
+    groups: dict[str, dict[int, str]] = {}
+    for col in columns:
+        m = pat.match(col.lower())
+        if m and m.group("word") in _ROLES[role]:
+            groups.setdefault(m.group("word"), {})[int(m.group("k"))] = col
+    for word in sorted(groups, key=lambda w: (w not in ("q", "tau", "current"), w)):
+        idx = groups[word]
+        for first in (1, 0):
+            if all(first + j in idx for j in range(n)) and len(idx) == n:
+                return [idx[first + j] for j in range(n)]
+    return None
+
+
+def _match(columns: Sequence[str], joints: Sequence[str], role: str) -> tuple[Match, ...]:
+    named = _by_name(columns, joints, role)
+    if all(c is not None for c in named):
+        return tuple(Match(c, "name") for c in named)
+    guessed = _by_index([c for c in columns if c not in named], len(joints), role)
+    return tuple(Match(c, "name") if c is not None else
+                 (Match(guessed[j], "index") if guessed is not None else Match(None, "unmatched"))
+                 for j, c in enumerate(named))
+
+
+def _time_column(columns: dict[str, FloatArray]) -> str | None:
+    cands = [c for c in columns if _tokens(c) and set(_tokens(c)) <= _TIME_WORDS]
+    cands.sort(key=lambda c: (_tokens(c)[0] not in ("t", "time", "timestamp"), len(c)))
+    return cands[0] if cands else None
+
+
+def _time_unit(name: str, t: FloatArray) -> tuple[str, str, float]:
+    """(unit, how it was found, sampling rate in Hz): the unit word in the name, else the unit
+    (s, ms, us, ns in that order) that puts the median rate in :data:`PLAUSIBLE_RATE_HZ`."""
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise InputError(f"time column {name!r}: {float(t[bad[0]])} in data row {bad[0] + 1} (not a finite time)")
+    dt = np.diff(t)
+    if dt.size == 0:
+        raise InputError(f"time column {name!r}: one sample; a log needs at least two")
+    if np.any(dt <= 0):
+        k = int(np.flatnonzero(dt <= 0)[0])
+        raise InputError(f"time column {name!r} is not increasing (data row {k + 2}: {float(t[k + 1])!r} after {float(t[k])!r})")
+    med = float(np.median(dt))
+    words = [_TIME_UNIT_WORDS[w] for w in _tokens(name) if w in _TIME_UNIT_WORDS]
+    if words:
+        unit = words[-1]
+        return unit, f"from the column's name ({name!r})", 1.0 / (med * TIME_UNITS[unit])
+    for unit in ("s", "ms", "us", "ns"):
+        fs = 1.0 / (med * TIME_UNITS[unit])
+        if PLAUSIBLE_RATE_HZ[0] <= fs <= PLAUSIBLE_RATE_HZ[1]:
+            return unit, (f"GUESSED: the name says no unit; {unit} makes the rate {fs:.4g} Hz, a robot log's "
+                          f"({PLAUSIBLE_RATE_HZ[0]:g} Hz to {PLAUSIBLE_RATE_HZ[1] / 1000:g} kHz)"), fs
+    return "s", f"GUESSED: seconds (no unit gives a rate in {PLAUSIBLE_RATE_HZ[0]:g}-{PLAUSIBLE_RATE_HZ[1]:g} Hz; check it)", 1.0 / med
+
+
+def motion_bandwidth_hz(q: FloatArray, fs: float, fraction: float = 0.99) -> float:
+    """The frequency below which ``fraction`` of the power of the (linearly detrended, Hann
+    windowed) positions lies, the largest over the columns."""
+    n = q.shape[0]
+    if n < 8:
+        return 0.0
+    x = np.arange(n)
+    out = 0.0
+    for col in q.T:
+        c = np.polyfit(x, col, 1)
+        y = (col - np.polyval(c, x)) * np.hanning(n)
+        p = np.abs(np.fft.rfft(y)) ** 2
+        p[0] = 0.0
+        if p.sum() <= 0:
+            continue
+        k = int(np.searchsorted(np.cumsum(p) / p.sum(), fraction))
+        out = max(out, float(np.fft.rfftfreq(n, 1.0 / fs)[min(k, p.size - 1)]))
+    return out
+
+
+def _round2(x: float) -> float:
+    if x <= 0:
+        return x
+    e = math.floor(math.log10(x)) - 1
+    return round(round(x / 10**e) * 10**e, 10)
+
+
+def _s(x: str) -> str:
+    return json.dumps(x)  # a TOML basic string
+
+
+def _rel(path: Path, folder: Path) -> str:
+    try:
+        return os.path.relpath(path, folder)
+    except ValueError:  # another drive (Windows)
+        return str(path)
+
+
+def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: Sequence[str] | None = None,
+                    independent: Sequence[str] | None = None, sample_rate_hz: float | None = None) -> StartingConfig:
+    """The starting config of ``dynid init`` (nothing is written; see :func:`write_starting_config`).
+
+    Processing defaults: the zero-phase Butterworth low-pass at 10 times the motion's bandwidth
+    (paper 001 Sec. 3: the cut-off above 10 times the position loop's bandwidth), at most a fifth
+    of the sampling rate (0.4 of Nyquist), at least :data:`MIN_CUTOFF_HZ`; the efforts unfiltered (paper 004
+    Sec. 3: filtering the actuator forces biases the estimates through the discontinuous friction,
+    and their noise is additive to the output); WLS (paper 001 Eqs. 10-16); the last quarter of
+    the log held out.
+    """
+    from dynid.pipeline.data import build_system
+
+    out = Path(out)
+    folder = out.resolve().parent
+    model = robot if robot.startswith("builtin:") else str(Path(robot).expanduser().resolve())
+    rcfg = RobotConfig(model=model, actuated=tuple(actuated) if actuated else None,
+                       independent=tuple(independent) if independent else None)
+    system = build_system(rcfg)
+    joints, kinds = tuple(system.actuator_names), tuple(system.actuator_kinds())
+    reader = TableReader(log)
+    columns = _log_columns(reader)
+    names = list(columns)
+    n_rows = next(iter(columns.values())).shape[0]
+
+    tcol = _time_column(columns)
+    if tcol is not None:
+        tunit, thow, fs = _time_unit(tcol, columns[tcol])
+        dt = np.diff(columns[tcol]) * TIME_UNITS[tunit]
+        jitter = float(np.std(dt) / np.median(dt))
+    elif sample_rate_hz is not None:
+        tunit, thow, fs, jitter = "s", "", float(sample_rate_hz), 0.0
+    else:
+        raise InputError(f"{reader.path.name}: no time column (t, time, timestamp, time_ms, ...) among "
+                         f"{names[:20]}; give the sampling rate: --rate HZ")
+    if tcol is not None and sample_rate_hz is not None:
+        raise InputError(f"--rate: {reader.path.name} has a time column {tcol!r}; --rate is for logs without one")
+    position = _match([c for c in names if c != tcol], joints, "position")
+    used = {m.column for m in position}
+    rest = [c for c in names if c != tcol and c not in used]
+    torque, current = _match(rest, joints, "torque"), _match(rest, joints, "current")
+    n_found = lambda ms: sum(m.column is not None for m in ms)  # noqa: E731
+    effort, kind = (torque, "torque") if n_found(torque) >= n_found(current) else (current, "current")
+
+    q_cols = [columns[m.column] for m in position if m.column is not None]
+    band = motion_bandwidth_hz(np.column_stack(q_cols), fs) if q_cols else 0.0
+    cap = fs / 5.0
+    cutoff = _round2(min(max(10.0 * band, MIN_CUTOFF_HZ), cap))
+    split = n_rows - n_rows // 4
+
+    def col_list(ms: tuple[Match, ...], role: str) -> str:
+        return "[" + ", ".join(_s(m.column) if m.column is not None else _s(f"<UNMATCHED {role} of {j}>")
+                               for m, j in zip(ms, joints)) + "]"
+
+    def how(ms: tuple[Match, ...]) -> list[str]:
+        out_ = []
+        for j, m in zip(joints, ms):
+            text = {"name": "matched by name", "index": "GUESSED by index (the log's order taken as the joints' order)",
+                    "unmatched": "UNMATCHED: put the column's name in its place"}[m.how]
+            out_.append(f"#   {j:<14} <- {m.column if m.column is not None else '?':<20} {text}")
+        return out_
+
+    units = {"revolute": "rad", "prismatic": "m"}
+    degrees = [j for j, k, m in zip(joints, kinds, position)
+               if k == "revolute" and m.column is not None and np.ptp(columns[m.column]) > 2 * math.tau]
+    lines = [
+        f"# dynid identify config written by `dynid init {robot} {reader.path.name}`.",
+        "# Check every line marked GUESSED or UNMATCHED, then run: dynid identify "
+        f"{out.name} --out out/{out.stem}",
+        "",
+        "[robot]",
+        f"model = {_s(robot if robot.startswith('builtin:') else _rel(Path(model), folder))}",
+        f"# actuators (dynid info {robot}): " + ", ".join(f"{j} ({k})" for j, k in zip(joints, kinds)),
+    ]
+    if system.kind == "serial":
+        lines.append("extras = [\"Ia\", \"fv\", \"fc\", \"offset\"]      # rotor inertia, viscous and Coulomb friction, "
+                     "torque offset (link-side torque sensors: drop \"Ia\", the rotor is not in what they measure)")
+    else:
+        lines.append("# extras = [\"Ia\", \"fv\", \"fc\", \"offset\"]    # parallel robots: named extras become joint terms "
+                     "of the actuated joints (default: the description's)")
+    if actuated:
+        lines.append(f"actuated = [{', '.join(_s(a) for a in actuated)}]")
+    if independent:
+        lines.append(f"independent = [{', '.join(_s(a) for a in independent)}]")
+    lines += [
+        "# gear_ratios = [...]; couplings; drive_gains; position_offset: for motor-side logs (README, Configuration)",
+        "",
+        "[data]                                         # the training log: the first three quarters",
+        f"file = {_s(_rel(reader.path.resolve(), folder))}",
+    ]
+    if tcol is not None:
+        lines += [f"time = {{ column = {_s(tcol)}, unit = {_s(tunit)} }}   # unit {thow}",
+                  f"# sampling rate {fs:.6g} Hz (median interval; spread {100 * jitter:.2g} % of it"
+                  + ("; irregular: resampled, processing.resample" if jitter > 0.01 else "") + ")"]
+    else:
+        lines += [f"sample_rate_hz = {fs!r}                 # from --rate (the log has no time column)"]
+    lines += [f"rows = [0, {split}]",
+              f"position = {{ columns = {col_list(position, 'position')} }}   # SI: "
+              + ", ".join(sorted({units[k] for k in kinds})) + " (else unit = ...)"]
+    lines += ["# position columns:"] + how(position)
+    if degrees:
+        lines.append(f"# WARNING: {', '.join(degrees)} span more than two turns: degrees? then set unit = \"deg\"")
+    if kind == "current":
+        lines += [f"effort = {{ columns = {col_list(effort, 'effort')}, kind = \"current\", unit = \"A\" }}",
+                  "# motor currents: without robot.drive_gains (N*m/A) the parameters absorb the gains and the nominal",
+                  "# model cannot be compared"]
+    else:
+        lines += [f"effort = {{ columns = {col_list(effort, 'effort')} }}   # SI: "
+                  + ", ".join(sorted({'revolute': 'N*m', 'prismatic': 'N'}[k] for k in set(kinds)))]
+    lines += ["# effort columns:"] + how(effort)
+    left = [c for c in names if c != tcol and c not in used and c not in {m.column for m in effort}]
+    if left:
+        lines.append(f"# columns not used: {', '.join(left[:30])}{' ...' if len(left) > 30 else ''}")
+    lines += [
+        "",
+        "[validation]                                   # held out, never used for training: the last quarter",
+        f"rows = [{split}, {n_rows}]                        # or file = \"another_run.csv\" (a run with other motion is better)",
+        "",
+        "[processing]",
+        "resample = \"auto\"                              # irregular timestamps resampled at the median rate",
+        f"lowpass = {{ cutoff_hz = {cutoff!r}, order = 4, filter_effort = false }}",
+        f"# cut-off: 10 x the motion's bandwidth ({band:.3g} Hz: 99 % of the position power below it), within",
+        f"# [{MIN_CUTOFF_HZ:g} Hz, fs/5 = {cap:.4g} Hz] (0.4 x Nyquist {fs / 2:.4g} Hz); paper 001 Sec. 3 asks for 10 x the position",
+        "# loop's bandwidth: raise it if you know that. Efforts unfiltered (paper 004 Sec. 3: filtering them through the",
+        "# Coulomb steps biases the estimates; their noise is additive and least squares averages it)",
+        "derivatives = \"central\"                        # velocities and accelerations of the filtered positions",
+        "# decimate = 1                                 # keep one sample in k (the estimate needs no more than",
+        "#                                              # a few times the cut-off; parallel decimation: README)",
+        "# min_velocity = 0.05                          # rad/s or m/s: drop the rows where a joint is slower (Coulomb)",
+        "",
+        "[identification]",
+        "method = \"wls\"                                 # weighted least squares, per-joint noise (paper 001 Eqs. 10-16)",
+        "",
+        "[output]",
+        "plots = true",
+        "",
+    ]
+    text = "\n".join(lines)
+    import tomllib
+
+    parse_config(tomllib.loads(text), folder)  # what identify will read (a bug here, not the user's)
+    return StartingConfig(text, joints, position, effort, kind, tcol, tunit, fs, cutoff)
+
+
+def write_starting_config(robot: str, log: str | Path, out: str | Path, *, force: bool = False,
+                          **kwargs) -> StartingConfig:
+    """:func:`starting_config` written to ``out`` (refused when it exists, unless ``force``)."""
+    out = Path(out)
+    if out.is_dir():
+        raise InputError(f"--out {out}: a folder; give the config file's name (e.g. {out / 'identify.toml'})")
+    if out.exists() and not force:
+        raise InputError(f"--out {out}: exists; --force replaces it")
+    if not out.resolve().parent.is_dir():
+        raise InputError(f"--out {out}: folder {out.resolve().parent} does not exist")
+    cfg = starting_config(robot, log, out, **kwargs)
+    try:
+        out.write_text(cfg.text)
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
+    return cfg

@@ -1,0 +1,228 @@
+"""``dynid init ROBOT LOG --out CONFIG`` (issue 20, item 4): a commented starting config whose
+columns are matched to the robot's joints by name (or guessed by index, said so), with the time
+unit and sampling rate checked and processing defaults for that rate; accepted by ``dynid
+identify`` as is, which then identifies the simulated robot."""
+
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+import pytest
+
+from dynid.cli import main
+from dynid.model import load_robot
+from dynid.simulation import FourierTrajectory, simulate_serial
+
+ROBOT = "builtin:generic6r"
+SIGMA = 0.3  # N*m
+FS = 200.0
+
+
+@pytest.fixture(scope="module")
+def run():
+    """40 s of generic6r along a Fourier excitation (base 0.1 Hz, 5 harmonics: motion below 0.5 Hz)
+    logged at 200 Hz, with viscous friction 0.5 N*m*s/rad where the description says 6 ... 0.4."""
+    robot = load_robot(ROBOT)
+    truth = robot.nominal_parameters()
+    truth[robot.layout.extra_index["fv"]] = 0.5
+    lo, hi = robot.position_limits()
+    traj = FourierTrajectory.random(6, 5, 0.1, np.random.default_rng(1), lo, hi, max_velocity=1.5,
+                                    max_acceleration=4.0, fill=0.6)
+    ds = simulate_serial(robot, truth, traj, fs=FS, duration=40.0, torque_noise_std=np.full(6, SIGMA),
+                         rng=np.random.default_rng(0))
+    return ds, robot.joint_names
+
+
+def _csv(path, header, cols):
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=",".join(header), comments="", fmt="%.12g")
+
+
+def _error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("dynid: error: "), err
+    return err
+
+
+def test_init_then_identify_round_trip_recovers_the_robot(run, tmp_path, capsys):
+    ds, joints = run
+    _csv(tmp_path / "log.csv", ["time"] + [f"q_{j}" for j in joints] + [f"{j}_effort" for j in joints] + ["temperature"],
+         [ds.t, ds.q, ds.tau, np.full(ds.t.size, 40.0)])
+    cfg = tmp_path / "identify.toml"
+    assert main(["init", ROBOT, str(tmp_path / "log.csv"), "--out", str(cfg)]) == 0
+    assert "UNMATCHED" not in capsys.readouterr().out
+    text = cfg.read_text()
+    doc = tomllib.loads(text)
+    assert doc["data"]["position"]["columns"] == [f"q_{j}" for j in joints]
+    assert doc["data"]["effort"]["columns"] == [f"{j}_effort" for j in joints]
+    assert text.count("matched by name") == 12 and "GUESSED by index" not in text
+    assert "# columns not used: temperature" in text
+    assert "# sampling rate 200 Hz" in text
+    # the held-out rows: the last quarter; the cut-off: 10 x the motion's bandwidth (the motion is
+    # 0.1-0.5 Hz, and the Hann window of a 40 s log smears it by 2 bins of 0.025 Hz), at least 5 Hz
+    assert doc["data"]["rows"] == [0, 6000] and doc["validation"]["rows"] == [6000, 8000]
+    lp = doc["processing"]["lowpass"]
+    assert 5.0 <= lp["cutoff_hz"] <= 5.5 and lp["filter_effort"] is False
+    assert doc["identification"]["method"] == "wls"
+    out = tmp_path / "out"
+    assert main(["identify", str(cfg), "--out", str(out), "-q"]) == 0
+    import json
+
+    res = json.loads((out / "result.json").read_text())
+    # the model is right: the errors on the last quarter are the torque noise (1758 rows per
+    # joint: the RMSE's relative standard error 1.7 %) and the viscous friction is the truth
+    np.testing.assert_allclose(res["validation"]["rmse_per_joint"], SIGMA, rtol=0.1)
+    params = {p["name"]: p for p in res["params"]}
+    for j in range(1, 7):
+        p = params[f"fv{j}"]
+        assert abs(p["value"] - 0.5) < 4.5 * p["std"], p
+
+
+def test_indexed_columns_are_guessed_and_the_time_unit_read_from_the_name(run, tmp_path, capsys):
+    ds, joints = run
+    _csv(tmp_path / "log.csv", ["t_ms"] + [f"q{k}" for k in range(1, 7)] + [f"current{k}" for k in range(1, 7)],
+         [ds.t * 1000.0, ds.q, ds.tau])
+    cfg = tmp_path / "c.toml"
+    assert main(["init", ROBOT, str(tmp_path / "log.csv"), "--out", str(cfg)]) == 0
+    said = capsys.readouterr().out
+    assert "guessed by index (check): position of joint_1 (q1)" in said
+    text = cfg.read_text()
+    doc = tomllib.loads(text)
+    assert doc["data"]["time"] == {"column": "t_ms", "unit": "ms"}
+    assert "from the column's name" in text and "# sampling rate 200 Hz" in text
+    assert doc["data"]["position"]["columns"] == [f"q{k}" for k in range(1, 7)]
+    assert doc["data"]["effort"] == {"columns": [f"current{k}" for k in range(1, 7)], "kind": "current", "unit": "A"}
+    assert text.count("GUESSED by index") == 12
+
+
+def test_npz_arrays_and_a_time_unit_guessed_from_the_rate(run, tmp_path):
+    ds, _ = run
+    t_us = np.round(ds.t * 1e6)  # microseconds, the name says nothing
+    np.savez(tmp_path / "log.npz", stamp=t_us, q=ds.q, tau=ds.tau)
+    cfg = tmp_path / "c.toml"
+    assert main(["init", ROBOT, str(tmp_path / "log.npz"), "--out", str(cfg)]) == 0
+    text = cfg.read_text()
+    doc = tomllib.loads(text)
+    # s would give 5e-6 Hz, ms 0.005 Hz: us is the unit that makes it a robot's rate
+    assert doc["data"]["time"] == {"column": "stamp", "unit": "us"}
+    assert "GUESSED: the name says no unit; us makes the rate 200 Hz" in text
+    assert doc["data"]["position"]["columns"] == [f"q[{k}]" for k in range(6)]
+    assert doc["data"]["effort"]["columns"] == [f"tau[{k}]" for k in range(6)]
+
+
+def test_unmatched_columns_are_marked_and_identify_names_them(run, tmp_path, capsys):
+    ds, joints = run
+    _csv(tmp_path / "log.csv", ["time"] + [f"{j}_pos" for j in joints] + [f"motor_{k}" for k in range(6)],
+         [ds.t, ds.q, ds.tau])
+    cfg = tmp_path / "c.toml"
+    assert main(["init", ROBOT, str(tmp_path / "log.csv"), "--out", str(cfg)]) == 0
+    assert "UNMATCHED (edit the config before dynid identify): effort of joint_1" in capsys.readouterr().out
+    text = cfg.read_text()
+    assert text.count("UNMATCHED: put the column's name in its place") == 6
+    assert main(["identify", str(cfg), "--out", str(tmp_path / "out")]) == 2
+    assert "missing columns ['<UNMATCHED effort of joint_1>'" in _error(capsys)
+
+
+def test_a_log_without_time_needs_rate_and_a_parallel_robot_gets_its_actuators(tmp_path, capsys):
+    n = 4000
+    t = np.arange(n) / 500.0
+    q = np.column_stack([0.3 * np.sin(2 * np.pi * 0.5 * t + k) for k in range(3)])
+    _csv(tmp_path / "log.csv", ["q_qa1", "q_qa2", "q_qa3", "tau_qa1", "tau_qa2", "tau_qa3"], [q, q])
+    cfg = tmp_path / "c.toml"
+    assert main(["init", "builtin:shang2dof", str(tmp_path / "log.csv"), "--out", str(cfg)]) == 2
+    assert "no time column" in _error(capsys) and not cfg.exists()
+    assert main(["init", "builtin:shang2dof", str(tmp_path / "log.csv"), "--out", str(cfg), "--rate", "500"]) == 0
+    doc = tomllib.loads(cfg.read_text())
+    assert doc["data"]["sample_rate_hz"] == 500.0
+    assert doc["data"]["position"]["columns"] == ["q_qa1", "q_qa2", "q_qa3"]
+    assert "extras" not in doc["robot"]  # a mechanism keeps its description's joint terms
+    # the motion is 0.5 Hz, seen through the Hann window of an 8 s log (2 bins of 0.125 Hz): a cut-off
+    # of 5 to 7.5 Hz at 500 Hz; logged at 15 Hz the cut-off stays under 0.4 x Nyquist
+    assert 5.0 <= doc["processing"]["lowpass"]["cutoff_hz"] <= 7.5
+    assert main(["init", "builtin:shang2dof", str(tmp_path / "log.csv"), "--out", str(cfg), "--rate", "15", "--force"]) == 0
+    assert tomllib.loads(cfg.read_text())["processing"]["lowpass"]["cutoff_hz"] == 3.0
+
+
+def test_refusals_are_one_line_and_leave_the_file_alone(run, tmp_path, capsys):
+    ds, joints = run
+    log = tmp_path / "log.csv"
+    _csv(log, ["time"] + [f"q_{j}" for j in joints] + [f"tau_{j}" for j in joints], [ds.t, ds.q, ds.tau])
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("# mine\n")
+    assert main(["init", ROBOT, str(log), "--out", str(cfg)]) == 2
+    assert "exists; --force replaces it" in _error(capsys) and cfg.read_text() == "# mine\n"
+    assert main(["init", ROBOT, str(log), "--out", str(cfg), "--force"]) == 0
+    assert cfg.read_text().startswith("# dynid identify config written by `dynid init")
+    capsys.readouterr()
+    for args, words in (
+        ([ROBOT, str(tmp_path / "none.csv"), "--out", str(tmp_path / "a.toml")], "none.csv"),
+        (["builtin:nosuch", str(log), "--out", str(tmp_path / "a.toml")], "nosuch"),
+        ([ROBOT, str(log), "--out", str(tmp_path)], "a folder"),
+        ([ROBOT, str(log), "--out", str(tmp_path / "no" / "a.toml")], "does not exist"),
+        ([ROBOT, str(log), "--out", str(tmp_path / "a.toml"), "--rate", "100"], "--rate is for logs without one"),
+        ([ROBOT, str(log), "--out", str(tmp_path / "a.toml"), "--rate", "-1"], "--rate"),
+    ):
+        assert main(["init", *args]) == 2, args
+        assert words in _error(capsys)
+    assert not (tmp_path / "a.toml").exists()
+    back = np.concatenate([ds.t[:10], ds.t[5:20]])
+    _csv(tmp_path / "back.csv", ["time"] + [f"q_{j}" for j in joints] + [f"tau_{j}" for j in joints],
+         [back, np.zeros((25, 6)), np.zeros((25, 6))])
+    assert main(["init", ROBOT, str(tmp_path / "back.csv"), "--out", str(tmp_path / "a.toml")]) == 2
+    assert "is not increasing (data row 11: 0.025 after 0.045)" in _error(capsys)
+    (tmp_path / "nan.csv").write_text("t,q_qa1,q_qa2,tau_qa1,tau_qa2\n0,1,2,3,4\n0.01,1,2,3,4\n,1,2,3,4\n")
+    assert main(["init", "builtin:fivebar", str(tmp_path / "nan.csv"), "--out", str(tmp_path / "a.toml")]) == 2
+    assert "time column 't': nan in data row 3" in _error(capsys)
+
+
+FIVEBAR_SIM = """
+[robot]
+model = "builtin:fivebar"
+perturbation = 0.1
+[trajectory]
+kind = "fourier"
+base_frequency_hz = 0.5
+harmonics = 4
+fill = 0.5
+max_velocity = 1.5
+max_acceleration = 8.0
+periods = 3
+seed = 2
+[control]
+rate_hz = 500
+kp = 400
+kd = 40
+substeps = 2
+[sensors]
+encoder_resolution = 1e-5
+force_noise_std = 0.01
+seed = 2
+"""
+
+
+def test_parallel_robot_init_identify_and_the_array_api_agree(tmp_path):
+    """The five-bar under control (dynid simulate): init matches its actuators' columns, identify
+    accepts the config as is, and identify_arrays on the same columns gives the same estimates."""
+    import json
+
+    import pandas as pd
+
+    import dynid
+
+    (tmp_path / "sim.toml").write_text(FIVEBAR_SIM)
+    assert main(["simulate", str(tmp_path / "sim.toml"), "--out", str(tmp_path / "run"), "-q"]) == 0
+    cfg = tmp_path / "id.toml"
+    assert main(["init", "builtin:fivebar", str(tmp_path / "run" / "log.csv"), "--out", str(cfg)]) == 0
+    doc = tomllib.loads(cfg.read_text())
+    assert doc["data"]["position"]["columns"] == ["q_qa1", "q_qa2"] and "ref_qa1" in cfg.read_text()
+    cfg.write_text(cfg.read_text().replace("plots = true", "plots = false"))  # (time: the round trip above draws them)
+    assert main(["identify", str(cfg), "--out", str(tmp_path / "id"), "-q"]) == 0
+    res = json.loads((tmp_path / "id" / "result.json").read_text())
+    assert min(res["validation"]["r2_per_joint"]) > 0.99
+    log = pd.read_csv(tmp_path / "run" / "log.csv")
+    out = dynid.identify_arrays("builtin:fivebar", log["t"], log[["q_qa1", "q_qa2"]], log[["tau_qa1", "tau_qa2"]],
+                                processing=doc["processing"])
+    std = np.array([p["std"] for p in res["params"]])
+    np.testing.assert_allclose(out.result.params, [p["value"] for p in res["params"]], rtol=1e-9, atol=1e-9 * std.max())
+    # the last quarter repeats the periodic motion: said to be in-sample, by both
+    assert out.validation.label == res["validation"]["kind"] == "in-sample"
