@@ -279,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     d, f = rounds[0]["dynid", True], rounds[0]["figaroh", True]
     print(f"\nheld-out torque RMSE per joint [N*m], trained on rows {TRAIN[0]}-{TRAIN[1]}, scored on rows "
           f"{VALIDATE[0]}-{VALIDATE[1]} at 5 kHz (dynid {d['n_val']} samples, FIGAROH {f['n_val']})")
-    print(table(["joint", "dynid", "FIGAROH 1.0.2 (this run)", "FIGAROH published"],
+    print(table(["joint", "dynid", "FIGAROH 1.0.2 (this run)", "FIGAROH published (shared/data/README)"],
                 [[f"joint {j + 1}", f"{d['rmse'][j]:.2f}", f"{f['rmse'][j]:.2f}", f"{FIGAROH_REF_RMSE[j]:.2f}"]
                  for j in range(6)]))
     fdoc = f["doc"]
@@ -292,10 +292,9 @@ def main(argv: list[str] | None = None) -> int:
           "its 1.0.2 base class never adds the example's\n"
           "           coupled-wrist columns, hence joint 5's larger held-out error")
     print(f"\nFIGAROH's identified base parameters ({fdoc['n_base']}, round 1, plots on):")
-    items = [f"{k} = {v:.5g}" for k, v in fdoc["base_parameters"].items()]
-    for i in range(0, len(items), 3):
-        print("  " + " | ".join(items[i:i + 3]))
-    print(f"FIGAROH in-process timing (round 1): " + ", ".join(f"{k} {v:.2f} s" for k, v in fdoc["timing_s"].items()))
+    for k, v in fdoc["base_parameters"].items():
+        print(f"  {v:12.5g}  {k}")
+    print("FIGAROH in-process timing (round 1): " + ", ".join(f"{k} {v:.2f} s" for k, v in fdoc["timing_s"].items()))
 
     ok = ratios["wall_on"] <= WALL_TARGET and ratios["mem_on"] <= MEMORY_TARGET
     print(f"\n{'PASS' if ok else 'FAIL'}: dynid/FIGAROH wall with plots {ratios['wall_on']:.2f}x (target <= {WALL_TARGET}x), "
