@@ -128,16 +128,18 @@ def ensure_venv(venv: Path) -> None:
         fail(f"{venv} exists but does not hold figaroh 1.0.2; remove it or give another --figaroh-venv")
     print(f"creating FIGAROH's virtual environment in {venv} (python -m venv + pip install figaroh==1.0.2, pinned)")
     venv.parent.mkdir(parents=True, exist_ok=True)
-    steps = [[sys.executable, "-m", "venv", str(venv)]]
     with tempfile.NamedTemporaryFile("w", suffix=".txt", delete=False) as fh:
         fh.write(FIGAROH_PINS)
-    steps.append([str(venv_python(venv)), "-m", "pip", "install", "-q", "figaroh==1.0.2", "-c", fh.name])
+    steps = [("python -m venv", [sys.executable, "-m", "venv", str(venv)]),
+             ("pip install figaroh==1.0.2", [str(venv_python(venv)), "-m", "pip", "install", "-q", "figaroh==1.0.2",
+                                             "-c", fh.name])]
     try:
-        for cmd in steps:
+        for label, cmd in steps:
             proc = subprocess.run(cmd, capture_output=True, text=True)
             if proc.returncode != 0:
+                shutil.rmtree(venv, ignore_errors=True)  # made by this call: leave nothing half-made
                 last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
-                fail(f"cannot make FIGAROH's virtual environment in {venv} ({' '.join(cmd[-4:])} failed: {last}); "
+                fail(f"cannot make FIGAROH's virtual environment in {venv} ({label} failed: {last}); "
                      "no network? give --figaroh-venv a ready environment")
     finally:
         os.unlink(fh.name)

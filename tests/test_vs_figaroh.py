@@ -77,3 +77,17 @@ def test_peak_memory_is_the_child_own(tmp_path):
     # the 80 MB buffer shows up in full, on top of the bare interpreter (page size granularity)
     assert 78 < big["peak_mb"] - small["peak_mb"] < 90, (small, big)
     assert big["wall_s"] > 0
+
+
+def test_no_package_index_is_one_line_exit_2(tmp_path):
+    # pip without any index (as without network): the venv cannot be made; one line, exit 2, and
+    # the half-made environment is removed
+    data = _fake_tx40(tmp_path)
+    venv = tmp_path / "figaroh-venv"
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "PIP_NO_INDEX": "1", "PIP_FIND_LINKS": str(tmp_path),
+           "PIP_CONFIG_FILE": "/dev/null"}
+    proc = subprocess.run([sys.executable, str(SCRIPT), "--data", str(data), "--figaroh-venv", str(venv)],
+                          capture_output=True, text=True, env=env, timeout=120)
+    _one_line_error(proc, "cannot make FIGAROH's virtual environment")
+    assert "pip install figaroh==1.0.2 failed" in proc.stderr
+    assert not venv.exists()
