@@ -49,7 +49,6 @@ from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System, as_system
 from dynid.pipeline import stribeck
 from dynid.pipeline.covariance import block_builder, with_covariance
-from dynid.pipeline.reporting import effort_units, file_sha256, git_commit, parameter_flags
 from dynid.pipeline.data import (
     build_system,
     check_held_out,
@@ -64,6 +63,7 @@ from dynid.pipeline.data import (
     velocity_mask,
     velocity_noise_std,
 )
+from dynid.pipeline.reporting import effort_units, file_sha256, git_commit, parameter_flags, run_facts
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos, padlen_for
 
 __all__ = ["Chunk", "FullRate", "Progress", "ValidationMetrics", "IdentifyOutcome", "RowSelection", "SelectedRows", "build_problem",
@@ -1237,8 +1237,6 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     write_timing(stage, {"identify_s": outcome.elapsed_s, "solver": res.timing})
     if outcome.config.output.plots:
         from dynid.report import plot_validation, write_html_report
-
-        from dynid.pipeline.reporting import run_facts
 
         plot_validation(outcome.validation, stage / "validation.png", units=outcome.units or None)
         images = {"validation.png": "Validation: measured against predicted"}
