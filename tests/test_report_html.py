@@ -276,3 +276,30 @@ def test_the_processing_plot_draws_the_filters_actual_gain():
     gain, marks = _filter_gain([{"step": "periodic", "cutoff_hz": 20.0}], f)
     assert gain.tolist() == [1.0, 1.0, 0.0, 0.0, 0.0, 0.0] and marks == [(20.0, "DFT cut-off 20 Hz")]
     assert _filter_gain([{"step": "derivatives"}], f) == (None, [])
+
+
+def test_the_verdict_says_plainly_when_the_model_loses_or_validates_in_sample():
+    """Two channels in N; the identified model's errors 0.2 and 0.9 against the nominal model's
+    0.3 and 0.5: better on one channel, worse on average (mean relative RMSE 46 % against 39 %), so
+    the verdict is a loss; with the validation motion repeating the training motion it is also marked in-sample."""
+    import dataclasses
+
+    from dynid.estimation.validation import ValidationMetrics, prior_comparison
+    from dynid.report.html import verdict
+
+    t = np.arange(400) / 100.0
+    meas = np.column_stack([np.sin(t), 2 * np.cos(t)])
+    sq = np.where(np.arange(400) % 2 == 0, 1.0, -1.0)  # errors of exactly known RMS
+    ident = ValidationMetrics.of(("a", "b"), t, meas, meas - np.outer(sq, [0.2, 0.9]), "x")
+    nom = ValidationMetrics.of(("a", "b"), t, meas, meas - np.outer(sq, [0.3, 0.5]), "x")
+    np.testing.assert_allclose(ident.rmse, [0.2, 0.9], rtol=1e-12)
+    prior = prior_comparison(ident, nom)
+    assert not prior["beats_nominal"] and prior["channels_better"] == 1
+    line, good = verdict(ident, nom, prior, ("N", "N"), {"rel_std_above": ["p1"], "undetermined": [], "physical": {}})
+    assert not good
+    assert line.startswith("The identified model does NOT beat the nominal model on held-out data on 1 of 2 channels")
+    assert "mean RMSE 0.55 vs 0.4 N," in line and line.endswith("; 1 parameter flagged.")
+    insample = dataclasses.replace(ident, overlap={"repeats_training": True, "median_distance": 0.0, "threshold": 0.05})
+    line, good = verdict(insample, nom, prior_comparison(insample, nom, label="in-sample"), ("N", "N·m"), None)
+    assert not good and "in-sample data" in line and "IN-SAMPLE only" in line
+    assert "mean RMSE " not in line and "mean relative RMSE" in line  # mixed units: no absolute mean
