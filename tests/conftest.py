@@ -71,6 +71,9 @@ def dynid_command() -> list[str]:
 def run_dynid(args: list[str], cwd: Path, timeout: float = 900) -> subprocess.CompletedProcess:
     """``dynid <args>`` as a real process in ``cwd``, on one BLAS thread (callers run several at once)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    # report.html states the date of the run (to the day); two runs compared byte for byte must not
+    # straddle midnight: fix it (the reproducible-builds convention dynid honours)
+    env.setdefault("SOURCE_DATE_EPOCH", "1767225600")
     return subprocess.run(dynid_command() + args, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
 
 

@@ -49,6 +49,7 @@ __all__ = [
     "is_feasible",
     "structure_search",
     "essential_parameters",
+    "violating_parameters",
     "select_friction_structure",
 ]
 
@@ -233,6 +234,26 @@ def is_feasible(
         standard_params=pi_hat,
         status=str(prob.status),
     )
+
+
+def violating_parameters(names: Sequence[str], feasibility: Feasibility, base_names: Sequence[str],
+                         standard_map: StandardMap) -> tuple[str, ...]:
+    """The base parameters among ``names`` whose grouping (a row of ``standard_map.B``) involves a
+    standard parameter of a constraint :func:`is_feasible` found violated (a body's pseudo-inertia,
+    a non-negative joint term): those that make the set physically inconsistent (paper 000 §6.2
+    marks them). Empty when feasible."""
+    if feasibility.feasible:
+        return ()
+    smap = standard_map
+    std: set[int] = set()
+    for v in feasibility.violated:
+        if v.startswith("body "):
+            std.update(int(i) for i in smap.body_blocks[int(v.split()[1]) - 1])
+        else:
+            std.add(smap.standard_names.index(v.split(" >= ")[0]))
+    touch = np.any(np.abs(smap.B[:, sorted(std)]) > 0, axis=1)
+    idx = {n: i for i, n in enumerate(base_names)}
+    return tuple(n for n in names if touch[idx[n]])
 
 
 # ---------------------------------------------------------------------- model sequences

@@ -45,7 +45,13 @@ import numpy as np
 from dynid._typing import FloatArray
 from dynid.config import Config, DataConfig
 from dynid.errors import ConfigError, InputError
-from dynid.estimation.identifiability import Feasibility, ModelSequence, is_feasible, structure_search
+from dynid.estimation.identifiability import (
+    Feasibility,
+    ModelSequence,
+    is_feasible,
+    structure_search,
+    violating_parameters,
+)
 from dynid.estimation.results import Summary
 from dynid.io.output import staged_output
 from dynid.model.base_parameters import BaseParameters
@@ -387,17 +393,7 @@ def _check_config(cfg: Config) -> None:
 def _marked(names: Sequence[str], feas: Feasibility, base: BaseParameters, smap) -> tuple[str, ...]:
     """Parameters among ``names`` whose grouping touches a constraint that :func:`is_feasible`
     found violated (a body's pseudo-inertia, a non-negative joint term)."""
-    if feas.feasible:
-        return ()
-    std = set()
-    for v in feas.violated:
-        if v.startswith("body "):
-            std.update(smap.body_blocks[int(v.split()[1]) - 1])
-        else:
-            std.add(smap.standard_names.index(v.split(" >= ")[0]))
-    touch = np.any(np.abs(smap.B[:, sorted(std)]) > 0, axis=1)
-    idx = {n: i for i, n in enumerate(base.names)}
-    return tuple(n for n in names if touch[idx[n]])
+    return violating_parameters(names, feas, base.names, smap)
 
 
 def run_identifiability(cfg: Config, *, tests: Sequence[tuple[str, DataConfig]] = (),

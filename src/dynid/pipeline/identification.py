@@ -63,6 +63,7 @@ from dynid.pipeline.data import (
     velocity_mask,
     velocity_noise_std,
 )
+from dynid.pipeline.reporting import effort_units, file_sha256, git_commit, parameter_flags, run_facts
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos, padlen_for
 
 __all__ = ["Chunk", "FullRate", "Progress", "ValidationMetrics", "IdentifyOutcome", "RowSelection", "SelectedRows", "build_problem",
@@ -411,6 +412,7 @@ class IdentifyOutcome:
     selected: SelectedRows | None = None  # with a row selection: the errors on the held-out rows it keeps
     full_rate: FullRate | None = None  # with decimation: the held-out errors at every logged sample
     learning: Any = None  # [learning]: dynid.pipeline.learning.LearningOutcome (the residual network)
+    units: tuple[str, ...] = ()  # unit of each output channel, from the log (effort_units)
 
     def summary_text(self) -> str:
         v = self.validation
@@ -468,16 +470,24 @@ class IdentifyOutcome:
 
 
 def _versions() -> dict[str, str]:
+    from importlib import metadata
+
     import numpy
     import pinocchio
     import scipy
 
+    try:
+        cvxpy = metadata.version("cvxpy")
+    except metadata.PackageNotFoundError:
+        cvxpy = "not installed"
     return {
         "dynid": __version__,
+        "git_commit": git_commit() or "not a git checkout",
         "python": platform.python_version(),
         "numpy": numpy.__version__,
         "scipy": scipy.__version__,
         "pinocchio": pinocchio.__version__,
+        "cvxpy": cvxpy,
     }
 
 
@@ -965,6 +975,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
     meta: dict[str, Any] = {
         "versions": _versions(),
         "config_file": str(cfg.source) if cfg.source else None,
+        "config_sha256": file_sha256(cfg.source) if cfg.source else None,
         "config": cfg.raw,
         "robot": {"model": cfg.robot.model, **system.describe(),
                   **({"force_model": force_model or "actuator forces (non-redundant)"} if system.kind != "serial" else {})},
@@ -1071,7 +1082,8 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
                          fj if icfg.hierarchical else None)
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
-                           other_view=other, selected=selected, full_rate=full, learning=learned)
+                           other_view=other, selected=selected, full_rate=full, learning=learned,
+                           units=effort_units(system, force_model, raw_train.meta["effort_kind"]))
 
 
 def _model_rows(system: System, base: BaseParameters, params: FloatArray, ds: Dataset,
@@ -1203,10 +1215,15 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     """Write the output files into an existing folder (see :func:`write_outputs`)."""
     res = outcome.result
     expressions = res.expressions if res.expressions is not None else outcome.base.expressions()
+    system = outcome.system if outcome.system is not None else as_system(outcome.robot)
+    # the physical-consistency check (a semidefinite program) runs with the report only
+    flags = parameter_flags(res, outcome.base, system, physical=outcome.config.output.plots)
     res.save(
         stage / "result",
         extra={
-            "validation": outcome.validation.to_dict(),
+            "validation": {**outcome.validation.to_dict(), **({"units_per_joint": list(outcome.units)}
+                                                              if outcome.units else {})},
+            "parameter_flags": flags,
             **({"nominal_validation": _nominal_dict(outcome.nominal_validation), "prior_comparison": outcome.prior}
                if outcome.nominal_validation is not None else {}),
             **({"validation_other_view": {"label": outcome.other_view.label,
@@ -1246,15 +1263,20 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     if outcome.config.output.plots:
         from dynid.report import plot_validation, write_html_report
 
-        plot_validation(outcome.validation, stage / "validation.png")
+        plot_validation(outcome.validation, stage / "validation.png", units=outcome.units or None)
+        images = {"validation.png": "Validation: measured against predicted"}
         if "hierarchical" in res.solver:
             from dynid.pipeline.hierarchical import plot_history
 
             plot_history(res.solver["hierarchical"], tuple(res.channel_names), stage / "hierarchical.png")
+            images["hierarchical.png"] = "Hierarchical iterations"
         if outcome.raw_train is not None:
             from dynid.report.plots import plot_processing
 
-            plot_processing(outcome.raw_train, outcome.train, stage / "processing.png")
-        write_html_report(res, outcome.validation, stage / "report.html", plot="validation.png",
+            plot_processing(outcome.raw_train, outcome.train, stage / "processing.png",
+                            steps=outcome.train.meta.get("processing"))
+            images["processing.png"] = "Processing: raw and processed training signals"
+        write_html_report(res, outcome.validation, stage / "report.html",
+                          images={stage / name: title for name, title in images.items()},
                           nominal=outcome.nominal_validation, prior=outcome.prior, other_view=outcome.other_view,
-                          selected=outcome.selected)
+                          selected=outcome.selected, units=outcome.units or None, flags=flags, facts=run_facts())

@@ -1,14 +1,28 @@
-"""A self-contained HTML report of one identification."""
+"""A self-contained HTML report of one identification: one file, images embedded as ``data:``
+URIs, no external style sheet, script or link; a one-line verdict at the top.
+
+Sections: the verdict (identified against nominal model on the validation data, held-out or
+in-sample as :func:`~dynid.estimation.validation.motion_overlap` found), the fit, the parameters
+with the badly identified ones flagged (:func:`dynid.pipeline.reporting.parameter_flags`: relative
+standard deviation, paper 001 Eq. 20, at or above 15 %, paper 000 §6.2; undefined relative
+standard deviation; physical inconsistency), the validation against the nominal model, the plots
+(processing, validation) and the provenance (versions, git commit, configuration and log files
+with their SHA-256, date and machine).
+"""
 
 from __future__ import annotations
 
+import base64
 import html
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from dynid.estimation.results import IdentificationResult
 
-__all__ = ["write_html_report"]
+__all__ = ["verdict", "write_html_report"]
 
 _STYLE = """
 body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px}
@@ -16,6 +30,10 @@ table{border-collapse:collapse;margin:1em 0;font-size:13px}
 td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}
 th{background:#f3f3f3} td:first-child,th:first-child{text-align:left}
 img{max-width:100%}
+.verdict{font-size:17px;padding:.6em 1em;border-left:6px solid #2a7;background:#eef8f1}
+.verdict.bad{border-color:#c33;background:#fbeeee}
+tr.flag td{background:#fff3d6} .why{text-align:left;color:#a40}
+code{font-size:12px;word-break:break-all}
 """
 
 
@@ -53,29 +71,160 @@ def _selected_html(sel: Any) -> str:
             f"<table><tr><th>channel</th><th>rows</th><th>RMSE identified</th>{head}</tr>{rows}</table>{verdict}")
 
 
-def write_html_report(result: IdentificationResult, metrics: Any, path: str | Path, plot: str | None = None,
-                      nominal: Any = None, prior: dict | None = None, other_view: Any = None,
-                      selected: Any = None) -> Path:
-    """Summary, validation table and (optionally) the validation plot in one HTML file; with
-    ``nominal`` (the nominal model's validation metrics) and ``prior`` (their comparison), the
-    nominal model's errors next to the identified model's and the verdict; with ``other_view``
-    (a redundant robot's :class:`~dynid.pipeline.identification.OtherView`) that table too; with
-    ``selected`` (:class:`~dynid.pipeline.identification.SelectedRows`) both models' errors on the
-    held-out rows the training's row selection keeps."""
+def _fmt(x: float, spec: str = ".3g") -> str:
+    return format(float(x), spec) if np.isfinite(x) else "n/a"
+
+
+def verdict(metrics: Any, nominal: Any = None, prior: Mapping[str, Any] | None = None,
+            units: Any = None, flags: Mapping[str, Any] | None = None) -> tuple[str, bool]:
+    """The report's one-line verdict and whether it is good news.
+
+    From ``prior`` (:func:`~dynid.estimation.validation.prior_comparison`: the identified model
+    beats the nominal one when its mean relative RMSE over the channels is lower), the channels
+    on which it is better, the mean RMSE of both in the channels' unit when they share one, the
+    kind of validation (held-out, or in-sample when the validation motion repeats the training
+    motion) and the number of flagged parameters."""
+    label = getattr(metrics, "label", "held-out")
+    unit = units[0] if units is not None and len(set(units)) == 1 else None
+    mean_i = float(np.nanmean(metrics.rmse))
+    if prior is None or nominal is None:
+        line, good = (f"no nominal model to compare with: the identified model's mean relative RMSE on {label} data is "
+                      f"{_fmt(np.nanmean(metrics.rel_rmse_pct))} %"), False
+    elif not prior["comparable"]:
+        line, good = (f"the identified model's mean relative RMSE on {label} data is "
+                      f"{_fmt(prior['identified_mean_rel_rmse_pct'])} %; the nominal model cannot be compared (efforts "
+                      "are motor currents with unit drive gains)"), False
+    else:
+        mean_n = float(np.nanmean(nominal.rmse))
+        absolute = f"mean RMSE {_fmt(mean_i)} vs {_fmt(mean_n)} {unit}, " if unit else ""
+        numbers = (f"on {prior['channels_better']} of {prior['n_channels']} channels ({absolute}mean relative RMSE "
+                   f"{_fmt(prior['identified_mean_rel_rmse_pct'])} % vs {_fmt(prior['nominal_mean_rel_rmse_pct'])} %)")
+        good = bool(prior["beats_nominal"])
+        line = (f"the identified model beats the nominal model on {label} data {numbers}" if good else
+                f"the identified model does NOT beat the nominal model on {label} data {numbers}")
+    if label == "in-sample":
+        good = False
+        line += "; IN-SAMPLE only: the validation motion repeats the training motion, validate on another trajectory"
+    if flags is not None:
+        k = len(_flagged(flags))
+        line += f"; {k} parameter{'s' if k != 1 else ''} flagged" if k else "; no parameter flagged"
+    line = line[0].upper() + line[1:] + "."
+    return line, good
+
+
+def _flagged(flags: Mapping[str, Any]) -> dict[str, list[str]]:
+    """Parameter name -> reasons, in first-seen order."""
+    out: dict[str, list[str]] = {}
+    lim = flags.get("rel_std_limit_pct", 15.0)
+    for n in flags.get("rel_std_above", ()):
+        out.setdefault(n, []).append(f"rel. std >= {lim:g} %")
+    for n in flags.get("undetermined", ()):
+        out.setdefault(n, []).append("undetermined (rel. std undefined)")
+    phys = flags.get("physical") or {}
+    for n in phys.get("parameters", ()) if phys.get("checked") else ():
+        out.setdefault(n, []).append("physically inconsistent")
+    return out
+
+
+def _params_html(result: IdentificationResult, flags: Mapping[str, Any] | None, alpha: float = 0.05) -> str:
+    why = _flagged(flags) if flags is not None else {}
+    has_cov = result.cov_params is not None
+    pct = int(round(100 * (1 - alpha)))
+    head = ("<tr><th>parameter</th><th>value</th>" + (f"<th>std</th><th>rel std %</th><th>{pct}% low</th>"
+            f"<th>{pct}% high</th>" if has_cov else "") + "<th>flag</th></tr>")
+    rows = []
+    ci = result.conf_int(alpha) if has_cov else None
+    for i, name in enumerate(result.names):
+        cells = f"<td>{html.escape(name)}</td><td>{result.params[i]:.6g}</td>"
+        if has_cov:
+            cells += (f"<td>{result.bse[i]:.3g}</td><td>{_fmt(result.rel_std[i])}</td><td>{ci[i, 0]:.6g}</td>"
+                      f"<td>{ci[i, 1]:.6g}</td>")
+        reasons = why.get(name, [])
+        cells += f"<td class='why'>{html.escape('; '.join(reasons))}</td>"
+        rows.append(f"<tr class='flag' data-param='{html.escape(name)}'>{cells}</tr>" if reasons
+                    else f"<tr data-param='{html.escape(name)}'>{cells}</tr>")
+    text = ""
+    if flags is not None:
+        text = f"<p>{html.escape(flags['rule'])}.</p>"
+        if not flags.get("assessed", True):
+            text += f"<p><b>Relative standard deviations not assessed:</b> {html.escape(flags['reason'])}.</p>"
+        phys = flags.get("physical") or {}
+        if not phys.get("checked"):
+            text += f"<p>Physical consistency not checked: {html.escape(str(phys.get('reason', '')))}.</p>"
+        elif phys.get("feasible"):
+            text += "<p>Physical consistency: a physically consistent standard parameter vector maps to these base parameters.</p>"
+        else:
+            text += ("<p><b>Physically inconsistent:</b> no physically consistent standard parameter vector maps to these "
+                     f"base parameters; violated: {html.escape(', '.join(phys.get('violated', [])))}.</p>")
+        text += (f"<p id='flagged'><b>{len(why)} of {len(result.names)} parameters flagged</b>"
+                 + (f": {html.escape(', '.join(why))}" if why else "") + "</p>")
+    return f"<h2 id='parameters'>Parameters</h2>{text}<table>{head}{''.join(rows)}</table>"
+
+
+def _provenance_html(result: IdentificationResult, facts: Mapping[str, str] | None) -> str:
+    prov = result.provenance
+    rows: list[tuple[str, str]] = [(k, str(v)) for k, v in dict(prov.get("versions", {})).items()]
+    rows.append(("configuration", str(prov.get("config_file") or "(none: built in memory)")))
+    if prov.get("config_sha256"):
+        rows.append(("configuration SHA-256", str(prov["config_sha256"])))
+    for key, what in (("training_data", "training log"), ("validation_data", "validation log")):
+        for path, digest in dict((prov.get(key) or {}).get("sha256", {})).items():
+            rows.append((f"{what}", f"{path}  SHA-256 {digest}"))
+    for k, v in (facts or {}).items():
+        rows.append((k, v))
+    body = "".join(f"<tr><th>{html.escape(k)}</th><td style='text-align:left'><code>{html.escape(v)}</code></td></tr>"
+                   for k, v in rows)
+    return f"<section id='provenance'><h2>Provenance</h2><table>{body}</table></section>"
+
+
+def _image_html(path: Path, title: str) -> str:
+    data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
+    return (f"<figure><img src='data:image/png;base64,{data}' alt='{html.escape(title)}'>"
+            f"<figcaption>{html.escape(title)} ({html.escape(Path(path).name)})</figcaption></figure>")
+
+
+def write_html_report(result: IdentificationResult, metrics: Any, path: str | Path, *,
+                      images: Mapping[Any, str] | None = None, nominal: Any = None, prior: dict | None = None,
+                      other_view: Any = None, selected: Any = None, units: Any = None,
+                      flags: Mapping[str, Any] | None = None, facts: Mapping[str, str] | None = None) -> Path:
+    """One HTML file that needs nothing else: the :func:`verdict` first, then the fit, the
+    parameters (flagged by ``flags``, :func:`dynid.pipeline.reporting.parameter_flags`), the
+    validation table in the channels' ``units`` with the nominal model's errors (``nominal``,
+    ``prior``) next to the identified model's, the held-out rows a row selection keeps
+    (``selected``), a redundant robot's other view (``other_view``), the ``images`` (PNG path ->
+    title, embedded as base64 ``data:`` URIs) and the provenance (``facts``: date and machine)."""
+    summ = result.summary()
+    unit = lambda j: units[j] if units is not None else "N·m or N"  # noqa: E731
+    line, good = verdict(metrics, nominal, prior, units, flags)
     rows = "".join(
-        f"<tr><td>{html.escape(c)}</td><td>{r:.4g}</td><td>{p:.3g}</td><td>{q:.4f}</td></tr>"
-        for c, r, p, q in zip(metrics.channel_names, metrics.rmse, metrics.rel_rmse_pct, metrics.r2)
+        f"<tr><td>{html.escape(c)}</td><td>{html.escape(unit(j))}</td><td>{r:.4g}</td><td>{p:.3g}</td><td>{q:.4f}</td>"
+        + (f"<td>{nominal.rmse[j]:.4g}</td>" if nominal is not None else "") + "</tr>"
+        for j, (c, r, p, q) in enumerate(zip(metrics.channel_names, metrics.rmse, metrics.rel_rmse_pct, metrics.r2))
     )
+    info = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in summ.info)
+    chan = summ.channel_table
+    chan_html = ("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in chan[0]) + "</tr>"
+                 + "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in chan[1:])
+                 + "</table>")
+    notes = "".join(f"<li>{html.escape(n)}</li>" for n in summ.notes)
+    figs = "".join(_image_html(p, t) for p, t in (images or {}).items())
+    nav = " · ".join(f"<a href='#{a}'>{t}</a>" for a, t in (("parameters", "parameters"), ("validation", "validation"),
+                                                            ("plots", "plots"), ("provenance", "provenance")))
     body = (
-        f"<h1>dynid identification report</h1>{result.summary().as_html()}"
-        + (f"<h2>Held-out validation ({metrics.n_samples} samples)</h2>" if not getattr(metrics, "in_sample", False)
-           else f"<h2>In-sample validation ({metrics.n_samples} samples)</h2><p><b>{html.escape(metrics.heading())}</b></p>")
-        + f"<table><tr><th>joint</th><th>RMSE [N·m]</th><th>rel RMSE %</th><th>R²</th></tr>{rows}</table>"
-        + (f"<img src='{html.escape(plot)}' alt='validation plot'>" if plot else "")
+        f"<h1>dynid identification report ({html.escape(result.method)})</h1>"
+        f"<p id='verdict' class='verdict{'' if good else ' bad'}'>{html.escape(line)}</p><p>{nav}</p>"
+        f"<h2 id='fit'>Fit</h2><table>{info}</table>{chan_html}" + (f"<ul>{notes}</ul>" if notes else "")
+        + _params_html(result, flags)
+        + f"<h2 id='validation'>{html.escape(metrics.heading())}</h2>"
+        + "<table><tr><th>joint</th><th>unit</th><th>RMSE</th><th>rel RMSE %</th><th>R²</th>"
+        + ("<th>RMSE nominal</th>" if nominal is not None else "") + f"</tr>{rows}</table>"
         + (_prior_html(metrics, nominal, prior) if nominal is not None and prior is not None else "")
         + (_selected_html(selected) if selected is not None else "")
         + (_other_view_html(other_view) if other_view is not None else "")
+        + f"<h2 id='plots'>Plots</h2>{figs or '<p>(no plots)</p>'}"
+        + _provenance_html(result, facts)
     )
     path = Path(path)
-    path.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>dynid report</title><style>{_STYLE}</style></head><body>{body}</body></html>")
+    path.write_text(f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>dynid report</title>"
+                    f"<style>{_STYLE}</style></head><body>{body}</body></html>\n", encoding="utf-8")
     return path

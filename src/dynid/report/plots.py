@@ -18,11 +18,13 @@ def _pyplot():
 
     return plt
 
-def plot_validation(metrics: Any, path: str | Path) -> Path:
-    """Measured vs predicted torques on the validation data, one panel per joint, with errors
+def plot_validation(metrics: Any, path: str | Path, units: Any = None) -> Path:
+    """Measured vs predicted efforts on the validation data, one panel per joint, with errors
     (titled held-out or in-sample, as ``metrics.label`` says).
 
-    ``metrics`` is a :class:`dynid.estimation.validation.ValidationMetrics`.
+    ``metrics`` is a :class:`dynid.estimation.validation.ValidationMetrics`; ``units``: the unit
+    of each channel (:func:`dynid.pipeline.reporting.effort_units`: N·m, N, or A for motor
+    currents without drive gains); default N·m or N.
     """
     plt = _pyplot()
     n = metrics.measured.shape[1]
@@ -35,7 +37,7 @@ def plot_validation(metrics: Any, path: str | Path) -> Path:
         ax.plot(t, meas, lw=0.9, color="0.35", label="measured")
         ax.plot(t, pred, lw=0.9, color="tab:blue", label="predicted")
         ax.plot(t, meas - pred, lw=0.7, color="tab:red", alpha=0.8, label="error")
-        ax.set_ylabel(f"{metrics.channel_names[j]}\n[N·m]", fontsize=8)
+        ax.set_ylabel(f"{metrics.channel_names[j]}\n[{units[j] if units is not None else 'N·m or N'}]", fontsize=8)
         ax.text(0.995, 0.95, f"RMSE {metrics.rmse[j]:.3g} ({metrics.rel_rmse_pct[j]:.2g} %)",
                 transform=ax.transAxes, ha="right", va="top", fontsize=8)
         ax.grid(alpha=0.3)
@@ -43,7 +45,8 @@ def plot_validation(metrics: Any, path: str | Path) -> Path:
     axes[0, 0].legend(loc="upper left", fontsize=8, ncol=3)
     axes[-1, 0].set_xlabel("time [s]")
     label = getattr(metrics, "label", "held-out")
-    fig.suptitle(f"{label.capitalize()} validation: measured vs predicted joint torques"
+    fig.suptitle(f"{label.capitalize()} validation: measured vs predicted "
+                 + ("motor currents" if units is not None and set(units) == {"A"} else "actuator efforts")
                  + (" (the validation motion repeats the training motion)" if label == "in-sample" else ""), fontsize=10)
     fig.tight_layout()
     path = Path(path)
@@ -166,37 +169,100 @@ def plot_speed_schedule(design: Any, t, dq, path: str | Path) -> Path:
     return Path(path)
 
 
-def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: int = 6) -> Path:
+def _filter_gain(steps: Any, f: Any) -> tuple[Any, list[tuple[float, str]]]:
+    """Amplitude gain of the processing's filters at the frequencies ``f`` [Hz] (None without a
+    filter) and the frequencies to mark (cut-off, Nyquist frequency after decimation).
+
+    A zero-phase Butterworth filter (``sosfiltfilt``) applies :math:`|H(f)|^2`; the periodic
+    DFT filter of paper 004 §3.3 keeps the harmonics up to the cut-off and zeroes the rest;
+    Gautier's parallel decimation low-passes at 0.8 x the new Nyquist frequency (order 8, zero
+    phase) before keeping one sample in ``factor``."""
+    import numpy as np
+    from scipy import signal
+
+    from dynid.signals import butter_sos
+
+    gain, marks = None, []
+    for st in steps or ():
+        kind = st.get("step")
+        if kind == "lowpass":
+            _, h = signal.sosfreqz(butter_sos(st["order"], st["cutoff_hz"], st["fs_hz"]), worN=f, fs=st["fs_hz"])
+            g = np.abs(h) ** 2
+            marks.append((st["cutoff_hz"], f"low-pass {st['cutoff_hz']:g} Hz"))
+        elif kind == "periodic":
+            g = (f <= st["cutoff_hz"]).astype(float)
+            marks.append((st["cutoff_hz"], f"DFT cut-off {st['cutoff_hz']:g} Hz"))
+        elif kind == "decimate":
+            nyq = 0.5 * st["fs_hz"]
+            marks.append((nyq, f"Nyquist after decimation by {st['factor']} ({nyq:g} Hz)"))
+            if not str(st.get("method", "")).startswith("parallel"):
+                continue
+            fs = st["fs_hz"] * st["factor"]
+            _, h = signal.sosfreqz(butter_sos(8, 0.8 * nyq, fs), worN=f, fs=fs)
+            g = np.abs(h) ** 2
+        else:
+            continue
+        gain = g if gain is None else gain * g
+    return gain, marks
+
+
+def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: int = 6, steps: Any = None) -> Path:
     """Raw against processed positions (left) and their amplitude spectra (right), one row per
-    channel: what the filters removed and what they kept."""
+    channel: what the filters removed and what they kept. With ``steps`` (the processing record,
+    ``Dataset.meta["processing"]``) the filters' amplitude gain (:func:`_filter_gain`), scaled to
+    the raw spectrum's peak, is drawn over the spectra, with the cut-off and the Nyquist frequency
+    after decimation marked."""
     import numpy as np
 
     plt = _pyplot()
     n = min(raw.q.shape[1], max_channels)
     fig, axes = plt.subplots(n, 2, figsize=(12, 1.8 * n + 0.8), squeeze=False)
     step = max(1, raw.t.shape[0] // _MAX_POINTS)
+    pstep = max(1, processed.t.shape[0] // _MAX_POINTS)
 
     def spectrum(t, x):  # Hann-windowed amplitude spectrum (records are not whole periods)
         dt = float(np.median(np.diff(t)))
         f = np.fft.rfftfreq(x.shape[0], dt)
         w = np.hanning(x.shape[0])
-        return f[1:], (np.abs(np.fft.rfft((x - x.mean()) * w)) * 2 / w.sum())[1:]
+        f, a = f[1:], (np.abs(np.fft.rfft((x - x.mean()) * w)) * 2 / w.sum())[1:]
+        if f.size > _MAX_POINTS:  # long logs: the largest amplitude in each of log-spaced bins (peaks kept)
+            edges = np.unique(np.geomspace(1, f.size, _MAX_POINTS).astype(int) - 1)
+            f, a = f[edges], np.maximum.reduceat(a, edges)
+        return f, a
 
+    gain, marks = None, []
+    if steps:  # one response for every channel (the same filters), on the raw spectrum's frequencies
+        f_raw = spectrum(raw.t, raw.q[:, 0])[0]
+        fg = np.geomspace(f_raw[0], f_raw[-1], 400)
+        gain, marks = _filter_gain(steps, fg)
     for j in range(n):
         ax, axs = axes[j, 0], axes[j, 1]
         ax.plot(raw.t[::step] - raw.t[0], raw.q[::step, j], lw=0.7, color="0.6", label="raw")
-        ax.plot(processed.t - raw.t[0], processed.q[:, j], lw=0.9, color="tab:blue", label="processed")
+        ax.plot(processed.t[::pstep] - raw.t[0], processed.q[::pstep, j], lw=0.9, color="tab:blue", label="processed")
         ax.set_ylabel(f"{processed.names[j] if processed.names else j}", fontsize=8)
         ax.grid(alpha=0.3)
+        peak, floor = 1e-14, 1e-14
         for label, ds, color in (("raw", raw, "0.6"), ("processed", processed, "tab:blue")):
             f, a = spectrum(ds.t, ds.q[:, j])
+            if label == "raw":
+                peak, floor = max(peak, float(a.max())), max(floor, float(a.min()))
             axs.loglog(f, np.maximum(a, 1e-14), lw=0.8, color=color, label=label)
         axs.grid(alpha=0.3, which="both")
+        if gain is not None:  # on the same axes (a twin axis per row doubles the drawing time)
+            axs.loglog(fg, np.maximum(gain * peak, floor), lw=1.0, ls="--", color="tab:green",
+                       label="filter gain x raw peak")
+        for fm, text in marks:
+            axs.axvline(fm, color="tab:red" if "Nyquist" in text else "tab:green", lw=0.7, ls=":")
+            if j == 0:
+                axs.text(fm, 0.03, " " + text, transform=axs.get_xaxis_transform(), fontsize=6, va="bottom",
+                         rotation=90, color="0.25")
     axes[0, 0].legend(fontsize=7)
-    axes[0, 1].legend(fontsize=7)
+    axes[0, 1].legend(fontsize=7, loc="upper right")
     axes[-1, 0].set_xlabel("t [s]")
     axes[-1, 1].set_xlabel("frequency [Hz]")
-    fig.suptitle("positions before and after processing, and their amplitude spectra", fontsize=10)
+    fig.suptitle("positions before and after processing, and their amplitude spectra"
+                 + (" (dashed: the filters' amplitude gain, scaled to the raw spectrum's peak)" if gain is not None else ""),
+                 fontsize=10)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)
