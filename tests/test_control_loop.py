@@ -423,3 +423,86 @@ def test_converges_to_the_same_estimate_on_logs_that_differ_by_rounding(twin, tm
         err = lambda r: r.params - outs[0].base.from_standard(np.array(truth["true_parameters"]))  # noqa: E731
         chi2 = lambda r: float(err(r) @ np.linalg.solve(wls.result.cov_params, err(r)))  # noqa: E731
         assert chi2(a) < chi2(wls.result)
+
+
+
+_HEXAPOD = {
+    "robot": {"model": "builtin:hexapod", "perturbation": 0.1, "perturbation_seed": 4},
+    "trajectory": {"coordinates": "task", "kind": "fourier", "base_frequency_hz": 0.5, "harmonics": 3, "fill": 0.05,
+                   "max_velocity": 0.1, "max_acceleration": 1.0, "periods": 1, "seed": 4},
+    "control": {"rate_hz": 500, "kp": 2500, "kd": 100, "substeps": 2},
+    "sensors": {"encoder_resolution": 1e-6, "force_noise_std": 2.0, "force_correlation": 0.2, "seed": 4},
+}
+
+
+def test_didim_replay_rows_take_the_replay_coulomb_law(tmp_path, monkeypatch):
+    """With ``replay_coulomb_band`` the replay's plant has the Coulomb law tanh(v / v_b); DIDIM's
+    rows of that replay take the smooth sign of the same slope at zero (erf, width sqrt(2/pi) v_b,
+    control_loop._replay_rows_system), so W(q_s) beta is the replayed force (Gautier 2013's
+    premise: the simulated force is the model's own) to the 3.5 % of a Coulomb level by which the
+    two laws differ, where rows with sign(v_s) miss it by up to the whole level wherever a joint is
+    slower than v_b (the non-smooth output error that kept DIDIM from converging on this twin:
+    bench/README). The hexapod twin of bench/control_loop_time.py (symmetric Coulomb levels), one
+    period; checked on the replay's noise-free actuator forces, sample by sample after the same
+    processing as the rows (a linear filter keeps the identity). The shang2dof twin's asymmetric
+    levels keep sign rows (no matching smooth law)."""
+    import dynid.pipeline.control_loop as CL
+    from dynid.pipeline.simulate import actuator_states
+
+    (tmp_path / "train.toml").write_text(_toml(_HEXAPOD))
+    write_simulation(run_simulation(parse_simulate_config(_HEXAPOD, tmp_path)), tmp_path / "train")
+    valid = {**_HEXAPOD, "trajectory": {**_HEXAPOD["trajectory"], "seed": 5}}
+    write_simulation(run_simulation(parse_simulate_config(valid, tmp_path)), tmp_path / "valid")
+    captured = {}
+    original = CL.control_loop_estimate
+
+    def capture(*args, **kwargs):
+        captured["args"] = args
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(CL, "control_loop_estimate", capture)
+    act = [f"P{k}" for k in range(1, 7)]
+    out = identify(parse_config({
+        "robot": {"model": "builtin:hexapod"},
+        "data": {"file": "train/log.csv", "time": {"column": "t", "unit": "s"},
+                 "position": {"columns": [f"q_{a}" for a in act], "unit": "m"},
+                 "effort": {"columns": [f"tau_{a}" for a in act], "kind": "torque", "unit": "N"}},
+        "validation": {"file": "valid/log.csv"},  # not what is checked
+        "processing": {"lowpass": {"cutoff_hz": 10.0, "order": 4, "filter_effort": False},
+                       "decimate": 5, "decimate_method": "parallel"},
+        "identification": {"method": "didim", "experiment": "train.toml", "max_iterations": 1,
+                           "replay_coulomb_band": 0.05, "directions_rtol": 1e-3},
+        "output": {"plots": False}}, tmp_path))
+    cfg, system, base, train, force_model, _, chunks = captured["args"][:7]
+    band = 0.05 * float(np.max(np.abs(train.dq)))
+    assert out.result.solver["replay_rows_coulomb_width"] == pytest.approx(np.sqrt(2 / np.pi) * band, rel=1e-12)
+    exp = CL._experiment(cfg, system)
+    std = system.expand_parameters(system.nominal_parameters())
+    outcome = run_simulation(exp.cfg, plant=std[exp.index], coulomb_band=band)
+    ts = actuator_states(outcome)[0]
+    t = np.asarray(train.t, dtype=float)
+    assert np.allclose(t, ts[np.searchsorted(ts, t - 1e-9)], rtol=0, atol=1e-9)  # the log's instants are control instants
+    q, dq, ddq, joint_q = CL._simulated_states(exp, std, t, None, band)
+    effort = np.column_stack([np.interp(t, ts, e) for e in outcome.signals.effort.T])
+    sim = train.replace(q=q, dq=dq, ddq=ddq, tau=effort)
+    beta = base.from_standard(system.nominal_parameters())
+
+    def error(rows_system):
+        res = [c.y - c.W @ beta for c in chunks(sim, joint_q, rows_system)]
+        return float(np.max(np.abs(np.concatenate(res))))
+
+    smooth, sign = error(CL._replay_rows_system(system, band)), error(None)
+    # the log has samples well inside the band (reversals), where sign(v) misses >= 70 % of a level
+    assert np.min(np.abs(dq)) < 0.3 * band
+    assert smooth < 0.05 * sign, (smooth, sign)
+
+
+def test_asymmetric_coulomb_levels_keep_sign_rows():
+    """The shang2dof mechanism's fc+/fc- terms: no smooth law of the rows matches the replay's
+    regularized asymmetric law (control_loop._replay_rows_system), so none is substituted."""
+    import dynid.pipeline.control_loop as CL
+    from dynid.model.loading import load_model
+    from dynid.model.system import ClosedLoopSystem
+
+    system = ClosedLoopSystem(load_model("builtin:shang2dof"))
+    assert CL._replay_rows_system(system, 0.01) is None

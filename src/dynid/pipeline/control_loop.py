@@ -108,9 +108,25 @@ it is an output-error method, its residual the measured minus the replayed force
 law other than the data's adds an output error at every reversal that the regression then
 fits; on the shang2dof twin a band of 0.05, 0.01 or 0.002 took DIDIM from 25 of 25 true base
 parameters inside their intervals (5 iterations) to 6 to 12, two of three runs not converged.
-On the hexapod twin DIDIM with the band and ``directions_rtol = 1e-3`` runs its iterations
-without a failed replay and the same way on data that differ by rounding, but does not converge
-to 0.5 standard deviations: its moves stall at 1.5 to 4 (bench/README). Simulated states are
+With a band, DIDIM's rows of the replay take the replay's own law
+(:func:`_replay_rows_system`: the smooth sign :math:`\\mathrm{erf}(v / (\\sqrt 2\\,w))` on every
+joint, :math:`w = \\sqrt{2/\\pi}\\,v_b`, the slope of :math:`\\tanh(v / v_b)` at zero; the two
+differ by at most 3.5 % of a Coulomb level), so that :math:`W(q_s)\\beta_k` is again the
+replayed force, the premise of Gautier 2013's step. With ``sign(v_s)`` rows it was not: wherever
+a replayed joint moved slower than ``v_b`` the rows' Coulomb column missed the replay's friction
+by up to its whole level, and which samples did so changed with the estimate, so the output
+error and the step were non-smooth in it. On the hexapod twin (``directions_rtol = 1e-3``, band
+0.05) that alone kept DIDIM from converging: its moves stalled at 1.5 to 4 standard deviations
+in 10 iterations, and finite-difference replays at an iterate gave sensitivities of the replayed
+forces concentrated on the few decimated rows around reversals, growing as the difference step
+shrank (1.2, 6.9 and 13 times the step's regressor column for moves of 1, 0.1 and 0.01 standard
+deviations along one direction, nearly orthogonal to it: cosine 0.03 to 0.25), i.e. jumps, not
+the slow closed-loop directions of a non-stiff loop (bench/README). With the matching rows the
+``--quick`` run converges in 5 iterations (moves 23.8, 4.3, 2.0, 0.56, 0.36 standard deviations;
+secant eigenvalues -0.10, 0.12, 0.46). A mechanism with asymmetric Coulomb levels (``fc+``,
+``fc-``: the shang2dof twin) keeps ``sign(v)`` rows: the replay's regularization of
+``c (v > 0)`` is ``c max(tanh(v / v_b), 0)``, the rows' smooth sign gives ``c (1 + erf) / 2``,
+half a level apart at rest. Simulated states are
 taken at the processed log's instants (linear interpolation between control instants; exact
 at them), and the simulated rows go through exactly the processing of the measured rows
 (parallel decimation, ``min_velocity`` selection from the measured velocities). DIDIM's rows
@@ -301,6 +317,28 @@ def _reduced_fit(estimator, problem: RegressionProblem, beta0: np.ndarray, TV: n
                                rss_per_channel=problem.rss_per_channel(beta), expressions=base.expressions())
 
 
+def _replay_rows_system(system: System, band: float | None) -> System | None:
+    r"""DIDIM's replay rows with the replay's own Coulomb law (module docstring): the mechanism whose
+    Coulomb columns are the smooth sign :math:`\mathrm{erf}(v / (\sqrt 2\,w))` on every joint with
+    :math:`w = \sqrt{2/\pi}\,v_b`, the slope at zero velocity of the replay's
+    :math:`\tanh(v / v_b)` (Olsson et al. 1998, Section 2; the two laws differ by at most 3.5 % of
+    the Coulomb level, at :math:`|v| \approx 1.4\,v_b`). None without a band, or for a serial
+    robot (its replay keeps its plant's law), or a mechanism with asymmetric Coulomb levels or
+    coupled-motor terms: the replay regularizes ``c (v > 0)`` as ``c max(tanh(v / v_b), 0)``, the
+    rows' smooth sign as ``c (1 + erf) / 2`` (the expected sign of a noisy velocity, what
+    ``coulomb_smoothing`` needs), which differ by half a level at rest (the shang2dof twin's
+    ``fc+``/``fc-``: its rows keep sign(v))."""
+    from dynid.model.system import ClosedLoopSystem
+
+    if band is None or not isinstance(system, ClosedLoopSystem):
+        return None
+    mech = system.model
+    if any(t.kind in ("coulomb+", "coulomb-") or t.weights for t in mech.terms):
+        return None
+    width = float(band) * np.sqrt(2.0 / np.pi)
+    return dataclasses.replace(system, model=dataclasses.replace(mech, coulomb_width=(width,) * mech.pin_model.nv))
+
+
 def _relative(path, config_file) -> str:
     """The experiment's path as result.json records it: relative to the config's folder (the same
     inputs give the same bytes wherever they are)."""
@@ -397,6 +435,8 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
     # IV: instruments processed like the measured regressor; DIDIM: the exact simulated states
     # (its simulated forces W(q_s) beta_k are the replay's own forces; module docstring)
     process = _instrument_processing(cfg.processing) if method == "iv" else None
+    # DIDIM: the replay's rows with the replay's Coulomb law, so that W(q_s) beta_k is the replayed force
+    rows_system = _replay_rows_system(system, band) if method == "didim" else None
     # the measured rows do not change from one iteration to the next: computed once (forward
     # kinematics of every sample, the regressor). IV keeps them (its normal equations use them at
     # every iteration: the decimated base regressor, n/k x n_a x p doubles), DIDIM only their row
@@ -441,7 +481,7 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
                                expressions=base.expressions())
         else:
             mb = ProblemBuilder(base.names, channels)
-            for (_, mask), cs in zip(measured, chunks(sim, joint_qs)):
+            for (_, mask), cs in zip(measured, chunks(sim, joint_qs, rows_system)):
                 # the equations at the simulated configuration (projected equations of a redundant
                 # mechanism: G_a(q_s)^T tau_a), the measured forces
                 if mask is not None and mask.ndim == 1:
@@ -513,6 +553,8 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
                                           "largest_held": float(rel[kept]) if kept < rel.size else None}
     if band is not None:
         solver["replay_coulomb_band"] = band
+    if rows_system is not None:  # DIDIM's replay rows: the replay's law (erf of this width on every joint)
+        solver["replay_rows_coulomb_width"] = float(rows_system.model.coulomb_width[0])
     notes = [("instruments: the regressor on the states of the experiment replayed with the current estimate under its "
               "controller; IV covariance" if method == "iv" else
               "output error: the measured forces regressed on the regressor of the experiment replayed with the current "

@@ -824,10 +824,11 @@ def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Data
 
         start = WLS().fit(problem)
 
-    def chunks(ds: Dataset, joint_q=None) -> Iterator[Chunk]:
-        # only the measured rows are selected (the replays reuse their masks): no guard on the replays
+    def chunks(ds: Dataset, joint_q=None, rows_system: System | None = None) -> Iterator[Chunk]:
+        # only the measured rows are selected (the replays reuse their masks): no guard on the replays;
+        # rows_system: DIDIM's replay rows with the replay's regularized Coulomb law (control_loop)
         guard = pcfg.reversal_guard_s() if ds is train else None
-        return _chunks(system, base, ds, force_model, parallel_decimate=parallel, chunk_size=icfg.chunk_size,
+        return _chunks(rows_system or system, base, ds, force_model, parallel_decimate=parallel, chunk_size=icfg.chunk_size,
                        reversal_guard=guard, min_velocity=pcfg.min_velocity, joint_q=joint_q)
 
     def mask_of(c: Chunk):
