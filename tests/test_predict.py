@@ -165,3 +165,57 @@ def test_bad_inputs_are_one_line(identified, tmp_path, capsys):
     assert main(["predict", str(old), str(log), "--out", str(tmp_path / "p")]) == 2
     assert "not a dynid result" in _error_line(capsys)
     assert not (tmp_path / "p").exists()
+
+
+def _states(rng, n, dof=6):
+    """States away from velocity reversals (|v| >= 0.5 rad/s: the smooth Coulomb sign of the fit,
+    whose width is the velocity-noise std of about 1e-3 rad/s, is the sign there to rounding)."""
+    q = rng.uniform(-2.0, 2.0, (n, dof))
+    v = rng.choice([-1.0, 1.0], (n, dof)) * rng.uniform(0.5, 2.0, (n, dof))
+    return q, v, rng.normal(size=(n, dof)) * 3.0
+
+
+def test_ols_export_is_the_closest_standard_vector_and_pinocchio_agrees(identified):
+    """WLS gives base parameters only; the exported URDF holds the standard vector closest to the
+    nominal one with exactly those base parameters. Independent route: pinocchio's URDF parser and
+    RNEA, plus the joint terms the file records (damping, friction, and the Ia/offset comments),
+    give the joint torques of the base estimate, Phi_b(q, v, a) beta_hat, to rounding."""
+    import re
+
+    from dynid.model.serial_dynamics import regressor
+    from dynid.pipeline.identification import standard_vector
+
+    d, outcome, _ = identified
+    path = d / "out" / "model.urdf"
+    assert path.is_file()
+    text = path.read_text()
+    assert "one of many" in text
+    assert "one of many" in (d / "out" / "summary.txt").read_text()
+    base, beta = outcome.base, outcome.result.params
+    pi, notes = standard_vector(outcome)
+    np.testing.assert_allclose(base.from_standard(pi), beta, rtol=1e-10, atol=1e-10 * np.abs(beta).max())
+    # closest to the nominal vector: any other vector with the same base parameters is farther
+    from dynid.model.base_parameters import parameter_scales
+
+    system = outcome.system
+    nominal = system.nominal_parameters()
+    s = parameter_scales(system.parameter_names, system.body_blocks(), nominal)
+    rng = np.random.default_rng(5)
+    null = np.linalg.svd(base.B)[2][base.n_base:].T  # a basis of the null space of B
+    d0 = np.linalg.norm((pi - nominal) / s)
+    for _ in range(20):
+        other = pi + null @ rng.normal(size=null.shape[1]) * 1e-3
+        assert np.linalg.norm((other - nominal) / s) > d0
+    # the file read back by pinocchio
+    loaded = pin.buildModelFromUrdf(str(path))
+    terms = re.findall(r"dynid: joint (\S+) Ia=(\S+) off=(\S+)", text)
+    Ia = np.array([float(t[1]) for t in terms])
+    off = np.array([float(t[2]) for t in terms])
+    q, v, a = _states(rng, 25)
+    Y = regressor(outcome.robot, q, v, a)
+    expected = base.regressor(Y) @ beta
+    data = loaded.createData()
+    for k in range(q.shape[0]):
+        tau = (pin.rnea(loaded, data, q[k], v[k], a[k]) + Ia * a[k] + loaded.damping * v[k]
+               + loaded.friction * np.sign(v[k]) + off)
+        np.testing.assert_allclose(tau, expected[k], rtol=1e-8, atol=1e-8 * np.abs(expected).max())

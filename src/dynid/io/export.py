@@ -233,17 +233,20 @@ def _inertial_comment(m: float, I_c: FloatArray, body: str) -> ET.Element | None
 
 
 # ---------------------------------------------------------------------------- URDF
-def write_model(robot: RobotModel | Mechanism, params: FloatArray, folder: str | Path, *, name: str | None = None) -> Path:
+def write_model(robot: RobotModel | Mechanism, params: FloatArray, folder: str | Path, *, name: str | None = None,
+                notes: Sequence[str] = ()) -> Path:
     """The robot with standard parameters ``params`` as a description a simulator loads:
     ``model.urdf`` for a serial robot, ``model.mjcf`` for a closed-loop mechanism (whose loop
-    closures URDF cannot express), in ``folder``. Returns the path."""
+    closures URDF cannot express), in ``folder``; ``notes``: lines for the file's header comment
+    (e.g. that the vector is one of many with the same base parameters). Returns the path."""
     folder = Path(folder)
     if isinstance(robot, Mechanism):
-        return write_mjcf(robot, params, folder / "model.mjcf", name=name)
-    return write_urdf(robot, params, folder / "model.urdf", name=name)
+        return write_mjcf(robot, params, folder / "model.mjcf", name=name, notes=notes)
+    return write_urdf(robot, params, folder / "model.urdf", name=name, notes=notes)
 
 
-def write_urdf(robot: RobotModel, params: FloatArray, path: str | Path, *, name: str | None = None) -> Path:
+def write_urdf(robot: RobotModel, params: FloatArray, path: str | Path, *, name: str | None = None,
+               notes: Sequence[str] = ()) -> Path:
     """Write a serial robot with the given standard parameters as a URDF file.
 
     Parameters
@@ -383,6 +386,7 @@ def write_urdf(robot: RobotModel, params: FloatArray, path: str | Path, *, name:
     g = np.asarray(model.gravity.linear)
     if not np.allclose(g, [0.0, 0.0, -9.81]):
         header.append(f"Gravity of the model: {_vec(g)} m/s^2 (URDF has no gravity).")
+    header += [f"dynid: {n}" for n in notes]
     return _write_text(path, _to_text(root, header))
 
 
@@ -432,6 +436,7 @@ def write_mjcf(
     *,
     name: str | None = None,
     range_convention: str = "pinocchio",
+    notes: Sequence[str] = (),
 ) -> Path:
     """Write a closed-loop mechanism with the given standard parameters as an MJCF file.
 
@@ -640,4 +645,5 @@ def write_mjcf(
     if mech.task_coordinates:
         header.append(f"dynid: task coordinates: {list(mech.task_coordinates)}")
     header += [f"dynid note: {n}" for n in mech.notes]
+    header += [f"dynid: {n}" for n in notes]
     return _write_text(path, _to_text(root, header))

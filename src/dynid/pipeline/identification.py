@@ -41,7 +41,7 @@ from dynid._files import TIMING_FILE, write_timing
 from dynid._typing import FloatArray
 from dynid.config import Config
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError, IdentifiabilityError, InputError
+from dynid.errors import ConfigError, IdentifiabilityError, InputError, ModelError
 from dynid.estimation import IdentificationResult, ProblemBuilder, RegressionProblem
 from dynid.estimation.validation import ValidationMetrics, motion_overlap, prior_comparison
 from dynid.io.output import staged_output
@@ -1151,24 +1151,63 @@ def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Pa
     return {name: out / name for name in produced}
 
 
+ONE_OF_MANY = ("one of many: the data fix only the base parameters; these standard parameters are the vector closest "
+               "to the nominal one (min ||S^-1 (pi - pi_nom)||, S the RMS nominal magnitude of each kind of parameter: "
+               "mass, first moment, inertia, each joint term) that gives exactly the estimated base parameters; every "
+               "other vector with these base parameters predicts the same forces")
+
+
+def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | None:
+    """The standard vector of a result (the system's parameters), and notes for the exported file:
+    a physically consistent fit's recovered vector, else, for every result whose parameters start
+    with the base parameters (OLS, WLS, Gauss-Markov, IV, DIDIM, maximum likelihood; the rigid-body
+    part of a Stribeck or hierarchical fit), the vector closest to the nominal one that reproduces
+    the base estimate (:meth:`~dynid.model.base_parameters.BaseParameters.to_standard` with
+    :func:`~dynid.model.base_parameters.parameter_scales`): one of many. None: no base parameters."""
+    from dynid.model.base_parameters import parameter_scales
+
+    res = outcome.result
+    system = outcome.system if outcome.system is not None else as_system(outcome.robot)
+    names = system.parameter_names
+    std = res.solver.get("standard_params")
+    if std:
+        missing = [n for n in names if n not in std]
+        if missing:
+            raise InputError(f"the result's standard parameters do not match the robot (missing {missing[:3]})")
+        return np.array([std[n] for n in names], dtype=float), []
+    base = outcome.base
+    if tuple(res.names[: base.n_base]) != base.names or tuple(base.standard_names) != tuple(names):
+        return None
+    nominal = system.nominal_parameters()
+    scale = parameter_scales(names, system.body_blocks(), nominal)
+    beta = np.array(res.params[: base.n_base], dtype=float)
+    notes = [ONE_OF_MANY]
+    if "stribeck" in res.solver:  # its curves replace the linear Coulomb and viscous columns (stribeck.predict)
+        fj = stribeck.friction_joints(system, base)
+        beta[list(fj.coulomb) + list(fj.viscous)] = 0.0
+        notes.append("the Stribeck friction curves (result.json solver.stribeck) replace the linear Coulomb and "
+                     "viscous terms, written here as 0")
+    pi = base.to_standard(beta, nominal, scale)
+    if "hierarchical" in res.solver:
+        notes.append("the hierarchical fit's friction curves are in result.json (solver.hierarchical), not in this file")
+    return pi, notes
+
+
 def export_model(outcome: IdentifyOutcome, folder: Path) -> Path | None:
-    """The recovered standard parameters of a physically consistent fit as a robot description:
+    """The result's standard parameters (:func:`standard_vector`) as a robot description:
     ``model.urdf`` for a serial robot, ``model.mjcf`` for a closed-loop mechanism (None when the
-    method recovers no standard parameters)."""
-    std = outcome.result.solver.get("standard_params")
-    if not std:
+    result has no base parameters to reproduce)."""
+    found = standard_vector(outcome)
+    if found is None:
         return None
     from dynid.io.export import write_model
 
+    pi, notes = found
     robot = outcome.robot
     system = outcome.system if outcome.system is not None else as_system(robot)
-    names = system.parameter_names
-    missing = [n for n in names if n not in std]
-    if missing:
-        raise InputError(f"the result's standard parameters do not match the robot (missing {missing[:3]})")
     # a reduced structure (identification.structure): every tied body gets its group's values
-    params = system.expand_parameters(np.array([std[n] for n in names], dtype=float))
-    return write_model(robot, params, folder, name=f"{robot.name}_identified")
+    params = system.expand_parameters(pi)
+    return write_model(robot, params, folder, name=f"{robot.name}_identified", notes=notes)
 
 
 def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]:
@@ -1177,16 +1216,16 @@ def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]
     base parameters fix only combinations of the standard ones; without regularization the rest
     comes from the tie-break, and a constrained fit on weak data can push it far (e.g. legs of
     hundreds of tonnes that give the same actuator forces)."""
-    std = outcome.result.solver.get("standard_params")
+    found = standard_vector(outcome)
     robot = outcome.system if outcome.system is not None else as_system(outcome.robot)
-    if not std:
+    if found is None:
         return []
     nominal = robot.nominal_parameters()
     names = robot.parameter_names
     far = []
     for blk in robot.body_blocks():
         i = blk[0]
-        m, m0 = float(std[names[i]]), float(nominal[i])
+        m, m0 = float(found[0][i]), float(nominal[i])
         if m0 > 0 and not (m0 / factor <= m <= m0 * factor):
             far.append(f"{names[i]} = {m:.4g} kg (nominal {m0:.4g} kg)")
     if not far:
@@ -1262,8 +1301,15 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
         for i, n in enumerate(res.names):
             w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i], res.covariance_kind or ""])
     warn = export_warnings(outcome)
+    found = standard_vector(outcome)
+    try:
+        exported = export_model(outcome, stage)
+    except ModelError as exc:  # MJCF forbids a negative mass: the estimate is kept, the file is not written
+        exported = None
+        warn = [f"no robot description exported: {exc}", *warn]
+    if exported is not None and found is not None and found[1]:
+        warn = [f"exported {exported.name}: " + "; ".join(found[1]), *warn]
     (stage / "summary.txt").write_text(outcome.summary_text() + "\n" + "".join(f"\n{w}\n" for w in warn))
-    export_model(outcome, stage)
     if outcome.learning is not None:
         from dynid.pipeline.learning import LEARNING_FILE
 
