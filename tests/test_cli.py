@@ -459,7 +459,7 @@ def test_identify_with_plots_writes_figure_and_report(runs):
     first, files = run.steps[0], run.after[0]
     assert first.returncode == 0, first.stderr
     assert first.stdout.strip() == (
-        f"outputs in {run.out}: params.csv, processing.png, report.html, result.json, result.npz, summary.txt, timing.json, validation.png"
+        f"outputs in {run.out}: model.urdf, params.csv, processing.png, report.html, result.json, result.npz, summary.txt, timing.json, validation.png"
     )
     for name in ("validation.png", "processing.png"):
         png = files[name]

@@ -219,3 +219,32 @@ def test_ols_export_is_the_closest_standard_vector_and_pinocchio_agrees(identifi
         tau = (pin.rnea(loaded, data, q[k], v[k], a[k]) + Ia * a[k] + loaded.damping * v[k]
                + loaded.friction * np.sign(v[k]) + off)
         np.testing.assert_allclose(tau, expected[k], rtol=1e-8, atol=1e-8 * np.abs(expected).max())
+
+
+LEARN = ('[learning]\nmodel = "lstm"\nwindow = 4\nhidden = 8\nepochs = 3\nlambda = 0.2\nseed = 0\n'
+         'max_seconds = 60\n')
+
+
+def test_hierarchical_and_learned_results_predict_as_identify_validated(tmp_path, capsys):
+    """A hierarchical fit (paper 003 Sec. 3.3: rigid-body base parameters + friction curves; the
+    linear family, Eq. 2, keeps the test fast) with a residual network (Sec. 3.4): predict on the
+    validation log gives identify's validation scores, its nominal row (the description's model
+    *with* its friction) and the network's row, from what result.json and result_learning.pt hold."""
+    _log(tmp_path / "train.csv", 4, 12.0)
+    _log(tmp_path / "valid.csv", 5, 5.0)
+    cfg = _identify_config(tmp_path, "wls").read_text().replace(
+        'coulomb_smoothing = "auto"\n', 'hierarchical = true\nfriction_model = "linear"\n').replace(
+        "[output]", LEARN + "\n[output]")
+    (tmp_path / "identify.toml").write_text(cfg)
+    assert main(["identify", str(tmp_path / "identify.toml"), "--out", str(tmp_path / "out"), "-q"]) == 0, \
+        capsys.readouterr().err
+    rc = main(["predict", str(tmp_path / "out"), str(_log_config(tmp_path, "valid.csv")), "--out",
+               str(tmp_path / "pred"), "-q", "--no-plots"])
+    assert rc == 0, capsys.readouterr().err
+    pred = json.loads((tmp_path / "pred" / "predict.json").read_text())
+    saved = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert "hierarchical" in saved["method"]
+    for mine, theirs in ((pred["identified"], saved["validation"]), (pred["nominal"], saved["nominal_validation"]),
+                         (pred["with_network"], saved["learning"]["validation_with_network"])):
+        np.testing.assert_allclose(mine["rmse_per_joint"], theirs["rmse_per_joint"], rtol=1e-10)
+    assert not (tmp_path / "pred" / "predict.png").exists()
