@@ -248,3 +248,107 @@ def test_hierarchical_and_learned_results_predict_as_identify_validated(tmp_path
                          (pred["with_network"], saved["learning"]["validation_with_network"])):
         np.testing.assert_allclose(mine["rmse_per_joint"], theirs["rmse_per_joint"], rtol=1e-10)
     assert not (tmp_path / "pred" / "predict.png").exists()
+
+
+LEGS = ("P1", "P2", "P3")
+
+
+@pytest.fixture(scope="module")
+def rps3(tmp_path_factory):
+    """A virtual 3-RPS (builtin:rps3 as described) under computed torque: two logs of the
+    simulator's leg lengths, velocities and accelerations and the leg forces with 1e-4 N of noise,
+    OLS on the first. The robot is its description and the noise tiny: at 0.05 N this 4 s motion
+    leaves the rigid-body base parameters with standard deviations of about 10x their values (the
+    reflected screw inertia and the friction dominate the leg forces), and their closest standard
+    vector is not physically consistent (origin-frame inertias at their nominal values around
+    moved centres of mass give negative inertias about the centre of mass), which MJCF cannot hold
+    (test_mjcf_refuses_an_inertia_pinocchio_would_misread)."""
+    from dynid._files import save_npz
+    from dynid.config.simulate import parse_simulate_config
+    from dynid.pipeline.simulate import run_simulation
+
+    d = tmp_path_factory.mktemp("rps3")
+    rng = np.random.default_rng(11)
+    for name, seed in (("train", 3), ("valid", 4)):
+        sim = run_simulation(parse_simulate_config({
+            "robot": {"model": "builtin:rps3", "perturbation": 0.0},
+            "trajectory": {"kind": "fourier", "base_frequency_hz": 0.5, "harmonics": 3, "fill": 0.4,
+                           "max_velocity": 0.1, "max_acceleration": 1.0, "periods": 2, "seed": seed},
+            "control": {"rate_hz": 500, "kp": 2500, "kd": 100, "model": "true", "substeps": 2},
+        }, d))
+        m = sim.motion
+        cols = {"t": m.t}
+        for k, leg in enumerate(LEGS):
+            cols[f"q_{leg}"], cols[f"dq_{leg}"], cols[f"ddq_{leg}"] = (x[:, 2 * k + 1] for x in (m.q, m.dq, m.ddq))
+            cols[f"tau_{leg}"] = m.tau_a[:, k] + 1e-4 * rng.standard_normal(m.t.shape)
+        save_npz(d / f"{name}.npz", cols)
+    data = ('time = { column = "t" }\nposition = { columns = ["q_P1", "q_P2", "q_P3"], unit = "m" }\n'
+            'velocity = { columns = ["dq_P1", "dq_P2", "dq_P3"], unit = "m" }\n'
+            'acceleration = { columns = ["ddq_P1", "ddq_P2", "ddq_P3"], unit = "m" }\n'
+            'effort = { columns = ["tau_P1", "tau_P2", "tau_P3"], unit = "N" }\n')
+    (d / "identify.toml").write_text(
+        f'[robot]\nmodel = "builtin:rps3"\n\n[data]\nfile = "train.npz"\n{data}\n[validation]\nfile = "valid.npz"\n\n'
+        '[processing]\nderivatives = "measured"\ntrim_samples = 0\n\n'
+        '[identification]\nmethod = "ols"\n\n[output]\nplots = false\n')
+    (d / "log.toml").write_text(f'[data]\nfile = "valid.npz"\n{data}')
+    assert main(["identify", str(d / "identify.toml"), "--out", str(d / "out"), "-q"]) == 0
+    return d
+
+
+def test_mechanism_predict_and_mjcf_export(rps3, capsys):
+    """A closed-loop mechanism: predict reproduces identify's validation; model.mjcf holds the
+    standard vector closest to the nominal one. Independent route: pinocchio's MJCF parser reads
+    the bodies' inertias and the joints' armature, damping and friction; through the base map they
+    give the estimated base parameters."""
+    from dynid.model.mechanism_io import load_mechanism
+
+    d = rps3
+    assert main(["predict", str(d / "out"), str(d / "log.toml"), "--out", str(d / "pred"), "-q", "--no-plots"]) == 0, \
+        capsys.readouterr().err
+    pred = json.loads((d / "pred" / "predict.json").read_text())
+    saved = json.loads((d / "out" / "result.json").read_text())
+    np.testing.assert_allclose(pred["identified"]["rmse_per_joint"], saved["validation"]["rmse_per_joint"], rtol=1e-12)
+    np.testing.assert_allclose(pred["nominal"]["rmse_per_joint"], saved["nominal_validation"]["rmse_per_joint"],
+                               rtol=1e-12)
+    path = d / "out" / "model.mjcf"
+    assert path.is_file() and "one of many" in path.read_text()
+    loaded, _ = pin.buildModelAndLegacyConstraintsFromMJCF(str(path))
+    mech = load_mechanism("builtin:rps3")
+    names = list(mech.parameter_names)
+    pi = np.full(len(names), np.nan)
+    for k, j in enumerate(mech.bodies):
+        jl = loaded.getJointId(mech.pin_model.names[j])
+        pi[10 * k: 10 * k + 10] = loaded.inertias[jl].toDynamicParameters()
+    field = {"Ia": "armature", "fv": "damping", "fc": "friction"}
+    for i, n in enumerate(names[10 * len(mech.bodies):]):
+        kind, joint = n.split("_", 1)
+        pi[10 * len(mech.bodies) + i] = getattr(loaded, field[kind])[loaded.joints[loaded.getJointId(joint)].idx_v]
+    assert np.all(np.isfinite(pi))
+    base = as_system_base(mech)
+    want = np.array([p["value"] for p in saved["params"]])
+    assert list(base.names) == [p["name"] for p in saved["params"]]
+    np.testing.assert_allclose(base.from_standard(pi), want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
+
+
+def as_system_base(mech):
+    from dynid.model.system import as_system
+
+    return as_system(mech).base_parameters()
+
+
+def test_mjcf_refuses_an_inertia_pinocchio_would_misread(tmp_path):
+    """A body whose inertia about its centre of mass has a negative diagonal entry is refused in
+    one line: pinocchio's MJCF parser would read that entry as 0 (and the file would not give the
+    base parameters back), MuJoCo refuses it."""
+    from dynid.errors import ModelError
+    from dynid.io.export import inertia_about_com, write_mjcf
+    from dynid.model.mechanism_io import load_mechanism
+
+    mech = load_mechanism("builtin:rps3")
+    pi = mech.nominal_parameters().copy()
+    k = next(k for k, j in enumerate(mech.bodies) if pi[10 * k] > 0)
+    m, c, I_c = inertia_about_com(pi[10 * k: 10 * k + 10])
+    pi[10 * k + 4] -= 1.5 * I_c[0, 0]  # Ixx about the joint origin: the same shift about the centre of mass
+    with pytest.raises(ModelError, match="negative Ixx about its centre of mass"):
+        write_mjcf(mech, pi, tmp_path / "m.mjcf")
+    assert not (tmp_path / "m.mjcf").exists()

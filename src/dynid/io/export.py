@@ -472,7 +472,10 @@ def write_mjcf(
         Wrong number of parameters, NaN/inf, unknown ``range_convention``, missing folder.
     ModelError
         A body with a negative mass, or a negative Coulomb (``frictionloss``) value:
-        MJCF forbids both (pinocchio's parser and MuJoCo's compiler refuse the file).
+        MJCF forbids both (pinocchio's parser and MuJoCo's compiler refuse the file). A
+        body whose inertia about the centre of mass has a negative diagonal entry: MuJoCo
+        refuses it and pinocchio 4.1's parser reads it as 0, so the file would not hold the
+        parameters (found exporting an OLS result's closest-to-nominal vector, issue 20).
 
     Notes
     -----
@@ -587,6 +590,13 @@ def write_mjcf(
                 raise ModelError(
                     f"body of joint {jname!r} has a negative mass {m:.6g} kg: MJCF masses must be >= 0 "
                     "(pinocchio and MuJoCo refuse the file)"
+                )
+            neg_diag = [a for a, x in zip(("Ixx", "Iyy", "Izz"), np.diag(I_c)) if x < 0.0]
+            if neg_diag:  # pinocchio 4's MJCF parser reads a negative diagonal entry as 0: the file would lie
+                raise ModelError(
+                    f"body of joint {jname!r} has a negative {', '.join(neg_diag)} about its centre of mass "
+                    f"({', '.join(f'{x:.6g}' for x in np.diag(I_c))} kg*m^2): pinocchio's MJCF parser reads such an "
+                    "entry as 0 and MuJoCo refuses it"
                 )
             flag = _inertial_comment(m, I_c, bodies[j])
             if flag is not None:
