@@ -227,9 +227,15 @@ def predict(result_path: str | Path, log_config: str | Path, progress: Progress 
     """Score the saved model of ``result_path`` on the log of ``log_config`` (module docstring)."""
     saved = load_saved(result_path)
     inp = saved.inputs
-    robot_cfg = _robot_config(inp["robot"])
+    # paths recorded relative (dynid demo: to the folder of result.json) are read from there
+    robot = dict(inp["robot"])
+    if not robot["model"].startswith("builtin:") and not Path(robot["model"]).is_absolute():
+        robot["model"] = str((saved.folder / robot["model"]).resolve())
+    robot_cfg = _robot_config(robot)
     data = _read_log_config(log_config, robot_cfg)
-    base_dir = Path(inp["config_dir"]) if inp.get("config_dir") else Path(".")
+    base_dir = Path(inp["config_dir"]) if inp.get("config_dir") else saved.folder
+    if not base_dir.is_absolute():
+        base_dir = (saved.folder / base_dir).resolve()
     icfg = _parse_identification(inp["identification"], base_dir)
     pcfg = _processing_config(inp["processing"])
     periodic = pcfg.periodic
