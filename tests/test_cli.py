@@ -409,8 +409,9 @@ def test_identify_recovers_the_simulated_robot(runs, logs):
     assert r.returncode == 0, r.stderr
     assert r.stderr == ""  # no progress bar when stderr is not a terminal
     assert "Validation on held-out data" in r.stdout  # the summary, as -q is not given
-    assert r.stdout.rstrip().endswith(f"outputs in {run.out}: params.csv, result.json, result.npz, summary.txt, timing.json")
-    assert sorted(p.name for p in run.out.iterdir()) == ["params.csv", "result.json", "result.npz", "summary.txt", "timing.json"]
+    assert r.stdout.rstrip().endswith(f"outputs in {run.out}: model.urdf, params.csv, result.json, result.npz, summary.txt, timing.json")
+    assert sorted(p.name for p in run.out.iterdir()) == ["model.urdf", "params.csv", "result.json", "result.npz", "summary.txt",
+                                                       "timing.json"]
 
     res = json.loads((run.out / "result.json").read_text())
     assert res["method"] == "WLS"
@@ -458,14 +459,14 @@ def test_identify_with_plots_writes_figure_and_report(runs):
     first, files = run.steps[0], run.after[0]
     assert first.returncode == 0, first.stderr
     assert first.stdout.strip() == (
-        f"outputs in {run.out}: params.csv, processing.png, report.html, result.json, result.npz, summary.txt, timing.json, validation.png"
+        f"outputs in {run.out}: model.urdf, params.csv, processing.png, report.html, result.json, result.npz, summary.txt, timing.json, validation.png"
     )
     for name in ("validation.png", "processing.png"):
         png = files[name]
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     html = files["report.html"].decode()
     assert "<html" in html.lower() and "validation.png" in html
-    assert sorted(files) == ["params.csv", "processing.png", "report.html", "result.json", "result.npz", "summary.txt", "timing.json",
+    assert sorted(files) == ["model.urdf", "params.csv", "processing.png", "report.html", "result.json", "result.npz", "summary.txt", "timing.json",
                              "validation.png"]
 
 
@@ -475,7 +476,7 @@ def test_rerun_lists_only_the_files_it_wrote(runs):
     run = runs["plots_then_rerun_without"]
     assert [s.returncode for s in run.steps] == [0, 0], run.last.stderr
     listed = run.last.stdout.strip().split(": ", 1)[1].split(", ")
-    assert listed == ["params.csv", "result.json", "result.npz", "summary.txt", "timing.json"]
+    assert listed == ["model.urdf", "params.csv", "result.json", "result.npz", "summary.txt", "timing.json"]
 
 
 # ---------------------------------------------------------------------- bad input

@@ -456,3 +456,30 @@ def test_whitened_rows_give_the_per_sample_likelihood():
     # a sum of independent Gaussian quadratic forms: var of entry pq <= 2 N_pp N_qq per draw
     bound = 5 * np.sqrt(2 * np.outer(np.diag(N), np.diag(N)) / draws)
     assert np.all(np.abs(share - N) < bound)
+
+
+@pytest.mark.parametrize("run", ["ml_run", "ml_time"])
+def test_predict_uses_the_estimated_cut_off(rps3_log, run, request, tmp_path):
+    """``dynid predict`` on the validation rows of an ML result (frequency and time domain) gives
+    identify's validation scores: the new log is processed at the cut-off ML estimated (and, in the
+    time domain, with its trim and row selection), not at the configured one (issue 20 item 3)."""
+    import json
+
+    from dynid.pipeline import write_outputs
+    from dynid.pipeline.predict import predict
+
+    d, _ = rps3_log
+    out = request.getfixturevalue(run)
+    write_outputs(out, tmp_path / "out")
+    log = tmp_path / "log.toml"
+    log.write_text(f'[data]\nfile = "{d / "log.npz"}"\ntime = {{ column = "t", unit = "s" }}\n'
+                   'position = { columns = ["q_P1", "q_P2", "q_P3"], unit = "m" }\n'
+                   'effort = { columns = ["tau_P1", "tau_P2", "tau_P3"], kind = "torque", unit = "N" }\n'
+                   f'rows = [{TRAIN * N_PER}, {PERIODS * N_PER}]\n')
+    pred = predict(tmp_path / "out", log)
+    saved = json.loads((tmp_path / "out" / "result.json").read_text())
+    configured = out.config.processing
+    fc = out.result.solver["cutoff_hz"]
+    assert fc != (configured.periodic.cutoff_hz if configured.periodic is not None else configured.lowpass.cutoff_hz)
+    np.testing.assert_allclose(pred.metrics.rmse, saved["validation"]["rmse_per_joint"], rtol=1e-12)
+    np.testing.assert_allclose(pred.nominal.rmse, saved["nominal_validation"]["rmse_per_joint"], rtol=1e-12)

@@ -384,6 +384,21 @@ def _cmd_init(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_predict(args: argparse.Namespace) -> int:
+    _check_out(args.out)
+    from dynid.pipeline.predict import load_saved, predict, write_prediction
+
+    load_saved(args.result)  # a missing or older result is refused before the log is read
+    with _progress_bar(not args.quiet) as progress:
+        outcome = predict(args.result, args.log_config, progress)
+    written = write_prediction(outcome, args.out, plots=not args.no_plots)
+    if not args.quiet:
+        print(outcome.summary_text())
+        print()
+    print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="dynid", description="Identify the dynamic parameters of robot manipulators.")
     p.add_argument("--version", action="version", version=f"dynid {__version__}")
@@ -417,6 +432,16 @@ def build_parser() -> argparse.ArgumentParser:
     pid.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pid.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
     pid.set_defaults(func=_cmd_identify)
+
+    pp = sub.add_parser("predict", help="score a saved identification on a new log, beside the nominal model: "
+                                        "per-joint RMSE, relative error, R2, plot")
+    pp.add_argument("result", help="the --out folder of dynid identify (or its result.json)")
+    pp.add_argument("log_config", help="TOML with a [data] table naming the new log (identify's [data] keys) and "
+                                       "optionally [robot] (checked against the result's)")
+    pp.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    pp.add_argument("--no-plots", action="store_true", help="no predict.png")
+    pp.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+    pp.set_defaults(func=_cmd_predict)
 
     pf = sub.add_parser("identifiability", help="model-structure search of paper 000 on CONFIG.toml's logs: models "
                                                 "1-4, parameters identified (rel. std < 15 %% and feasible), eps_RA, eps_AV")

@@ -233,17 +233,20 @@ def _inertial_comment(m: float, I_c: FloatArray, body: str) -> ET.Element | None
 
 
 # ---------------------------------------------------------------------------- URDF
-def write_model(robot: RobotModel | Mechanism, params: FloatArray, folder: str | Path, *, name: str | None = None) -> Path:
+def write_model(robot: RobotModel | Mechanism, params: FloatArray, folder: str | Path, *, name: str | None = None,
+                notes: Sequence[str] = ()) -> Path:
     """The robot with standard parameters ``params`` as a description a simulator loads:
     ``model.urdf`` for a serial robot, ``model.mjcf`` for a closed-loop mechanism (whose loop
-    closures URDF cannot express), in ``folder``. Returns the path."""
+    closures URDF cannot express), in ``folder``; ``notes``: lines for the file's header comment
+    (e.g. that the vector is one of many with the same base parameters). Returns the path."""
     folder = Path(folder)
     if isinstance(robot, Mechanism):
-        return write_mjcf(robot, params, folder / "model.mjcf", name=name)
-    return write_urdf(robot, params, folder / "model.urdf", name=name)
+        return write_mjcf(robot, params, folder / "model.mjcf", name=name, notes=notes)
+    return write_urdf(robot, params, folder / "model.urdf", name=name, notes=notes)
 
 
-def write_urdf(robot: RobotModel, params: FloatArray, path: str | Path, *, name: str | None = None) -> Path:
+def write_urdf(robot: RobotModel, params: FloatArray, path: str | Path, *, name: str | None = None,
+               notes: Sequence[str] = ()) -> Path:
     """Write a serial robot with the given standard parameters as a URDF file.
 
     Parameters
@@ -383,6 +386,7 @@ def write_urdf(robot: RobotModel, params: FloatArray, path: str | Path, *, name:
     g = np.asarray(model.gravity.linear)
     if not np.allclose(g, [0.0, 0.0, -9.81]):
         header.append(f"Gravity of the model: {_vec(g)} m/s^2 (URDF has no gravity).")
+    header += [f"dynid: {n}" for n in notes]
     return _write_text(path, _to_text(root, header))
 
 
@@ -432,6 +436,7 @@ def write_mjcf(
     *,
     name: str | None = None,
     range_convention: str = "pinocchio",
+    notes: Sequence[str] = (),
 ) -> Path:
     """Write a closed-loop mechanism with the given standard parameters as an MJCF file.
 
@@ -467,7 +472,10 @@ def write_mjcf(
         Wrong number of parameters, NaN/inf, unknown ``range_convention``, missing folder.
     ModelError
         A body with a negative mass, or a negative Coulomb (``frictionloss``) value:
-        MJCF forbids both (pinocchio's parser and MuJoCo's compiler refuse the file).
+        MJCF forbids both (pinocchio's parser and MuJoCo's compiler refuse the file). A
+        body whose inertia about the centre of mass has a negative diagonal entry: MuJoCo
+        refuses it and pinocchio 4.1's parser reads it as 0, so the file would not hold the
+        parameters (found exporting an OLS result's closest-to-nominal vector, issue 20).
 
     Notes
     -----
@@ -583,6 +591,13 @@ def write_mjcf(
                     f"body of joint {jname!r} has a negative mass {m:.6g} kg: MJCF masses must be >= 0 "
                     "(pinocchio and MuJoCo refuse the file)"
                 )
+            neg_diag = [a for a, x in zip(("Ixx", "Iyy", "Izz"), np.diag(I_c)) if x < 0.0]
+            if neg_diag:  # pinocchio 4's MJCF parser reads a negative diagonal entry as 0: the file would lie
+                raise ModelError(
+                    f"body of joint {jname!r} has a negative {', '.join(neg_diag)} about its centre of mass "
+                    f"({', '.join(f'{x:.6g}' for x in np.diag(I_c))} kg*m^2): pinocchio's MJCF parser reads such an "
+                    "entry as 0 and MuJoCo refuses it"
+                )
             flag = _inertial_comment(m, I_c, bodies[j])
             if flag is not None:
                 body.append(flag)
@@ -640,4 +655,5 @@ def write_mjcf(
     if mech.task_coordinates:
         header.append(f"dynid: task coordinates: {list(mech.task_coordinates)}")
     header += [f"dynid note: {n}" for n in mech.notes]
+    header += [f"dynid: {n}" for n in notes]
     return _write_text(path, _to_text(root, header))

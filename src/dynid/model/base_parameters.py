@@ -138,18 +138,25 @@ class BaseParameters:
             raise ModelError(f"expected {self.n_standard} standard parameters, got {pi.shape[-1]}")
         return pi[..., self.independent] + pi[..., self.dependent] @ self.K.T
 
-    def to_standard(self, beta: FloatArray, reference: FloatArray | None = None) -> FloatArray:
+    def to_standard(self, beta: FloatArray, reference: FloatArray | None = None,
+                    scale: FloatArray | None = None) -> FloatArray:
         """The standard vector closest to ``reference`` (default 0) that maps to ``beta``.
 
-        Solves :math:`\\min \\|\\pi - \\pi_{ref}\\|` subject to :math:`B\\pi = \\beta`,
-        i.e. :math:`\\pi = \\pi_{ref} + B^+(\\beta - B\\pi_{ref})`.
+        Solves :math:`\\min \\|S^{-1}(\\pi - \\pi_{ref})\\|` subject to :math:`B\\pi = \\beta`
+        (``scale``: the diagonal of :math:`S`, default ones), the minimum-norm solution of an
+        underdetermined linear system: with :math:`x = S^{-1}(\\pi - \\pi_{ref})`,
+        :math:`\\pi = \\pi_{ref} + S (BS)^+(\\beta - B\\pi_{ref})`. ``B`` has full row rank, so
+        the result maps to ``beta`` exactly (to rounding).
         """
         beta = np.asarray(beta, dtype=float)
         if beta.shape != (self.n_base,):
             raise ModelError(f"expected {self.n_base} base parameters, got shape {beta.shape}")
         ref = np.zeros(self.n_standard) if reference is None else np.asarray(reference, dtype=float)
+        s = np.ones(self.n_standard) if scale is None else np.asarray(scale, dtype=float)
+        if s.shape != (self.n_standard,) or not np.all(np.isfinite(s) & (s > 0)):
+            raise ModelError(f"expected {self.n_standard} positive finite scales")
         b = self.B
-        return ref + np.linalg.lstsq(b, beta - b @ ref, rcond=None)[0]
+        return ref + s * np.linalg.lstsq(b * s, beta - b @ ref, rcond=None)[0]
 
     def regressor(self, Y: FloatArray) -> FloatArray:
         """Base regressor: the independent columns of a standard regressor."""
@@ -157,6 +164,27 @@ class BaseParameters:
         if Y.shape[-1] != self.n_standard:
             raise ModelError(f"regressor has {Y.shape[-1]} columns, expected {self.n_standard}")
         return Y[..., self.independent]
+
+
+def parameter_scales(names: Sequence[str], body_blocks: Sequence[IntArray], nominal: FloatArray) -> FloatArray:
+    """A magnitude per standard parameter for :meth:`BaseParameters.to_standard`'s weighting, so
+    that kilograms, kilogram-metres and kilogram-square-metres are not compared as numbers: the
+    RMS of the nonzero nominal values of its kind (bodies: mass, first moment, inertia; a joint
+    term: the letters of its name, e.g. ``fv``, ``fc+``, ``Ia``), 1 where a kind has none."""
+    import re
+
+    nominal = np.asarray(nominal, dtype=float)
+    kind = [re.match(r"[A-Za-z]*[+-]?", n).group() or n for n in names]
+    for blk in body_blocks:
+        for k, i in enumerate(blk):
+            kind[int(i)] = "body mass" if k == 0 else "body first moment" if k < 4 else "body inertia"
+    out = np.ones(len(names))
+    for key in set(kind):
+        idx = [i for i, k in enumerate(kind) if k == key]
+        v = nominal[idx][nominal[idx] != 0]
+        if v.size:
+            out[idx] = float(np.sqrt(np.mean(v**2)))
+    return out
 
 
 def random_states(

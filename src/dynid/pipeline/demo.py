@@ -193,7 +193,8 @@ def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int =
             relocated = _relocate(dict(o.result.provenance), *where)
             outcomes[method] = dataclasses.replace(
                 o, result=o.result.with_provenance(**relocated),
-                validation=dataclasses.replace(o.validation, source=_relocate(o.validation.source, *where)))
+                validation=dataclasses.replace(o.validation, source=_relocate(o.validation.source, *where)),
+                prediction=_relocate(o.prediction, *where))
             write_files(outcomes[method], folder)
         main = outcomes["didim"]
         truth = sims["train"].truth

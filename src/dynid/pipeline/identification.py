@@ -41,7 +41,7 @@ from dynid._files import TIMING_FILE, write_timing
 from dynid._typing import FloatArray
 from dynid.config import Config
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError, IdentifiabilityError, InputError
+from dynid.errors import ConfigError, IdentifiabilityError, InputError, ModelError
 from dynid.estimation import IdentificationResult, ProblemBuilder, RegressionProblem
 from dynid.estimation.validation import ValidationMetrics, motion_overlap, prior_comparison
 from dynid.io.output import staged_output
@@ -413,6 +413,7 @@ class IdentifyOutcome:
     full_rate: FullRate | None = None  # with decimation: the held-out errors at every logged sample
     learning: Any = None  # [learning]: dynid.pipeline.learning.LearningOutcome (the residual network)
     units: tuple[str, ...] = ()  # unit of each output channel, from the log (effort_units)
+    prediction: dict[str, Any] | None = None  # what dynid predict needs (result.json "prediction_inputs")
 
     def summary_text(self) -> str:
         v = self.validation
@@ -1049,6 +1050,33 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
         notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
     if notes:
         result = result.with_notes(*notes)
+    scored = score_held_out(cfg0, cfg, system, base, result, force_model, pcfg, held_out, valid_a, fj, periodic,
+                            parallel, progress)
+    metrics, prior, other, selected, full = scored
+    tr = system.transmission
+    comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
+    learned = None
+    if cfg.learning is not None:
+        learned = _learn(cfg, system, base, result, train, held_out, icfg.chunk_size, progress,
+                         fj if icfg.hierarchical else None)
+    prediction = prediction_inputs(cfg0, pcfg, periodic, smoothing, system, base, force_model)
+    return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
+                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
+                           other_view=other, selected=selected, full_rate=full, learning=learned,
+                           units=effort_units(system, force_model, raw_train.meta["effort_kind"]), prediction=prediction)
+
+
+def score_held_out(cfg0: Config, cfg: Config, system: System, base: BaseParameters, result: IdentificationResult,
+                   force_model: str | None, pcfg, held_out: Dataset, valid_a: Dataset, fj, periodic, parallel: int,
+                   progress: Progress = _no_progress):
+    """The identified and the nominal model on a processed held-out log (``held_out``; ``valid_a``:
+    the same log in actuator space before the processing, for the full-rate scores): (metrics,
+    nominal metrics, other view, selected rows, full rate). ``identify`` scores its validation log
+    with it and ``dynid predict`` (:mod:`dynid.pipeline.predict`) a new log, so both apply one
+    rule. ``cfg0``: the configuration as given (a hierarchical run's nominal model keeps its
+    friction, :func:`_hierarchical_prior`); ``cfg``: as identified; ``pcfg``: the processing the
+    model was identified with (maximum likelihood: at the estimated cut-off)."""
+    icfg = cfg.identification
     nominal = base.from_standard(system.nominal_parameters())
     rows_rule = None
     if pcfg.selects_rows and not (icfg.method == "ml" and pcfg.periodic is not None):  # periodic ml: no rows selected
@@ -1075,16 +1103,37 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
             selected = dataclasses.replace(selected, nominal=sel_nominal)
         if full is not None:
             full = dataclasses.replace(full, nominal=full_nominal)
-    tr = system.transmission
-    comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
-    learned = None
-    if cfg.learning is not None:
-        learned = _learn(cfg, system, base, result, train, held_out, icfg.chunk_size, progress,
-                         fj if icfg.hierarchical else None)
-    return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
-                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
-                           other_view=other, selected=selected, full_rate=full, learning=learned,
-                           units=effort_units(system, force_model, raw_train.meta["effort_kind"]))
+    return metrics, prior, other, selected, full
+
+
+PREDICTION_FORMAT = 1
+"""Version of the ``prediction_inputs`` section of result.json (:func:`prediction_inputs`); ``dynid
+predict`` refuses a result without it or with another version."""
+
+
+def prediction_inputs(cfg0: Config, pcfg, periodic, smoothing: dict[str, Any] | None, system: System,
+                      base: BaseParameters, force_model: str | None) -> dict[str, Any]:
+    """What ``dynid predict`` needs to score the saved model on a new log exactly as ``identify``
+    scored its validation log: the robot description (resolved path) and drive train, the
+    processing as identified (maximum likelihood: at the estimated cut-off), the
+    ``[identification]`` table (structure, force model, base-parameter seed, hierarchical friction),
+    the Coulomb smoothing widths of the fit, and the base-parameter definition to check against."""
+    eff = pcfg if periodic is None or pcfg.periodic is None else dataclasses.replace(pcfg, periodic=periodic)
+    robot = dataclasses.asdict(cfg0.robot)
+    return {
+        "format_version": PREDICTION_FORMAT,
+        "config_dir": None if cfg0.source is None else str(Path(cfg0.source).parent),
+        "robot": robot,
+        "processing": dataclasses.asdict(eff),
+        "identification": dict(cfg0.raw.get("identification", {})),
+        "learning": cfg0.raw.get("learning"),
+        "coulomb_width": None if smoothing is None else list(smoothing["width"]),
+        "force_model": force_model,
+        "actuators": list(system.actuator_names),
+        "channels": list(system.channel_names(force_model)),
+        "base_parameters": {"names": list(base.names), "standard_names": list(base.standard_names),
+                            "B": base.B.tolist()},
+    }
 
 
 def _model_rows(system: System, base: BaseParameters, params: FloatArray, ds: Dataset,
@@ -1139,24 +1188,63 @@ def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Pa
     return {name: out / name for name in produced}
 
 
+ONE_OF_MANY = ("one of many: the data fix only the base parameters; these standard parameters are the vector closest "
+               "to the nominal one (min ||S^-1 (pi - pi_nom)||, S the RMS nominal magnitude of each kind of parameter: "
+               "mass, first moment, inertia, each joint term) that gives exactly the estimated base parameters; every "
+               "other vector with these base parameters predicts the same forces")
+
+
+def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | None:
+    """The standard vector of a result (the system's parameters), and notes for the exported file:
+    a physically consistent fit's recovered vector, else, for every result whose parameters start
+    with the base parameters (OLS, WLS, Gauss-Markov, IV, DIDIM, maximum likelihood; the rigid-body
+    part of a Stribeck or hierarchical fit), the vector closest to the nominal one that reproduces
+    the base estimate (:meth:`~dynid.model.base_parameters.BaseParameters.to_standard` with
+    :func:`~dynid.model.base_parameters.parameter_scales`): one of many. None: no base parameters."""
+    from dynid.model.base_parameters import parameter_scales
+
+    res = outcome.result
+    system = outcome.system if outcome.system is not None else as_system(outcome.robot)
+    names = system.parameter_names
+    std = res.solver.get("standard_params")
+    if std:
+        missing = [n for n in names if n not in std]
+        if missing:
+            raise InputError(f"the result's standard parameters do not match the robot (missing {missing[:3]})")
+        return np.array([std[n] for n in names], dtype=float), []
+    base = outcome.base
+    if tuple(res.names[: base.n_base]) != base.names or tuple(base.standard_names) != tuple(names):
+        return None
+    nominal = system.nominal_parameters()
+    scale = parameter_scales(names, system.body_blocks(), nominal)
+    beta = np.array(res.params[: base.n_base], dtype=float)
+    notes = [ONE_OF_MANY]
+    if "stribeck" in res.solver:  # its curves replace the linear Coulomb and viscous columns (stribeck.predict)
+        fj = stribeck.friction_joints(system, base)
+        beta[list(fj.coulomb) + list(fj.viscous)] = 0.0
+        notes.append("the Stribeck friction curves (result.json solver.stribeck) replace the linear Coulomb and "
+                     "viscous terms, written here as 0")
+    pi = base.to_standard(beta, nominal, scale)
+    if "hierarchical" in res.solver:
+        notes.append("the hierarchical fit's friction curves are in result.json (solver.hierarchical), not in this file")
+    return pi, notes
+
+
 def export_model(outcome: IdentifyOutcome, folder: Path) -> Path | None:
-    """The recovered standard parameters of a physically consistent fit as a robot description:
+    """The result's standard parameters (:func:`standard_vector`) as a robot description:
     ``model.urdf`` for a serial robot, ``model.mjcf`` for a closed-loop mechanism (None when the
-    method recovers no standard parameters)."""
-    std = outcome.result.solver.get("standard_params")
-    if not std:
+    result has no base parameters to reproduce)."""
+    found = standard_vector(outcome)
+    if found is None:
         return None
     from dynid.io.export import write_model
 
+    pi, notes = found
     robot = outcome.robot
     system = outcome.system if outcome.system is not None else as_system(robot)
-    names = system.parameter_names
-    missing = [n for n in names if n not in std]
-    if missing:
-        raise InputError(f"the result's standard parameters do not match the robot (missing {missing[:3]})")
     # a reduced structure (identification.structure): every tied body gets its group's values
-    params = system.expand_parameters(np.array([std[n] for n in names], dtype=float))
-    return write_model(robot, params, folder, name=f"{robot.name}_identified")
+    params = system.expand_parameters(pi)
+    return write_model(robot, params, folder, name=f"{robot.name}_identified", notes=notes)
 
 
 def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]:
@@ -1165,16 +1253,16 @@ def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]
     base parameters fix only combinations of the standard ones; without regularization the rest
     comes from the tie-break, and a constrained fit on weak data can push it far (e.g. legs of
     hundreds of tonnes that give the same actuator forces)."""
-    std = outcome.result.solver.get("standard_params")
+    found = standard_vector(outcome)
     robot = outcome.system if outcome.system is not None else as_system(outcome.robot)
-    if not std:
+    if found is None:
         return []
     nominal = robot.nominal_parameters()
     names = robot.parameter_names
     far = []
     for blk in robot.body_blocks():
         i = blk[0]
-        m, m0 = float(std[names[i]]), float(nominal[i])
+        m, m0 = float(found[0][i]), float(nominal[i])
         if m0 > 0 and not (m0 / factor <= m <= m0 * factor):
             far.append(f"{names[i]} = {m:.4g} kg (nominal {m0:.4g} kg)")
     if not far:
@@ -1236,6 +1324,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             **({"validation_full_rate": _full_rate_dict(outcome.full_rate)} if outcome.full_rate is not None else {}),
             **({"learning": outcome.learning.to_dict()} if outcome.learning is not None else {}),
             "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
+            **({"prediction_inputs": outcome.prediction} if outcome.prediction is not None else {}),
             "base_parameters": {
                 "names": list(outcome.base.names),
                 "expressions": list(expressions),
@@ -1254,8 +1343,15 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
         for i, n in enumerate(res.names):
             w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i], res.covariance_kind or ""])
     warn = export_warnings(outcome)
+    found = standard_vector(outcome)
+    try:
+        exported = export_model(outcome, stage)
+    except ModelError as exc:  # MJCF forbids a negative mass: the estimate is kept, the file is not written
+        exported = None
+        warn = [f"no robot description exported: {exc}", *warn]
+    if exported is not None and found is not None and found[1]:
+        warn = [f"exported {exported.name}: " + "; ".join(found[1]), *warn]
     (stage / "summary.txt").write_text(outcome.summary_text() + "\n" + "".join(f"\n{w}\n" for w in warn))
-    export_model(outcome, stage)
     if outcome.learning is not None:
         from dynid.pipeline.learning import LEARNING_FILE
 
