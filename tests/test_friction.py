@@ -298,6 +298,10 @@ def test_simulate_refuses_a_mechanism(tmp_path, capsys):
     ("held_out = 'random'", "friction.held_out: must be one of"),
     ("labels = { speed = 'v_level' }", "'v_level'"),
     ("joints = ['joint_9']", "friction.joints: ['joint_9'] are not joints"),
+    ("settle = 'yes'", "friction.settle: expected true or false"),
+    ("settle_tol = 1.5", "friction.settle_tol: 1.5; give a fraction of the speed in (0, 1)"),
+    ("settle_k = 0", "friction.settle_k: must be positive"),
+    ("settle_block = -0.1", "friction.settle_block: must be positive"),
 ])
 def test_friction_bad_configs(tmp_path, capsys, extra, message):
     (tmp_path / "sim").mkdir()

@@ -64,7 +64,7 @@ def test_the_example_friction_config_is_the_studys(study):
 
     ex = load_friction_config(Path(__file__).resolve().parents[1] / "examples" / "friction" / "paper003_twin.toml")
     f = study.result.settings["friction"]["friction"]
-    assert (list(ex.models), ex.skip, ex.held_out) == (f["models"], f["skip"], f["held_out"])
+    assert (list(ex.models), ex.skip, ex.settle, ex.held_out) == (f["models"], f["skip"], f["settle"], f["held_out"])
 
 
 def test_the_friction_experiment_is_the_designed_one(study):
@@ -150,8 +150,9 @@ def test_target_1_proposed_fbpe_against_wls_fbpe(study):
 
 
 def test_target_2_pi_lstm(study):
-    """Item 6 asks the PI-LSTM to lower the VT2 Sum by at least 20 %. The full run gains 20.3 %
-    (bench/README; the truth's own friction state leaves 21.4 %), the quick one what the record's
+    """Item 6 asks the PI-LSTM to lower the VT2 Sum by at least 20 %. The full run gains 17.9 %
+    (bench/README: was 20.3 % before the steady-state friction points; the truth's own friction
+    state leaves 21.4 %), the quick one what the record's
     conclusions say. Here what holds on both: the network lowers the Sum by more than the noise
     floor's Sum, and cannot go below the plant's own friction state (the truth with memory) by more
     than that floor."""
@@ -161,15 +162,15 @@ def test_target_2_pi_lstm(study):
 
 
 def test_target_3_friction_coefficients_of_the_true_family(study):
-    """dynid friction's Eq. 15 fit to the points of the designed experiment (the steady state of
-    the plant's friction is exactly Eq. 15): F_c, F_s, F_v, q_s and alpha within 10 % of the truth
-    on every joint, K_v within 15 % (bench/README: 35 of 36 within 10 %, joint 4's K_v -11.4 %, 2.5
-    of its std, is the one miss, a bias of its 0.005 rad/s point: target 3 does not hold)."""
+    """dynid friction's Eq. 15 fit to the steady-state points (``settle = true``) of the designed
+    experiment (the steady state of the plant's friction is exactly Eq. 15): every coefficient
+    within 10 % of the truth on every joint (bench/README: 36 of 36, the worst 4.6 %; with the
+    fixed 1 s skip and 4 s windows joint 4's K_v was -11.4 %, a PID transient in its 0.005 rad/s
+    point)."""
     fit = study.result.friction_fit
     for j in JOINTS:
-        for n in ("fc", "fs", "fv", "vs", "alpha"):
+        for n in ("fc", "fs", "fv", "vs", "kv", "alpha"):
             assert abs(fit[j][n]["rel_error"]) <= 0.10, (j, n, fit[j][n])
-        assert abs(fit[j]["kv"]["rel_error"]) <= 0.15, (j, fit[j]["kv"])
 
 
 def test_target_4_nonlinear_friction_beats_coulomb_viscous(study):

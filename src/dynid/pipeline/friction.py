@@ -10,7 +10,8 @@ compares them on held-out points. Writes, all or nothing:
   with standard errors, the fit's RMSE and reduced chi-square, and the held-out RMSE (fitted on
   the other points); the Table 4-style sums over the joints; notes;
 * ``summary.txt``: the same as tables;
-* ``points.csv``: the extracted points;
+* ``points.csv``: the extracted points (with the seconds each window lost to ``skip`` and the
+  steady-state rule, ``dropped_fwd_s``, ``dropped_bwd_s``);
 * ``friction.png`` (paper 003, Fig. 7 in kind): per joint the points with 95 % error bars
   (held-out ones open) and the fitted curves;
 * ``config.toml``: the configuration used.
@@ -77,7 +78,9 @@ class FrictionOutcome:
                  f"held out: {cfg.held_out}"]
         for j in self.joints:
             p = j.points
-            lines += ["", f"{j.name}: {len(p)} points, speeds {p.speed.min():.3g} to {p.speed.max():.3g}"]
+            lines += ["", f"{j.name}: {len(p)} points, speeds {p.speed.min():.3g} to {p.speed.max():.3g}; seconds left out "
+                          f"per window (skip{' + settling' if cfg.settle else ''}): forward {p.dropped_fwd.min():.2g} to "
+                          f"{p.dropped_fwd.max():.2g}, backward {p.dropped_bwd.min():.2g} to {p.dropped_bwd.max():.2g}"]
             for m in cfg.models:
                 f = j.fits[m]
                 coef = ", ".join(f"{n} {v:.4g}" + (" (at bound)" if b else f" ± {s:.2g}")
@@ -147,7 +150,8 @@ def run_friction(cfg: FrictionConfig, progress: Progress | None = None) -> Frict
     ds, notes = to_actuator_space(ds, system, "data")
     lab = _labels(cfg, ds.n_samples)
     pts = extract_friction_points(ds.t, ds.q, ds.tau, lab["joint"], lab["speed"], lab["direction"], lab["repetition"],
-                                  skip=cfg.skip, min_samples=cfg.min_samples, names=names)
+                                  skip=cfg.skip, min_samples=cfg.min_samples, names=names, settle=cfg.settle,
+                                  settle_block=cfg.settle_block, settle_k=cfg.settle_k, settle_tol=cfg.settle_tol)
     notes = list(notes) + list(pts.notes)
     tested = sorted(set(pts.joint.tolist()))
     if cfg.joints is not None:
@@ -204,6 +208,7 @@ def _json(outcome: FrictionOutcome) -> dict:
             points.append({"joint": j.name, "speed_cmd": float(p.speed_cmd[i]), "speed": float(p.speed[i]),
                            "force": float(p.force[i]), "sigma": float(p.sigma[i]), "spread": float(p.spread[i]),
                            "n_samples": int(p.n[i]), "stroke": float(p.stroke[i]), "repetition": int(p.repetition[i]),
+                           "dropped_fwd_s": float(p.dropped_fwd[i]), "dropped_bwd_s": float(p.dropped_bwd[i]),
                            "held_out": bool(j.held_out[i])})
         models = {}
         for m, f in j.fits.items():
@@ -218,9 +223,11 @@ def _json(outcome: FrictionOutcome) -> dict:
         "format": FRICTION_FORMAT,
         "dynid_version": __version__,
         "robot": outcome.robot,
-        "method": "paper 003 Sec. 3.1: F_f = (tau(q, v) - tau(q, -v)) / 2 at matched positions; bounded weighted "
-                  "least squares, std from the Jacobian scaled by the reduced chi-square",
+        "method": "paper 003 Sec. 3.1: F_f = (tau(q, v) - tau(q, -v)) / 2 at matched positions of the windows' steady "
+                  "parts; bounded weighted least squares, std from the Jacobian scaled by the reduced chi-square",
         "settings": {"models": list(cfg.models), "skip_s": cfg.skip, "min_samples": cfg.min_samples,
+                     "settle": cfg.settle, "settle_block_s": cfg.settle_block, "settle_k": cfg.settle_k,
+                     "settle_tol": cfg.settle_tol,
                      "held_out": cfg.held_out, "labels": dict(cfg.labels)},
         "units": "speeds rad/s (m/s for prismatic joints), friction N*m (N)",
         "joints": joints,
@@ -238,11 +245,12 @@ def write_friction(outcome: FrictionOutcome, out_dir: str | Path) -> list[str]:
     with staged_output(out_dir) as stage:
         (stage / "friction.json").write_text(json.dumps(_json(outcome), indent=2, allow_nan=True) + "\n")
         (stage / "summary.txt").write_text(outcome.summary_text() + "\n")
-        rows = ["joint,speed_cmd,speed,force,sigma,spread,n_samples,repetition,held_out"]
+        rows = ["joint,speed_cmd,speed,force,sigma,spread,n_samples,repetition,held_out,dropped_fwd_s,dropped_bwd_s"]
         for j in outcome.joints:
             p = j.points
             rows += [f"{j.name},{p.speed_cmd[i]:.17g},{p.speed[i]:.17g},{p.force[i]:.17g},{p.sigma[i]:.17g},"
-                     f"{p.spread[i]:.17g},{p.n[i]},{p.repetition[i]},{int(j.held_out[i])}" for i in range(len(p))]
+                     f"{p.spread[i]:.17g},{p.n[i]},{p.repetition[i]},{int(j.held_out[i])},{p.dropped_fwd[i]:.6g},"
+                     f"{p.dropped_bwd[i]:.6g}" for i in range(len(p))]
         (stage / "points.csv").write_text("\n".join(rows) + "\n")
         if cfg.plots:
             from dynid.report.plots import plot_friction
