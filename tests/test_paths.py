@@ -50,6 +50,34 @@ def test_fourier_quintic_rests_at_both_ends_and_closes():
     np.testing.assert_allclose(dx_out, 0.0)
 
 
+def test_random_rest_to_rest_fourier_stays_in_its_range_and_needs_no_quintic():
+    """With ``rest_to_rest`` the series itself rests at t = 0 and T, so the quintic of paper 003's
+    Fourier + quintic is zero and the whole motion keeps the ``fill`` of the range it was scaled to
+    (the plain series + quintic at 0.05 Hz leaves it by far: the case that exposed the defect)."""
+    lo, hi = np.array([-3.1, -1.6, -2.6]), np.array([3.1, 1.6, 2.6])
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        four = FourierTrajectory.random(3, 5, 0.05, rng, lo, hi, max_velocity=1.0, max_acceleration=3.0,
+                                        fill=0.6, rest_to_rest=True)
+        _, dq0, ddq0 = four.sample(np.array([0.0, four.period]))
+        scale = np.abs(four.sample(np.linspace(0, four.period, 401))[1]).max()
+        np.testing.assert_allclose(dq0, 0.0, atol=1e-12 * scale)
+        np.testing.assert_allclose(ddq0, 0.0, atol=1e-12 * scale)
+        traj = FourierQuintic(four)
+        t = np.linspace(0.0, traj.duration, 4001)
+        q = traj.sample(t)[0]
+        np.testing.assert_allclose(q, four.sample(t)[0], atol=1e-9)  # the quintic vanishes
+        half = 0.6 * (hi - lo) / 2
+        assert np.all(np.abs(q - four.q0) <= half * (1 + 1e-3))  # scaled on a 2001-point grid
+    # the same draw without the projection: its quintic leaves the range (the old behaviour)
+    plain = FourierTrajectory.random(3, 5, 0.05, np.random.default_rng(0), lo, hi, max_velocity=1.0,
+                                     max_acceleration=3.0, fill=0.6)
+    q = FourierQuintic(plain).sample(np.linspace(0.0, plain.period, 4001))[0]
+    assert np.any((q < lo) | (q > hi))
+    with pytest.raises(InputError, match="at least 2 harmonics"):
+        FourierTrajectory.random(3, 1, 0.1, np.random.default_rng(0), lo, hi, rest_to_rest=True)
+
+
 def test_bidirectional_velocity_segments():
     traj = BidirectionalVelocity(speeds=(0.2, 0.5, 1.0), period=4.0, switch=0.2, q0=0.3)
     assert traj.duration == pytest.approx(3 * 4.0 + 0.2)

@@ -256,3 +256,32 @@ def test_truth_json_records_no_friction_the_plant_did_not_use(tmp_path):
     model = fr.SmoothStribeck(fc=1.0, fs=1.5, fv=2.0, vs=0.05, kv=200.0, alpha=0.8)
     tau = inverse_dynamics(robot, np.asarray(truth["true_parameters"]), m.q, m.dq, m.ddq) + model.force(m.dq)
     np.testing.assert_allclose(m.tau, tau, atol=1e-8 * np.abs(tau).max())
+
+
+def test_a_commanded_motion_outside_the_joint_limits_is_refused(tmp_path):
+    """The whole reference is checked against a serial robot's joint limits before anything runs:
+    a circle of radius 2 rad in joints 1-2 of the cobot (joint 2 within +-1.6 rad) is refused in one
+    line that names the joint, and nothing is written; a rest-to-rest Fourier at 0.05 Hz (whose
+    quintic used to leave the range by several radians) now simulates inside it."""
+    (tmp_path / "c.toml").write_text(
+        '[robot]\nmodel = "builtin:cobot6r"\n[trajectory]\nkind = "circle"\naxes = ["joint_1", "joint_2"]\n'
+        'centre = [0.0, 0.0]\nradius = 2.0\nspeed = 1.0\nturns = 0.5\n[control]\nrate_hz = 500\nkp = 400\nkd = 40\n')
+    r = _dynid("simulate", "c.toml", "--out", "o", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "leaves the joint limits" in r.stderr and "joint_2" in r.stderr and "joint_1 " not in r.stderr
+    assert not (tmp_path / "o").exists()
+    doc = {"robot": {"model": "builtin:cobot6r"},
+           "trajectory": {"kind": "fourier", "base_frequency_hz": 0.05, "harmonics": 5, "fill": 0.6,
+                          "max_velocity": 1.0, "max_acceleration": 3.0, "quintic": True, "seed": 6},
+           "control": {"rate_hz": 200, "kp": 400, "kd": 40}}
+    cfg = dataclasses.replace(parse_simulate_config(doc, tmp_path), duration=None)
+    from dynid.pipeline.simulate import _trajectory
+    from dynid.model.loading import load_model
+    robot = load_model("builtin:cobot6r")
+    traj, _ = _trajectory(cfg, robot)
+    lo, hi = robot.position_limits()
+    q = traj.sample(np.linspace(0.0, traj.duration, 8001))[0]
+    assert np.all(q >= lo) and np.all(q <= hi)
+    doc["trajectory"]["harmonics"] = 1
+    with pytest.raises(ConfigError, match="at least 2 harmonics"):
+        _trajectory(parse_simulate_config(doc, tmp_path), robot)

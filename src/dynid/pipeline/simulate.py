@@ -196,11 +196,38 @@ def _trajectory(cfg: SimulateConfig, robot):
         four = _design_trajectory(cfg, names)
     else:
         rng = np.random.default_rng(v["seed"])
-        four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
-                                        max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"], fill=v["fill"])
+        try:
+            four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
+                                            max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"],
+                                            fill=v["fill"], rest_to_rest=bool(v["quintic"]))
+        except InputError as exc:
+            raise ConfigError(f"trajectory: {exc}") from None
     if v["quintic"]:
         return FourierQuintic(four), names
     return (Repeated(four, v["periods"]) if v["periods"] > 1 else four), names
+
+
+def _check_reference_limits(traj, duration: float, dt: float, robot, names: list[str]) -> None:
+    """Refuse a commanded trajectory that leaves a serial robot's joint limits.
+
+    The Fourier series is fitted inside the limits, but what the controller is asked to follow is
+    the whole reference: the quintic of a rest-to-rest trajectory (``quintic = true``, paper 003
+    Sec. 4.2) adds a polynomial whose size grows with the period (it cancels the series' velocity
+    and acceleration at both ends), and a design or path can be scaled past the range. The
+    reference is sampled on the control grid and compared with the joint limits (to 1e-9)."""
+    lo, hi = robot.position_limits()
+    t = np.arange(0.0, duration + 0.5 * dt, dt)
+    q = np.asarray(traj.sample(t)[0], dtype=float)
+    tol = 1e-9
+    bad = []
+    for k, name in enumerate(names):
+        qmin, qmax = float(q[:, k].min()), float(q[:, k].max())
+        if (np.isfinite(lo[k]) and qmin < lo[k] - tol) or (np.isfinite(hi[k]) and qmax > hi[k] + tol):
+            bad.append(f"{name} reaches [{qmin:.4g}, {qmax:.4g}] outside [{lo[k]:.4g}, {hi[k]:.4g}]")
+    if bad:
+        hint = (" (the rest-to-rest quintic grows with the period: raise base_frequency_hz or lower fill)"
+                if isinstance(traj, FourierQuintic) else "")
+        raise ConfigError(f"trajectory: the commanded motion leaves the joint limits: {'; '.join(bad)}{hint}")
 
 
 def _constant_velocity(v: dict, robot, lo: np.ndarray, hi: np.ndarray, names: list[str],
@@ -462,6 +489,8 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
     duration = cfg.duration if cfg.duration is not None else float(getattr(traj, "duration", None) or traj.period)
     dt = 1.0 / c.rate_hz
     n_u = len(coord_names)
+    if not mech:
+        _check_reference_limits(traj, duration, dt, robot, coord_names)
     n_act = robot.n_actuators if mech else robot.dof
     if c.kind == "computed_torque":
         kp, kd = _gains(c.kp, n_u, "kp"), _gains(c.kd, n_u, "kd")

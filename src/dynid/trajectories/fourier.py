@@ -90,15 +90,32 @@ class FourierTrajectory:
         max_velocity: FloatArray | float = 2.0,
         max_acceleration: FloatArray | float = 10.0,
         fill: float = 0.8,
+        rest_to_rest: bool = False,
     ) -> FourierTrajectory:
         """Random coefficients, scaled per joint to stay inside limits.
 
         Each joint moves about the middle of its range using at most ``fill`` of the
         half-range, and at most ``max_velocity`` / ``max_acceleration``.
+
+        ``rest_to_rest``: the coefficients are projected onto zero velocity and acceleration at
+        ``t = 0`` (hence at every multiple of the period): :math:`\\dot q_j(0) = \\sum_k a_{jk} = 0`
+        and :math:`\\ddot q_j(0) = \\omega_f \\sum_k k\\, b_{jk} = 0`. The quintic of paper 003's
+        Fourier + quintic excitation (Sec. 4.2, :class:`~dynid.trajectories.FourierQuintic`) is
+        then zero and the limits checked here are those of the whole commanded motion; fitting an
+        arbitrary series and adding the quintic afterwards leaves the range (the polynomial that
+        cancels the end velocities grows with the period: several radians at 0.1 Hz). Needs at
+        least two harmonics (with one, both constraints leave no motion).
         """
         lower, upper = np.asarray(lower, float), np.asarray(upper, float)
         a = rng.standard_normal((n_joints, n_harmonics))
         b = rng.standard_normal((n_joints, n_harmonics))
+        if rest_to_rest:
+            if n_harmonics < 2:
+                raise InputError("a rest-to-rest Fourier trajectory needs at least 2 harmonics (with one, zero "
+                                 "velocity and acceleration at the ends leave no motion)")
+            k = np.arange(1, n_harmonics + 1, dtype=float)
+            a = a - a.mean(axis=1, keepdims=True)
+            b = b - np.outer(b @ k, k) / (k @ k)
         traj = cls(base_frequency_hz, a, b, (lower + upper) / 2)
         t = np.linspace(0.0, traj.period, 2001)
         q, dq, ddq = traj.sample(t)
