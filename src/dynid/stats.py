@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as _sla
-from scipy import stats as _st
+from scipy import special as _sp  # scipy.stats would add about a second of imports for two quantiles
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError
@@ -42,7 +42,7 @@ def t_quantile(alpha: float, dof: int) -> float:
     """Two-sided Student-t quantile ``t_{1-alpha/2}(dof)`` (normal when dof is huge)."""
     if not 0 < alpha < 1:
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
-    return float(_st.t.ppf(1 - alpha / 2, max(int(dof), 1)))
+    return float(_sp.stdtrit(max(int(dof), 1), 1 - alpha / 2))  # what scipy.stats.t.ppf evaluates
 
 
 def condition_number(a: FloatArray) -> float:
@@ -122,7 +122,7 @@ def chi2_radius(n_params: int, alpha: float = 0.05) -> float:
         raise InputError(f"n_params must be a positive integer, got {n_params!r}")
     if not 0 < alpha < 1:
         raise InputError(f"alpha must be in (0, 1), got {alpha}")
-    return float(_st.chi2.ppf(1.0 - alpha, n))
+    return float(2.0 * _sp.gammaincinv(n / 2.0, 1.0 - alpha))  # what scipy.stats.chi2.ppf evaluates
 
 
 def ellipsoid_statistic(estimate: FloatArray, reference: FloatArray, cov: FloatArray) -> FloatArray | float:

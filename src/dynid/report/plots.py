@@ -11,12 +11,52 @@ __all__ = ["plot_design", "plot_speed_schedule", "plot_friction", "plot_montecar
 
 _MAX_POINTS = 4000
 
+
 def _pyplot():
     mpl = require("matplotlib", "plot")
     mpl.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def _fixed_layout(fig: Any, *, left: float, right: float, bottom: float, top: float, hspace: float = 0.0,
+                  wspace: float = 0.0) -> tuple[float, float]:
+    """Margins and gaps in inches, set once (no ``tight_layout``: it draws every text of the
+    figure a second time to measure it, the largest cost of a plot); returns one panel's
+    width and height in inches. The margins are sized for the labels each plot draws."""
+    w, h = fig.get_size_inches()
+    gs = fig.axes[0].get_subplotspec().get_gridspec()
+    nr, nc = gs.get_geometry()
+    aw = (w - left - right - (nc - 1) * wspace) / nc
+    ah = (h - top - bottom - (nr - 1) * hspace) / nr
+    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
+                        hspace=hspace / ah, wspace=wspace / aw)
+    return aw, ah
+
+
+def _thin(x: Any, y: Any, n_px: int) -> tuple[Any, Any]:
+    """At most ``n_px`` points of the series ``(x, y)`` (x increasing) for a panel ``n_px``
+    pixels wide: in each of ``n_px // 2`` consecutive runs of samples, its smallest and its
+    largest value, in their order (the drawn envelope is that of the full series, spikes kept;
+    a stride would drop them)."""
+    import numpy as np
+
+    n = x.shape[0]
+    buckets = max(1, n_px // 2 - 1)  # + the leftover run's two: at most n_px
+    if n <= 2 * buckets:
+        return x, y
+    k = n // buckets
+    m = buckets * k
+    blocks = y[:m].reshape(buckets, k)
+    base = np.arange(buckets) * k
+    idx = np.concatenate([base + blocks.argmin(axis=1), base + blocks.argmax(axis=1)])
+    if m < n:  # the samples left over: their extremes too
+        tail = y[m:]
+        idx = np.concatenate([idx, [m + int(tail.argmin()), m + int(tail.argmax())]])
+    idx = np.unique(idx)
+    return x[idx], y[idx]
+
 
 def plot_validation(metrics: Any, path: str | Path, units: Any = None) -> Path:
     """Measured vs predicted efforts on the validation data, one panel per joint, with errors
@@ -28,15 +68,16 @@ def plot_validation(metrics: Any, path: str | Path, units: Any = None) -> Path:
     """
     plt = _pyplot()
     n = metrics.measured.shape[1]
-    step = max(1, metrics.t.shape[0] // _MAX_POINTS)
-    t = metrics.t[::step] - metrics.t[0]
+    dpi = 110
     fig, axes = plt.subplots(n, 1, figsize=(10, 1.9 * n + 0.6), sharex=True, squeeze=False)
+    aw, _ = _fixed_layout(fig, left=0.95, right=0.15, bottom=0.5, top=0.45, hspace=0.12)
+    n_px = int(aw * dpi)
+    t = metrics.t - metrics.t[0]
     for j, ax in enumerate(axes[:, 0]):
-        meas = metrics.measured[::step, j]
-        pred = metrics.predicted[::step, j]
-        ax.plot(t, meas, lw=0.9, color="0.35", label="measured")
-        ax.plot(t, pred, lw=0.9, color="tab:blue", label="predicted")
-        ax.plot(t, meas - pred, lw=0.7, color="tab:red", alpha=0.8, label="error")
+        meas, pred = metrics.measured[:, j], metrics.predicted[:, j]
+        ax.plot(*_thin(t, meas, n_px), lw=0.9, color="0.35", label="measured")
+        ax.plot(*_thin(t, pred, n_px), lw=0.9, color="tab:blue", label="predicted")
+        ax.plot(*_thin(t, meas - pred, n_px), lw=0.7, color="tab:red", alpha=0.8, label="error")
         ax.set_ylabel(f"{metrics.channel_names[j]}\n[{units[j] if units is not None else 'N·m or N'}]", fontsize=8)
         ax.text(0.995, 0.95, f"RMSE {metrics.rmse[j]:.3g} ({metrics.rel_rmse_pct[j]:.2g} %)",
                 transform=ax.transAxes, ha="right", va="top", fontsize=8)
@@ -48,9 +89,8 @@ def plot_validation(metrics: Any, path: str | Path, units: Any = None) -> Path:
     fig.suptitle(f"{label.capitalize()} validation: measured vs predicted "
                  + ("motor currents" if units is not None and set(units) == {"A"} else "actuator efforts")
                  + (" (the validation motion repeats the training motion)" if label == "in-sample" else ""), fontsize=10)
-    fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
 
@@ -215,18 +255,21 @@ def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: in
     import numpy as np
 
     plt = _pyplot()
+    from matplotlib.ticker import LogLocator
+
     n = min(raw.q.shape[1], max_channels)
+    dpi = 100
     fig, axes = plt.subplots(n, 2, figsize=(12, 1.8 * n + 0.8), squeeze=False)
-    step = max(1, raw.t.shape[0] // _MAX_POINTS)
-    pstep = max(1, processed.t.shape[0] // _MAX_POINTS)
+    aw, _ = _fixed_layout(fig, left=0.75, right=0.2, bottom=0.5, top=0.8, hspace=0.35, wspace=0.75)
+    n_px = int(aw * dpi)
 
     def spectrum(t, x):  # Hann-windowed amplitude spectrum (records are not whole periods)
         dt = float(np.median(np.diff(t)))
         f = np.fft.rfftfreq(x.shape[0], dt)
         w = np.hanning(x.shape[0])
         f, a = f[1:], (np.abs(np.fft.rfft((x - x.mean()) * w)) * 2 / w.sum())[1:]
-        if f.size > _MAX_POINTS:  # long logs: the largest amplitude in each of log-spaced bins (peaks kept)
-            edges = np.unique(np.geomspace(1, f.size, _MAX_POINTS).astype(int) - 1)
+        if f.size > n_px:  # long logs: the largest amplitude in each of log-spaced bins, one a pixel (peaks kept)
+            edges = np.unique(np.geomspace(1, f.size, n_px).astype(int) - 1)
             f, a = f[edges], np.maximum.reduceat(a, edges)
         return f, a
 
@@ -237,8 +280,8 @@ def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: in
         gain, marks = _filter_gain(steps, fg)
     for j in range(n):
         ax, axs = axes[j, 0], axes[j, 1]
-        ax.plot(raw.t[::step] - raw.t[0], raw.q[::step, j], lw=0.7, color="0.6", label="raw")
-        ax.plot(processed.t[::pstep] - raw.t[0], processed.q[::pstep, j], lw=0.9, color="tab:blue", label="processed")
+        ax.plot(*_thin(raw.t - raw.t[0], raw.q[:, j], n_px), lw=0.7, color="0.6", label="raw")
+        ax.plot(*_thin(processed.t - raw.t[0], processed.q[:, j], n_px), lw=0.9, color="tab:blue", label="processed")
         ax.set_ylabel(f"{processed.names[j] if processed.names else j}", fontsize=8)
         ax.grid(alpha=0.3)
         peak, floor = 1e-14, 1e-14
@@ -246,11 +289,16 @@ def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: in
             f, a = spectrum(ds.t, ds.q[:, j])
             if label == "raw":
                 peak, floor = max(peak, float(a.max())), max(floor, float(a.min()))
-            axs.loglog(f, np.maximum(a, 1e-14), lw=0.8, color=color, label=label)
-        axs.grid(alpha=0.3, which="both")
+            axs.plot(f, np.maximum(a, 1e-14), lw=0.8, color=color, label=label)
         if gain is not None:  # on the same axes (a twin axis per row doubles the drawing time)
-            axs.loglog(fg, np.maximum(gain * peak, floor), lw=1.0, ls="--", color="tab:green",
-                       label="filter gain x raw peak")
+            axs.plot(fg, np.maximum(gain * peak, floor), lw=1.0, ls="--", color="tab:green",
+                     label="filter gain x raw peak")
+        axs.set_xscale("log")  # once per axis, after the lines (not a rescale per line)
+        axs.set_yscale("log")
+        # minor grid at 2 and 5 of each decade: every tick is an object to build and draw, and the
+        # default eight a decade over four decades of frequency were most of this figure's time
+        axs.xaxis.set_minor_locator(LogLocator(base=10.0, subs=(2.0, 5.0)))
+        axs.grid(alpha=0.3, which="both")
         for fm, text in marks:
             axs.axvline(fm, color="tab:red" if "Nyquist" in text else "tab:green", lw=0.7, ls=":")
             if j == 0:
@@ -263,9 +311,8 @@ def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: in
     fig.suptitle("positions before and after processing, and their amplitude spectra"
                  + (" (dashed: the filters' amplitude gain, scaled to the raw spectrum's peak)" if gain is not None else ""),
                  fontsize=10)
-    fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
 

@@ -16,7 +16,6 @@ al. 2026 (paper 003, §4.3) use this filter before central differences.
 from __future__ import annotations
 
 import numpy as np
-from scipy import interpolate, signal
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError
@@ -60,6 +59,8 @@ def butter_sos(order: int, cutoff_hz: float, fs: float) -> FloatArray:
     if int(order) < 1:
         raise InputError(f"filter order must be >= 1, got {order!r}")
     _check_cutoff(cutoff_hz, fs)
+    from scipy import signal  # here, not at import: scipy.signal alone is about a second
+
     return signal.butter(int(order), cutoff_hz, btype="low", output="sos", fs=fs)
 
 
@@ -172,7 +173,9 @@ def resample_uniform(
             out[:, j] = np.interp(t_new, t, flat[:, j])
         x_new = out.reshape((m,) + x.shape[1:])
     elif kind == "cubic":
-        x_new = interpolate.CubicSpline(t, x, axis=0)(t_new)
+        from scipy.interpolate import CubicSpline
+
+        x_new = CubicSpline(t, x, axis=0)(t_new)
     else:
         raise InputError(f"unknown interpolation kind {kind!r} (use 'linear' or 'cubic')")
     return t_new, x_new
@@ -230,6 +233,8 @@ def lowpass_sos(x: FloatArray, sos: FloatArray, axis: int = 0) -> FloatArray:
     n = x.shape[axis]
     if n < 4:
         raise InputError(f"signal of {n} samples is too short to filter")
+    from scipy import signal
+
     return signal.sosfiltfilt(sos, x, axis=axis, padtype="odd", padlen=min(3 * (2 * sos.shape[0] + 1), n - 1))
 
 

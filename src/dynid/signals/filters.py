@@ -16,8 +16,6 @@ Time on axis 0, frequencies in Hz.
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal as ss
-from scipy.ndimage import uniform_filter1d
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError
@@ -40,6 +38,8 @@ def butter_spec_sos(fs: float, pass_hz: float, stop_hz: float, ripple_db: float,
         raise InputError(f"need 0 < pass_hz < stop_hz < fs/2; got {pass_hz}, {stop_hz}, fs = {fs}")
     if not 0 < ripple_db < attenuation_db:
         raise InputError(f"need 0 < ripple_db < attenuation_db; got {ripple_db}, {attenuation_db}")
+    from scipy import signal as ss
+
     order, wn = ss.buttord(pass_hz, stop_hz, ripple_db, attenuation_db, fs=fs)
     return ss.butter(order, wn, btype="low", output="sos", fs=fs), int(order), float(wn)
 
@@ -48,6 +48,8 @@ def moving_average(x: FloatArray, window: int, axis: int = 0) -> FloatArray:
     """Centred moving average over ``window`` (odd) samples; edges use the nearest sample."""
     if window < 1 or window % 2 == 0:
         raise InputError(f"the moving-average window must be an odd number of samples, got {window}")
+    from scipy.ndimage import uniform_filter1d
+
     return uniform_filter1d(np.asarray(x, dtype=float), size=window, axis=axis, mode="nearest")
 
 
@@ -83,4 +85,6 @@ def savgol(x: FloatArray, fs: float, window: int, polyorder: int = 3, deriv: int
     """Savitzky–Golay smoothing (``deriv = 0``) or derivative of order ``deriv`` [per s^deriv]."""
     if window % 2 == 0 or window <= polyorder:
         raise InputError(f"the Savitzky-Golay window must be odd and longer than the polynomial order, got {window}, {polyorder}")
+    from scipy import signal as ss
+
     return ss.savgol_filter(np.asarray(x, dtype=float), window, polyorder, deriv=deriv, delta=1.0 / fs, axis=axis, mode="interp")
