@@ -95,3 +95,19 @@ def rounds(variants: dict, repeats: int, n: int) -> dict[str, list[float]]:
         print(f"  round {r + 1}/{repeats}: " + ", ".join(f"{k} {times[k][-1]:.2f}" for k in names) + " us/sample",
               flush=True)
     return times
+
+
+def tx40_data(data, files) -> "Path | str":
+    """The TX40 data folder: ``data`` if given, else ``$DYNID_SHARED_DATA/tx40``, else
+    ``../shared/data/tx40`` beside the repository; returns the resolved folder, or a one-line
+    message (a ``str``) naming the files that are missing."""
+    from pathlib import Path
+
+    if data is None:
+        root = os.environ.get("DYNID_SHARED_DATA")
+        data = Path(root) / "tx40" if root else Path(__file__).resolve().parents[2] / "shared" / "data" / "tx40"
+    data = Path(data).resolve()
+    missing = [f for f in files if not (data / f).is_file()]
+    if missing:
+        return f"TX40 data not found in {data} (missing {', '.join(missing)}); give --data"
+    return data

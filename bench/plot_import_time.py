@@ -34,7 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _util import median, print_machine, table
+from _util import median, print_machine, table, tx40_data
 
 REPO = Path(__file__).resolve().parents[1]
 TX40_FILES = ("pos_read_data.csv", "curr_data.csv", "tx40_mdh_modified.urdf")
@@ -107,14 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     for s in srcs:
         if not (s / "dynid" / "cli.py").is_file():
             fail(f"--src {s} has no dynid/cli.py")
-    data = args.data
-    if data is None:
-        root = os.environ.get("DYNID_SHARED_DATA")
-        data = Path(root) / "tx40" if root else REPO.parent / "shared" / "data" / "tx40"
-    data = data.resolve()
-    missing = [f for f in TX40_FILES if not (data / f).is_file()]
-    if missing:
-        fail(f"TX40 data not found in {data} (missing {', '.join(missing)}); give --data")
+    data = tx40_data(args.data, TX40_FILES)
+    if isinstance(data, str):
+        fail(data)
 
     print_machine()
     print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")

@@ -49,7 +49,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _util import median, print_machine, table
+from _util import median, print_machine, table, tx40_data
 
 REPO = Path(__file__).resolve().parents[1]
 DRIVER = Path(__file__).resolve().with_name("_figaroh_tx40.py")
@@ -180,14 +180,9 @@ def main(argv: list[str] | None = None) -> int:
         fail(f"--repeats must be at least 1, got {args.repeats}")
     if args.blas_threads < 1:
         fail(f"--blas-threads must be at least 1, got {args.blas_threads}")
-    data = args.data
-    if data is None:
-        root = os.environ.get("DYNID_SHARED_DATA")
-        data = Path(root) / "tx40" if root else REPO.parent / "shared" / "data" / "tx40"
-    data = data.resolve()
-    missing = [f for f in TX40_FILES if not (data / f).is_file()]
-    if missing:
-        fail(f"TX40 data not found in {data} (missing {', '.join(missing)}); give --data")
+    data = tx40_data(args.data, TX40_FILES)
+    if isinstance(data, str):
+        fail(data)
 
     venv = args.figaroh_venv.expanduser().resolve()
     if REPO in venv.parents or venv == REPO:
