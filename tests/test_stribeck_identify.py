@@ -322,3 +322,28 @@ def test_summary_warns_when_exported_masses_are_far_from_nominal(cobot, tmp_path
     assert "m3 = " in line and "m2" not in line and "regularization" in line
     files = write_outputs(far, tmp_path / "out")
     assert line in files["summary.txt"].read_text()
+
+
+def test_serial_stribeck_result_predicts_as_identify_validated(cobot, tmp_path, capsys):
+    """``dynid predict`` (issue 20 item 3) on a saved Stribeck fit (paper 000 Eq. 32, nonlinear
+    friction parameters in the result) with its own validation log: the per-joint RMSE and R² that
+    identify reported, from what result.json holds (the curve's parameters, the processing)."""
+    from dynid.cli import main
+
+    d, o, _ = cobot
+    write_outputs(o, tmp_path / "out")
+    names = COBOT.joint_names
+    log = tmp_path / "log.toml"
+    log.write_text(f'[data]\nfile = "{d / "valid.npz"}"\ntime = {{ column = "t", unit = "s" }}\n'
+                   f'position = {{ columns = {[f"q_{n}" for n in names]}, unit = "rad" }}\n'
+                   f'effort = {{ columns = {[f"tau_{n}" for n in names]}, kind = "torque", unit = "N*m" }}\n'
+                   .replace("'", '"'))
+    rc = main(["predict", str(tmp_path / "out"), str(log), "--out", str(tmp_path / "pred"), "-q", "--no-plots"])
+    assert rc == 0, capsys.readouterr().err
+    pred = json.loads((tmp_path / "pred" / "predict.json").read_text())
+    saved = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert saved["method"] == "WLS+LMI+Stribeck"
+    np.testing.assert_allclose(pred["identified"]["rmse_per_joint"], saved["validation"]["rmse_per_joint"], rtol=1e-10)
+    np.testing.assert_allclose(pred["identified"]["r2_per_joint"], saved["validation"]["r2_per_joint"], rtol=1e-10)
+    # and the curve is what makes it: the noise level on every joint (within 25 %: 1000 samples)
+    np.testing.assert_allclose(pred["identified"]["rmse_per_joint"], COBOT_SIGMA, rtol=0.25)
