@@ -224,6 +224,7 @@ def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model,
         if blocks is not None:
             blocks.add(c.W, c.y, mask)
         worst = max(worst, float(c.inconsistency.max(initial=0.0)))
+        del c  # the next chunk's rows are built without this one's alive beside them
     problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta or {})
     selection = [k for k, v in (("min_velocity", min_velocity), ("min_velocity_passive", min_velocity_passive),
                                 ("reversal_guard", reversal_guard)) if v is not None]

@@ -440,16 +440,16 @@ def plan(cfg: Config, system, readers: dict) -> tuple[tuple[LogStream, LogStream
 
 
 def _long_enough(s: LogStream, pcfg: ProcessingConfig) -> bool:
-    """Room for the trimming, the overlap and the filter's padding (else the in-memory path, with its
-    message for a log that is too short)."""
+    """Room for the trimming and the filter's padding (else the in-memory path, with its message for a
+    log that is too short)."""
     if pcfg.decimate > 1 and (pcfg.lowpass is None or pcfg.lowpass.cutoff_hz >= 0.5 * s.fs / pcfg.decimate):
         return False  # the in-memory path refuses it with its message
     if pcfg.lowpass is not None and not pcfg.lowpass.cutoff_hz < s.fs / 2:
         return False
     if pcfg.derivatives == "measured" and s.spec.velocity is None:
         return False
-    p = s.processing(pcfg)
-    return len(p["rows"]) >= 3 and s.n > 2 * p["n_trim"] + 4 * p["overlap"] + 64
+    p = s.processing(pcfg)  # blocks are clipped at the window's ends: a short window is one block, as in memory
+    return s.n >= 64 and 2 * p["n_trim"] < s.n - 2 and len(p["rows"]) >= 3
 
 
 class ErrorSums:
