@@ -136,6 +136,8 @@ class LogStream:
         ``constant``: filled with the per-channel 'every value equal' flags of the efforts."""
         from dynid.pipeline.data import to_actuator_space
 
+        while self.n % block == 1 and block < self.n:  # no one-row tail: a Dataset needs two samples
+            block += 1
         iters = [g.blocks(self.start, self.start + self.n, block) for g, _ in self.groups]
         a = 0
         while a < self.n:
@@ -291,11 +293,14 @@ def _scale(table, sig, n, label):
 
 
 def open_stream(spec: DataConfig, n_channels: int, names: tuple[str, ...], label: str,
-                readers: dict) -> LogStream | str:
+                readers: dict, min_rows: int = 0) -> LogStream | str:
     """The :class:`LogStream` of ``spec``'s window, or why it cannot be streamed (then the in-memory
-    path reads it, with its own messages for whatever is wrong in the file)."""
+    path reads it, with its own messages for whatever is wrong in the file). ``min_rows``: a window
+    of rows (or the whole file) shorter than this is refused before the time column is read."""
     if spec.bag:
         return "ROS bags are read in memory"
+    if spec.rows is not None and spec.rows[1] - spec.rows[0] < min_rows:  # before any file is opened
+        return f"window of {spec.rows[1] - spec.rows[0]} rows < {min_rows} (identification.streaming = 'auto')"
 
     def reader(path: Path):
         if path not in readers:
@@ -352,6 +357,8 @@ def open_stream(spec: DataConfig, n_channels: int, names: tuple[str, ...], label
         start, stop = spec.rows
         if stop > n_file:
             return "rows beyond the log"
+    if spec.time_window is None and stop - start < min_rows:
+        return f"window of {stop - start} rows < {min_rows} (identification.streaming = 'auto')"
     if spec.time is not None:
         t_all = None
         if spec.time_window is not None:  # the window is found on the whole time column
@@ -417,10 +424,12 @@ def plan(cfg: Config, system, readers: dict) -> tuple[tuple[LogStream, LogStream
     streams = None
     if why is None:
         names, n = system.actuator_names, system.n_actuators
-        tr = open_stream(cfg.data, n, names, "data", readers)
+        tr = open_stream(cfg.data, n, names, "data", readers, AUTO_ROWS if mode == "auto" else 0)
         va = open_stream(cfg.validation, n, names, "validation", readers) if not isinstance(tr, str) else None
         if isinstance(tr, str) or isinstance(va, str):
             why = f"{'data' if isinstance(tr, str) else 'validation'}: {tr if isinstance(tr, str) else va}"
+            if isinstance(tr, str) and tr.startswith("window of"):
+                why = f"training {tr}"
         else:
             short = next((s.label for s in (tr, va) if not _long_enough(s, cfg.processing)), None)
             if short is not None:
