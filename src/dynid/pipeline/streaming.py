@@ -226,8 +226,6 @@ class LogStream:
         """(first processed row, ``t q dq ddq tau``) of blocks of ``out_rows`` processed rows, equal
         to the rows of :func:`~dynid.pipeline.data.preprocess` of the whole window to rounding
         (module docstring)."""
-        from scipy import signal
-
         from dynid.signals import central_difference
 
         p = self.processing(pcfg, decimate)
@@ -250,7 +248,9 @@ class LogStream:
                 buf_lo = lo
             return {w: v[lo - buf_lo: hi - buf_lo] for w, v in buf.items()}
 
-        def filt(x: FloatArray) -> FloatArray:
+        def filt(x: FloatArray) -> FloatArray:  # the call of dynid.signals.lowpass_sos, padlen of the whole window
+            from scipy import signal
+
             return signal.sosfiltfilt(sos, x, axis=0, padtype="odd", padlen=padlen)
 
         n = self.n
