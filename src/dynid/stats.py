@@ -17,6 +17,7 @@ from dynid._typing import FloatArray
 from dynid.errors import InputError
 
 __all__ = [
+    "nearest_distances_thinned",
     "t_quantile",
     "condition_number",
     "relative_std",
@@ -374,10 +375,17 @@ def nearest_distances(reference: FloatArray, query: FloatArray, *, max_reference
     qry = np.asarray(query, dtype=float)
     if ref.ndim != 2 or qry.ndim != 2 or ref.shape[1] != qry.shape[1] or not len(ref) or not len(qry):
         raise InputError(f"nearest_distances: expected two non-empty (n, k) arrays of the same k, got {ref.shape}, {qry.shape}")
-    scale = ref.std(axis=0)
-    scale = np.where(scale > 0, scale, 1.0)
-    ref = ref[_even(len(ref), max_reference)] / scale
-    qry = qry[_even(len(qry), max_query)] / scale
+    return nearest_distances_thinned(ref[_even(len(ref), max_reference)], qry[_even(len(qry), max_query)],
+                                     ref.std(axis=0))
+
+
+def nearest_distances_thinned(ref: FloatArray, qry: FloatArray, std: FloatArray) -> FloatArray:
+    """:func:`nearest_distances` of rows already thinned, with the standard deviation ``std`` of every
+    reference row (the streamed identification samples the rows and merges the deviation chunk by
+    chunk, :mod:`dynid.pipeline.streaming`)."""
+    scale = np.where(std > 0, std, 1.0)
+    ref = ref / scale
+    qry = qry / scale
     r2 = np.einsum("ij,ij->i", ref, ref)
     best = np.empty(len(qry))
     for a in range(0, len(qry), 256):  # blocks of query rows: bounded memory

@@ -233,6 +233,10 @@ class IdentificationConfig:
     method: str = "wls"
     physical_consistency: bool = False
     chunk_size: int = 20000
+    # "auto": a long log (at least dynid.pipeline.streaming.AUTO_ROWS rows) read, processed and compressed
+    # chunk by chunk when the configuration allows it; "on": streamed or a ConfigError saying why not;
+    # "off": held in memory (dynid.pipeline.streaming)
+    streaming: str = "auto"
     base_seed: int = 0
     base_samples: int | None = None
     min_joint_motion: float = 1e-3
@@ -642,7 +646,7 @@ def _chain_groups(spec: Any, where: str) -> tuple[tuple[tuple[str, ...], ...], .
 _LOOP_KEYS = ("experiment", "start", "max_iterations", "tolerance", "replay_coulomb_band", "directions_rtol")
 
 
-IDENTIFICATION_KEYS = ("method", "physical_consistency", "chunk_size", "base_seed", "base_samples", "min_joint_motion",
+IDENTIFICATION_KEYS = ("method", "physical_consistency", "chunk_size", "streaming", "base_seed", "base_samples", "min_joint_motion",
                        "force_model", "noise_covariance", "iterations", "nominal_weighting", "position_covariance",
                        "cutoff_range_hz", "structure", "identical_chains", "coulomb_smoothing", "hierarchical",
                        "friction_prior", *_PHYSICAL_KEYS, *_COVARIANCE_KEYS, *_LOOP_KEYS)
@@ -779,6 +783,7 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
         covariance=_parse_covariance(t, method, physical, "linear" if hierarchical else friction_model),
         max_samples=_int(t.get("max_samples", 4000), f"{where}.max_samples", 100),
         chunk_size=_int(t.get("chunk_size", 20000), f"{where}.chunk_size", 1),
+        streaming=_str(t.get("streaming", "auto"), f"{where}.streaming", ("auto", "on", "off")),
         base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),
         base_samples=_int(t["base_samples"], f"{where}.base_samples", 1) if "base_samples" in t else None,
         min_joint_motion=_num(t.get("min_joint_motion", 1e-3), f"{where}.min_joint_motion", minimum=0.0),

@@ -21,7 +21,7 @@ from dynid._typing import FloatArray
 from dynid.dataset import Dataset
 from dynid.stats import REPEAT_THRESHOLD, nearest_distances
 
-__all__ = ["ValidationMetrics", "motion_overlap", "prior_comparison"]
+__all__ = ["ValidationMetrics", "motion_overlap", "overlap_record", "prior_comparison"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -40,10 +40,15 @@ class ValidationMetrics:
     source: dict[str, Any]
     overlap: dict[str, Any] | None = None  # how close the validation motion comes to the training motion
     kept: np.ndarray | None = None  # (n, channels) bool: the errors are over these rows of each channel only
+    # rows of each channel the errors are over when the arrays are not kept (a streamed identification,
+    # dynid.pipeline.streaming: t, measured and predicted are then empty)
+    counts: np.ndarray | None = None
 
     @property
     def rows_per_channel(self) -> np.ndarray:
         """Rows each channel's errors are computed over (all ``n_samples`` unless ``kept``)."""
+        if self.counts is not None:
+            return np.asarray(self.counts)
         if self.kept is None:
             return np.full(len(self.channel_names), self.n_samples)
         return self.kept.sum(axis=0)
@@ -112,7 +117,8 @@ class ValidationMetrics:
         return {
             "joints": list(self.channel_names),
             "n_samples": self.n_samples,
-            **({"rows_per_joint": self.rows_per_channel.tolist()} if self.kept is not None else {}),
+            **({"rows_per_joint": self.rows_per_channel.tolist()} if self.kept is not None or self.counts is not None
+               else {}),
             "rmse_per_joint": finite(self.rmse),
             "rel_rmse_pct_per_joint": finite(self.rel_rmse_pct),
             "max_abs_error_per_joint": finite(self.max_abs_error),
@@ -128,7 +134,7 @@ class ValidationMetrics:
         rows = [("joint", "RMSE", "rel RMSE %", "max |err|", "R^2")]
         for c, r, p, m, q in zip(self.channel_names, self.rmse, self.rel_rmse_pct, self.max_abs_error, self.r2):
             rows.append((c, f"{r:.4g}", f"{p:.3g}", f"{m:.4g}", f"{q:.4f}"))
-        if self.kept is not None:
+        if self.kept is not None or self.counts is not None:
             rows = [(*r, k) for r, k in zip(rows, ("rows", *(str(int(x)) for x in self.rows_per_channel)))]
         w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
         lines = ["  ".join([r[0].ljust(w[0])] + [c.rjust(x) for c, x in zip(r[1:], w[1:])]) for r in rows]
@@ -147,7 +153,11 @@ def motion_overlap(train: Dataset, held_out: Dataset) -> dict[str, Any]:
     errors. A new trajectory lies about one standard deviation away.
     """
     states = lambda ds: np.hstack([ds.q, ds.dq, ds.ddq])  # noqa: E731
-    d = nearest_distances(states(train), states(held_out))
+    return overlap_record(nearest_distances(states(train), states(held_out)))
+
+
+def overlap_record(d: FloatArray) -> dict[str, Any]:
+    """The record of :func:`motion_overlap` from the distances ``d`` of the held-out states."""
     median = float(np.median(d))
     return {"median_distance": median, "p90_distance": float(np.quantile(d, 0.9)), "threshold": REPEAT_THRESHOLD,
             "repeats_training": median < REPEAT_THRESHOLD, "n_compared": int(d.size),

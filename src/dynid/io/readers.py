@@ -24,7 +24,7 @@ import numpy as np
 from dynid._typing import FloatArray
 from dynid.errors import InputError, MissingExtraError, existing_file
 
-__all__ = ["TableReader", "file_sha256"]
+__all__ = ["RowStream", "TableReader", "file_sha256"]
 
 _INDEXED = re.compile(r"^(?P<key>.+)\[(?P<col>\d+)\]$")
 _SEPARATORS = {",": "comma", ";": "semicolon", "\t": "tab", "|": "vertical bar"}
@@ -233,3 +233,233 @@ class TableReader:
         if self._sha256 is None:
             self._sha256 = file_sha256(self.path)
         return self._sha256
+
+
+# ---------------------------------------------------------------------------------------------- streaming
+class RowStream:
+    """Rows of named columns of one log file read in order, block by block, never the whole file
+    (the streamed identification, :mod:`dynid.pipeline.streaming`).
+
+    * NPZ: each key's ``.npy`` member is opened inside the zip archive (stored or deflated) and read
+      row by row after its header (``numpy.lib.format``); a stored member is read in place, a
+      deflated one is decompressed incrementally. Fortran-ordered 2-D arrays are not streamable.
+    * CSV: pandas ``read_csv(..., chunksize=)``, the same parser as the in-memory reader.
+    * Parquet: pyarrow ``ParquetFile.iter_batches``.
+
+    :meth:`unstreamable` says why a file cannot be streamed (None when it can): the caller then keeps
+    the in-memory path, whose reader gives the usual error for a missing key or column.
+    """
+
+    def __init__(self, reader: TableReader, names: Sequence[str]) -> None:
+        self.reader, self.path, self.kind = reader, reader.path, reader.kind
+        self.names = list(names)
+        self._n: int | None = None
+        self._npz_keys: dict[str, tuple[zipfile.ZipInfo, tuple[int, ...], np.dtype, bool]] | None = None
+
+    # .................................................................. inspection
+    def _npz_headers(self) -> dict[str, tuple[zipfile.ZipInfo, tuple[int, ...], np.dtype, bool]]:
+        if self._npz_keys is None:
+            out = {}
+            with zipfile.ZipFile(self.path) as zf:
+                for info in zf.infolist():
+                    if not info.filename.endswith(".npy"):
+                        continue
+                    with zf.open(info) as fh:
+                        shape, fortran, dtype = _npy_header(fh)
+                    out[info.filename[:-4]] = (info, shape, dtype, fortran)
+            self._npz_keys = out
+        return self._npz_keys
+
+    def _npz_plan(self) -> list[tuple[str, int | None]]:
+        keys = self._npz_headers()
+        plan = []
+        for n in self.names:
+            m = _INDEXED.match(n)
+            key, col = (m.group("key"), int(m.group("col"))) if m and n not in keys else (n, None)
+            plan.append((key, col))
+        return plan
+
+    def unstreamable(self) -> str | None:
+        """Why these columns of this file cannot be streamed (None: they can)."""
+        try:
+            if self.kind == "npz":
+                if not self.reader._head().startswith((b"PK\x03\x04", b"PK\x05\x06")):
+                    return "not a zip archive"
+                keys = self._npz_headers()
+                lengths = set()
+                for key, col in self._npz_plan():
+                    if key not in keys:
+                        return f"no key {key!r}"
+                    _, shape, dtype, fortran = keys[key]
+                    if dtype.hasobject or not np.issubdtype(dtype, np.number) or len(shape) not in (1, 2):
+                        return f"key {key!r} is not a 1-D or 2-D numeric array"
+                    if fortran and len(shape) == 2 and shape[1] > 1:
+                        return f"key {key!r} is stored in Fortran order (columns contiguous)"
+                    if col is not None and (len(shape) != 2 or col >= shape[1]):
+                        return f"no column {col} in key {key!r}"
+                    lengths.add(shape[0])
+                if len(lengths) != 1:
+                    return "keys of different lengths"
+                return None
+            if self.kind == "csv":
+                self.reader._check_csv_header()
+                if self.reader.header:
+                    missing = [n for n in self.names if n not in self.reader._header]
+                    return f"missing columns {missing}" if missing else None
+                width = len(next(csv.reader([self.reader._head().split(b"\n", 1)[0].decode("utf-8", "replace")],
+                                            delimiter=self.reader._sep), []))
+                bad = [n for n in self.names if not (n.isdigit() and int(n) < width)]
+                return f"missing columns {bad}" if bad else None
+            import pyarrow.parquet as pq  # noqa: F401  (parquet)
+
+            schema = self._parquet().schema_arrow
+            missing = [n for n in self.names if n not in schema.names]
+            if missing:
+                return f"missing columns {missing}"
+            import pyarrow.types as pt
+
+            odd = [n for n in self.names if not (pt.is_integer(schema.field(n).type) or pt.is_floating(schema.field(n).type))]
+            return f"non-numeric columns {odd}" if odd else None
+        except ImportError:
+            return "pyarrow is not installed"
+        except (InputError, OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            return f"unreadable ({exc})"
+
+    def _parquet(self):
+        import pyarrow.parquet as pq
+
+        return pq.ParquetFile(self.path)
+
+    def n_rows(self) -> int:
+        """Rows of the file (NPZ, Parquet: from the headers; CSV: one pass over its first named column)."""
+        if self._n is None:
+            if self.kind == "npz":
+                key = self._npz_plan()[0][0]
+                self._n = int(self._npz_headers()[key][1][0])
+            elif self.kind == "parquet":
+                self._n = int(self._parquet().metadata.num_rows)
+            else:
+                self._n = sum(b.shape[0] for b in RowStream(self.reader, self.names[:1]).blocks(0, None, 1 << 18))
+        return self._n
+
+    # .................................................................. reading
+    def blocks(self, start: int, stop: int | None, block: int):
+        """Float arrays ``(k, len(names))`` of rows ``[start, stop)`` in order, ``k = block`` but for the
+        last (``stop`` None: to the end of the file). Non-numeric CSV cells are an :class:`InputError`
+        naming the row, as in :meth:`TableReader.columns`."""
+        if self.kind == "npz":
+            yield from self._npz_blocks(start, stop, block)
+        elif self.kind == "csv":
+            yield from _reblock(self._csv_blocks(start, stop, block), block)
+        else:
+            yield from _reblock(self._parquet_blocks(start, stop, block), block)
+
+    def _npz_blocks(self, start: int, stop: int | None, block: int):
+        keys = self._npz_headers()
+        plan = self._npz_plan()
+        n = self.n_rows()
+        stop = n if stop is None else min(stop, n)
+        wanted = list(dict.fromkeys(k for k, _ in plan))
+        with zipfile.ZipFile(self.path) as zf:
+            handles = {}
+            try:
+                for key in wanted:
+                    info, shape, dtype, _ = keys[key]
+                    fh = zf.open(info)
+                    handles[key] = fh
+                    _npy_header(fh)
+                    row_bytes = dtype.itemsize * (shape[1] if len(shape) == 2 else 1)
+                    fh.seek(start * row_bytes, 1)
+                for a in range(start, stop, block):
+                    k = min(block, stop - a)
+                    cols = []
+                    parts = {}
+                    for key in wanted:
+                        _, shape, dtype, _ = keys[key]
+                        width = shape[1] if len(shape) == 2 else 1
+                        raw = _read_exact(handles[key], k * width * dtype.itemsize, self.path)
+                        parts[key] = np.frombuffer(raw, dtype=dtype).reshape(k, width).astype(float)
+                    for key, col in plan:
+                        cols.append(parts[key] if col is None else parts[key][:, col : col + 1])
+                    yield np.hstack(cols)
+            finally:
+                for fh in handles.values():
+                    fh.close()
+
+    def _csv_blocks(self, start: int, stop: int | None, block: int):
+        import pandas as pd
+
+        r = self.reader
+        if r.header:
+            it = pd.read_csv(r.path, sep=r._sep, usecols=self.names, chunksize=block)
+        else:
+            it = pd.read_csv(r.path, sep=r._sep, header=None, usecols=[int(n) for n in self.names], chunksize=block)
+        seen = 0
+        try:
+            for frame in it:
+                if not r.header:
+                    frame.columns = [str(c) for c in frame.columns]
+                a, b = seen, seen + frame.shape[0]
+                seen = b
+                lo, hi = max(a, start), b if stop is None else min(b, stop)
+                if hi > lo:
+                    sub = frame.iloc[lo - a : hi - a][self.names]
+                    values = sub.apply(pd.to_numeric, errors="coerce").to_numpy(dtype=float)
+                    bad = np.isnan(values) & ~sub.isna().to_numpy()
+                    if bad.any():
+                        i, c = np.argwhere(bad)[0]
+                        raise InputError(f"{r.path.name}: non-numeric value {sub.iat[i, c]!r} in column "
+                                         f"{self.names[c]!r} (row {lo + i + 1})")
+                    yield values
+                if stop is not None and b >= stop:
+                    return
+        except (ValueError, pd.errors.ParserError) as exc:
+            raise InputError(f"{r.path}: cannot read ({str(exc).strip().splitlines()[0]})") from None
+
+    def _parquet_blocks(self, start: int, stop: int | None, block: int):
+        seen = 0
+        for batch in self._parquet().iter_batches(batch_size=block, columns=self.names):
+            a, b = seen, seen + batch.num_rows
+            seen = b
+            lo, hi = max(a, start), b if stop is None else min(b, stop)
+            if hi > lo:
+                cols = [np.asarray(batch.column(n).to_numpy(zero_copy_only=False), dtype=float)[lo - a : hi - a]
+                        for n in self.names]
+                yield np.column_stack(cols)
+            if stop is not None and b >= stop:
+                return
+
+
+def _npy_header(fh) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """(shape, fortran_order, dtype) of the ``.npy`` stream ``fh``, left at the first data byte."""
+    from numpy.lib import format as npf
+
+    version = npf.read_magic(fh)
+    if version == (1, 0):
+        return npf.read_array_header_1_0(fh)
+    if version == (2, 0):
+        return npf.read_array_header_2_0(fh)
+    return npf._read_array_header(fh, version)
+
+
+def _read_exact(fh, n: int, path: Path) -> bytes:
+    data = fh.read(n)
+    if len(data) != n:
+        raise InputError(f"{path.name}: the archive ends before the array does (truncated file)")
+    return data
+
+
+def _reblock(parts, block: int):
+    """Re-cut a stream of row arrays into arrays of exactly ``block`` rows (the last shorter)."""
+    pending: list[np.ndarray] = []
+    have = 0
+    for p in parts:
+        pending.append(p)
+        have += p.shape[0]
+        while have >= block:
+            cat = np.concatenate(pending) if len(pending) > 1 else pending[0]
+            yield cat[:block]
+            rest = cat[block:]
+            pending, have = ([rest] if rest.shape[0] else []), rest.shape[0]
+    if have:
+        yield np.concatenate(pending) if len(pending) > 1 else pending[0]

@@ -203,14 +203,18 @@ def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str 
 def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model, min_velocity, parallel_decimate,
               chunk_size, progress, meta, cross, periodic, min_velocity_passive=None,
               blocks=None, reversal_guard: float | None = None,
-              keep: np.ndarray | None = None) -> tuple[RegressionProblem, float]:
+              keep: np.ndarray | None = None, source: Iterator[Chunk] | None = None) -> tuple[RegressionProblem, float]:
     """:func:`build_problem` and the largest inconsistency of redundant actuator positions; ``blocks``
-    (a :class:`~dynid.estimation.block_covariance.BlockBuilder`) also gets every chunk and its rows."""
+    (a :class:`~dynid.estimation.block_covariance.BlockBuilder`) also gets every chunk and its rows.
+    ``source``: the chunks themselves (the streamed identification, :mod:`dynid.pipeline.streaming`;
+    ``ds`` is then unused)."""
     builder = ProblemBuilder(base.names, system.channel_names(force_model), cross=cross)
     worst = 0.0
-    for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
-                     progress=progress, periodic=periodic, reversal_guard=reversal_guard,
-                     min_velocity=min_velocity, keep=keep):
+    if source is None:
+        source = _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
+                         progress=progress, periodic=periodic, reversal_guard=reversal_guard,
+                         min_velocity=min_velocity, keep=keep)
+    for c in source:
         mask = row_mask(system, force_model, c.dq, min_velocity, joint_dq=c.joint_dq,
                         min_velocity_passive=min_velocity_passive, reversal=c.reversal)
         if mask is not None and mask.ndim == 1:
@@ -220,6 +224,7 @@ def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model,
         if blocks is not None:
             blocks.add(c.W, c.y, mask)
         worst = max(worst, float(c.inconsistency.max(initial=0.0)))
+        del c  # the next chunk's rows are built without this one's alive beside them
     problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta or {})
     selection = [k for k, v in (("min_velocity", min_velocity), ("min_velocity_passive", min_velocity_passive),
                                 ("reversal_guard", reversal_guard)) if v is not None]
@@ -414,6 +419,14 @@ class IdentifyOutcome:
     learning: Any = None  # [learning]: dynid.pipeline.learning.LearningOutcome (the residual network)
     units: tuple[str, ...] = ()  # unit of each output channel, from the log (effort_units)
     prediction: dict[str, Any] | None = None  # what dynid predict needs (result.json "prediction_inputs")
+    # which path ran (result.json "data_path"): "in-memory", or "streamed" (dynid.pipeline.streaming: then
+    # train, held_out and raw_train are None and the validation metrics keep no arrays)
+    data_path: dict[str, Any] | None = None
+
+    @property
+    def n_train(self) -> int:
+        """Processed training samples."""
+        return self.train.n_samples if self.train is not None else int(self.data_path["training_samples"])
 
     def summary_text(self) -> str:
         v = self.validation
@@ -447,6 +460,8 @@ class IdentifyOutcome:
                 lines += ["nominal model, the same view", o.nominal.table()]
         if self.learning is not None:
             lines += self.learning.summary_lines()
+        if self.data_path is not None:
+            lines += ["", f"Data path: {self.data_path['mode']} ({self.data_path['reason']})"]
         return "\n".join(lines)
 
     def _repr_html_(self) -> str:
@@ -501,7 +516,8 @@ def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | 
     same steps as a log on disk."""
     t0 = time.perf_counter()
     outcome = _identify(cfg, progress, readers)
-    validation = dataclasses.replace(outcome.validation, overlap=motion_overlap(outcome.train, outcome.held_out))
+    overlap = outcome.validation.overlap if outcome.train is None else motion_overlap(outcome.train, outcome.held_out)
+    validation = dataclasses.replace(outcome.validation, overlap=overlap)
     prior = outcome.prior
     if outcome.nominal_validation is not None and prior is not None:  # the verdict names the kind of data
         prior = prior_comparison(validation, outcome.nominal_validation, prior["comparable"], validation.label)
@@ -924,6 +940,29 @@ def _hierarchical_prior(cfg0: Config, result: IdentificationResult, force_model:
     return metrics, None if selected is None else selected.metrics, full
 
 
+def _with_row_selection(result: IdentificationResult, pcfg, system: System, force_model: str | None) -> IdentificationResult:
+    """The training's row selection in the result's provenance (``row_selection``)."""
+    if pcfg.selects_rows:
+        whole = not system.channels_are_actuators(force_model)
+        selection = {"rows_kept_per_joint": result.n_obs.tolist()}
+        if pcfg.min_velocity is not None:
+            selection.update(min_velocity=list(pcfg.min_velocity),
+                             rule=("whole samples with every actuator at least that fast" if whole
+                                   else "per actuator equation"))
+        if pcfg.min_velocity_passive is not None:
+            jn = system.model.joint_names
+            selection.update(min_velocity_passive=pcfg.min_velocity_passive,
+                             passive_joints=[jn[j] for j in system.passive_friction_joints()],
+                             passive_rule="whole samples with every passive joint with Coulomb friction at least that fast")
+        if pcfg.reversal_guard is not None:
+            selection.update(reversal_guard_s=pcfg.reversal_guard_s(), reversal_guard=pcfg.reversal_guard,
+                             reversal_rule=("rows farther than the guard from every velocity reversal of the actuator"
+                                            + (" and every sample slower than min_velocity" if pcfg.min_velocity else "")
+                                            + (" (whole samples: every actuator)" if whole else " (per actuator equation)")))
+        result = result.with_provenance(row_selection=selection)
+    return result
+
+
 def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> IdentifyOutcome:
     cfg0 = cfg
     if cfg.identification.hierarchical:  # the friction-free regressor Phi_br (paper 003 Eq. 37)
@@ -949,6 +988,11 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
     check_units(cfg.data, kinds, names, "data")
     check_units(cfg.validation, kinds, names, "validation")
     readers = dict(readers or {})
+    from dynid.pipeline import streaming
+
+    streams, data_path = streaming.plan(cfg, system, readers)
+    if streams is not None:
+        return _identify_streamed(cfg0, cfg, system, force_model, streams, data_path, progress)
     raw_train = read_log(cfg.data, system.n_actuators, names, "data", readers)
     raw_valid = read_log(cfg.validation, system.n_actuators, names, "validation", readers)
     check_held_out(raw_train, raw_valid)
@@ -1018,24 +1062,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
         nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
         result = configured_estimator(icfg, steps, tuple(channels), tuple(names), nominal).fit(problem)
         result = with_covariance(result, blocks, icfg.covariance)
-    if pcfg.selects_rows:
-        whole = not system.channels_are_actuators(force_model)
-        selection = {"rows_kept_per_joint": result.n_obs.tolist()}
-        if pcfg.min_velocity is not None:
-            selection.update(min_velocity=list(pcfg.min_velocity),
-                             rule=("whole samples with every actuator at least that fast" if whole
-                                   else "per actuator equation"))
-        if pcfg.min_velocity_passive is not None:
-            jn = system.model.joint_names
-            selection.update(min_velocity_passive=pcfg.min_velocity_passive,
-                             passive_joints=[jn[j] for j in system.passive_friction_joints()],
-                             passive_rule="whole samples with every passive joint with Coulomb friction at least that fast")
-        if pcfg.reversal_guard is not None:
-            selection.update(reversal_guard_s=pcfg.reversal_guard_s(), reversal_guard=pcfg.reversal_guard,
-                             reversal_rule=("rows farther than the guard from every velocity reversal of the actuator"
-                                            + (" and every sample slower than min_velocity" if pcfg.min_velocity else "")
-                                            + (" (whole samples: every actuator)" if whole else " (per actuator equation)")))
-        result = result.with_provenance(row_selection=selection)
+    result = _with_row_selection(result, pcfg, system, force_model)
     notes = list(notes)
     if smoothing is not None:
         result = result.with_provenance(coulomb_smoothing=smoothing)
@@ -1063,7 +1090,127 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
                            other_view=other, selected=selected, full_rate=full, learning=learned,
-                           units=effort_units(system, force_model, raw_train.meta["effort_kind"]), prediction=prediction)
+                           units=effort_units(system, force_model, raw_train.meta["effort_kind"]), prediction=prediction,
+                           data_path={**data_path, "training_samples": train.n_samples})
+
+
+def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: str | None, streams, data_path: dict,
+                       progress: Progress) -> IdentifyOutcome:
+    """:func:`_identify` on logs read, processed and compressed chunk by chunk
+    (:mod:`dynid.pipeline.streaming`): the same estimate, validation and checks, without holding
+    the logs (only the time columns). :func:`dynid.pipeline.streaming.plan` has checked that every
+    step of this configuration can be done so."""
+    from types import SimpleNamespace
+
+    from dynid.pipeline.streaming import ErrorSums, StateSample, motion_overlap_streamed
+
+    icfg, pcfg = cfg.identification, cfg.processing
+    tr, va = streams
+    check_held_out(tr.as_dataset_stub(), va.as_dataset_stub())
+    names, channels = system.actuator_names, system.channel_names(force_model)
+    proc = tr.processing(pcfg)
+    steps = proc["steps"]
+    progress("base parameters", 0, 1)
+    base = system.base_parameters(force_model, n_samples=icfg.base_samples, seed=icfg.base_seed)
+    progress("base parameters", 1, 1)
+    n_eff = len(proc["rows"])
+    if n_eff * len(channels) <= base.n_base:
+        per = "joints" if system.kind == "serial" else "equations"
+        raise InputError(f"data: {n_eff} processed samples x {len(channels)} {per} are fewer than the "
+                         f"{base.n_base} base parameters")
+    meta: dict[str, Any] = {
+        "versions": _versions(),
+        "config_file": str(cfg.source) if cfg.source else None,
+        "config_sha256": file_sha256(cfg.source) if cfg.source else None,
+        "config": cfg.raw,
+        "robot": {"model": cfg.robot.model, **system.describe()},
+        "training_data": dict(tr.meta),
+        "validation_data": dict(va.meta),
+        "processing": steps,
+        "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
+    }
+    size = max(1, int(icfg.chunk_size) if system.max_chunk is None else min(int(icfg.chunk_size), system.max_chunk))
+    constant: dict[str, Any] = {}
+    notes: list[str] = []
+    q_lo = np.full(system.n_actuators, np.inf)
+    q_hi = np.full(system.n_actuators, -np.inf)
+    reference = StateSample(n_eff, 20000, std=True)
+
+    def training_chunks() -> Iterator[Chunk]:
+        nonlocal q_lo, q_hi
+        rows = system.rows(force_model)
+        for j0, p in tr.processed(system, pcfg, size, constant=constant, notes=notes):
+            q_lo, q_hi = np.minimum(q_lo, p["q"].min(axis=0)), np.maximum(q_hi, p["q"].max(axis=0))
+            reference.add(j0, p)
+            r = rows(p["q"], p["dq"], p["ddq"], p["tau"], j0)
+            yield Chunk(base.regressor(r.W), r.y, p["dq"], r.inconsistency, r.joint_dq, None, r.Ga, None)
+            progress("compress", j0 + p["t"].shape[0], n_eff)
+
+    blocks = block_builder(icfg.covariance, base.names, channels, n_eff)
+    problem, worst = _compress(system, base, None, force_model=force_model, min_velocity=pcfg.min_velocity,
+                               parallel_decimate=1, chunk_size=size, progress=progress, meta=meta,
+                               cross=icfg.method == "gm", periodic=None, min_velocity_passive=pcfg.min_velocity_passive,
+                               blocks=blocks, source=training_chunks())
+    tr.check_constant(constant)
+    check_joint_motion(SimpleNamespace(q=np.vstack([q_lo, q_hi])), system, icfg.min_joint_motion, "data")
+    nominal_w = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
+    result = configured_estimator(icfg, steps, tuple(channels), tuple(names), nominal_w).fit(problem)
+    result = with_covariance(result, blocks, icfg.covariance)
+    result = _with_row_selection(result, pcfg, system, force_model)
+    notes = [n for n in notes if n != "-"]
+    if notes:
+        result = result.with_notes(*notes)
+
+    nominal = base.from_standard(system.nominal_parameters())
+    rows_rule = None
+    if pcfg.selects_rows:
+        rule = [f"min_velocity {list(pcfg.min_velocity)}"] if pcfg.min_velocity is not None else []
+        if pcfg.min_velocity_passive is not None:
+            rule.append(f"min_velocity_passive {pcfg.min_velocity_passive:g}")
+        rows_rule = RowSelection(pcfg.min_velocity, pcfg.min_velocity_passive, None, ", ".join(rule))
+    src = va.meta.get("source")
+
+    def score(decimate: int | None, sample: StateSample | None, selection: RowSelection | None):
+        nc = len(channels)
+        sums = [ErrorSums(nc) for _ in range(4)]  # identified, nominal, and both on the selected rows
+        rows = system.rows(force_model)
+        n_val = len(va.processing(pcfg, decimate)["rows"])
+        for j0, p in va.processed(system, pcfg, size, decimate=decimate):
+            if sample is not None:
+                sample.add(j0, p)
+            r = rows(p["q"], p["dq"], p["ddq"], p["tau"], j0)
+            W = base.regressor(r.W)
+            pred, prior = W @ result.params, W @ nominal
+            sums[0].add(r.y, pred)
+            sums[1].add(r.y, prior)
+            if selection is not None:
+                mask = row_mask(system, force_model, p["dq"], selection.min_velocity, joint_dq=r.joint_dq,
+                                min_velocity_passive=selection.min_velocity_passive)
+                kept = (np.ones(r.y.shape, dtype=bool) if mask is None
+                        else np.broadcast_to(mask if mask.ndim == 2 else mask[:, None], r.y.shape))
+                sums[2].add(r.y, pred, kept)
+                sums[3].add(r.y, prior, kept)
+            progress("validate", j0 + p["t"].shape[0], n_val)
+        selected = None if selection is None else SelectedRows(
+            rule=selection.rule, metrics=sums[2].metrics(channels, src, counts=True),
+            nominal=sums[3].metrics(channels, src, counts=True))
+        return sums[0].metrics(channels, src), sums[1].metrics(channels, src), selected
+
+    held = StateSample(len(va.processing(pcfg)["rows"]), 1000, std=False)
+    metrics, prior, selected = score(None, held, rows_rule)
+    metrics = dataclasses.replace(metrics, overlap=motion_overlap_streamed(reference, held))
+    full = None
+    if pcfg.decimate > 1:
+        fm, fn, _ = score(1, None, None)
+        full = FullRate(fm, fn, decimate=pcfg.decimate)
+    comparable = not (tr.meta["effort_kind"] == "current" and (system.transmission is None
+                                                                 or np.all(system.transmission.drive_gains == 1.0)))
+    prediction = prediction_inputs(cfg0, pcfg, None, None, system, base, force_model)
+    return IdentifyOutcome(cfg, system.model, base, result, metrics, None, None, tuple(notes), None,
+                           nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
+                           selected=selected, full_rate=full,
+                           units=effort_units(system, force_model, tr.meta["effort_kind"]), prediction=prediction,
+                           data_path={**data_path, "training_samples": n_eff})
 
 
 def score_held_out(cfg0: Config, cfg: Config, system: System, base: BaseParameters, result: IdentificationResult,
@@ -1323,7 +1470,8 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             **({"validation_selected_rows": _selected_dict(outcome.selected)} if outcome.selected is not None else {}),
             **({"validation_full_rate": _full_rate_dict(outcome.full_rate)} if outcome.full_rate is not None else {}),
             **({"learning": outcome.learning.to_dict()} if outcome.learning is not None else {}),
-            "training": {"n_samples": outcome.train.n_samples, "rmse_per_joint": res.rmse_per_channel.tolist()},
+            "training": {"n_samples": outcome.n_train, "rmse_per_joint": res.rmse_per_channel.tolist()},
+            **({"data_path": outcome.data_path} if outcome.data_path is not None else {}),
             **({"prediction_inputs": outcome.prediction} if outcome.prediction is not None else {}),
             "base_parameters": {
                 "names": list(outcome.base.names),
