@@ -63,7 +63,7 @@ from dynid.pipeline.data import (
     velocity_mask,
     velocity_noise_std,
 )
-from dynid.pipeline.reporting import effort_units, file_sha256, git_commit, parameter_flags, run_facts
+from dynid.pipeline.reporting import effort_units, file_sha256, git_commit, parameter_flags, run_facts, submit_physical
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos, padlen_for
 
 __all__ = ["Chunk", "FullRate", "Progress", "ValidationMetrics", "IdentifyOutcome", "RowSelection", "SelectedRows", "build_problem",
@@ -414,6 +414,8 @@ class IdentifyOutcome:
     learning: Any = None  # [learning]: dynid.pipeline.learning.LearningOutcome (the residual network)
     units: tuple[str, ...] = ()  # unit of each output channel, from the log (effort_units)
     prediction: dict[str, Any] | None = None  # what dynid predict needs (result.json "prediction_inputs")
+    # the report's figures and check, under way beside the run (dynid.report.worker; plots only)
+    jobs: Any = dataclasses.field(default=None, repr=False, compare=False)
 
     def summary_text(self) -> str:
         v = self.validation
@@ -500,7 +502,17 @@ def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | 
     (:func:`dynid.pipeline.arrays.identify_arrays`) hands its arrays in this way, through the
     same steps as a log on disk."""
     t0 = time.perf_counter()
-    outcome = _identify(cfg, progress, readers)
+    jobs = None
+    if cfg.output.plots:  # the report's figures and check start now, in a worker process when there is a second CPU
+        from dynid.report.worker import report_jobs
+
+        jobs = report_jobs()
+    try:
+        outcome = _identify(cfg, progress, readers, jobs)
+    except BaseException:
+        if jobs is not None:
+            jobs.close()
+        raise
     validation = dataclasses.replace(outcome.validation, overlap=motion_overlap(outcome.train, outcome.held_out))
     prior = outcome.prior
     if outcome.nominal_validation is not None and prior is not None:  # the verdict names the kind of data
@@ -515,8 +527,33 @@ def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | 
     if full is not None and full.nominal is not None and prior is not None:
         full = dataclasses.replace(full, prior=prior_comparison(full.metrics, full.nominal, prior["comparable"],
                                                                 f"full-rate {validation.label}"))
+    if jobs is not None:
+        jobs.submit_figure("validation.png", "dynid.report.plots:plot_validation", _validation_series(validation),
+                           units=outcome.units or None)
     return dataclasses.replace(outcome, validation=validation, prior=prior, selected=selected, full_rate=full,
-                               elapsed_s=time.perf_counter() - t0)
+                               elapsed_s=time.perf_counter() - t0, jobs=jobs)
+
+
+def _validation_series(v: ValidationMetrics) -> Any:
+    """What :func:`~dynid.report.plots.plot_validation` draws of ``v`` (arrays only: light to send
+    to the plot worker, which then needs no dynid.estimation)."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(t=v.t, measured=v.measured, predicted=v.predicted, channel_names=tuple(v.channel_names),
+                           rmse=np.asarray(v.rmse), rel_rmse_pct=np.asarray(v.rel_rmse_pct), label=v.label)
+
+
+def _submit_processing(jobs: Any, raw: Dataset, processed: Dataset) -> None:
+    """Hand the processing figure (raw against processed positions) to ``jobs``, filters designed here."""
+    from types import SimpleNamespace
+
+    from dynid.report.plots import with_filter_sections
+
+    def series(ds: Dataset) -> Any:
+        return SimpleNamespace(t=ds.t, q=ds.q, names=ds.names)
+
+    jobs.submit_figure("processing.png", "dynid.report.plots:plot_processing", series(raw), series(processed),
+                       steps=with_filter_sections(processed.meta.get("processing")))
 
 
 def _selected_prior(sel: ValidationMetrics, nominal: ValidationMetrics, comparable: bool, label: str) -> dict[str, Any]:
@@ -924,7 +961,7 @@ def _hierarchical_prior(cfg0: Config, result: IdentificationResult, force_model:
     return metrics, None if selected is None else selected.metrics, full
 
 
-def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> IdentifyOutcome:
+def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs: Any = None) -> IdentifyOutcome:
     cfg0 = cfg
     if cfg.identification.hierarchical:  # the friction-free regressor Phi_br (paper 003 Eq. 37)
         from dynid.pipeline.hierarchical import rigid_robot_config
@@ -960,6 +997,8 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
         return system.base_parameters(force_model, n_samples=icfg.base_samples, seed=icfg.base_seed)
 
     train, steps = preprocess(train_a, pcfg, "data", unknowns=lambda: (base_parameters().n_base, len(channels)))
+    if jobs is not None and icfg.method != "ml":  # (maximum likelihood processes again at its cut-off)
+        _submit_processing(jobs, train_a, train)
     held_out, _ = preprocess(valid_a, pcfg, "validation")
     smoothing = _coulomb_smoothing(icfg.coulomb_smoothing, train_a, pcfg, system)
     if smoothing is not None:
@@ -996,11 +1035,15 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
             system = system.with_coulomb_width(smoothing["width"])
         train, _ = preprocess(train_a, pcfg, "data")  # both logs as processed at the estimated f_c
         held_out, _ = preprocess(valid_a, pcfg, "validation")
+        if jobs is not None:
+            _submit_processing(jobs, train_a, train)
     elif icfg.method == "ml":
         result, periodic, worst = _maximum_likelihood(cfg, system, base, train_a, force_model, progress, meta)
         at_fc = dataclasses.replace(pcfg, periodic=periodic)  # both logs as processed at the estimated f_c
         train, _ = preprocess(train_a, at_fc, "data")
         held_out, _ = preprocess(valid_a, at_fc, "validation")
+        if jobs is not None:
+            _submit_processing(jobs, train_a, train)
     elif icfg.hierarchical:
         result, fj, worst = _hierarchical_fit(cfg, system, base, train, steps, tuple(channels), tuple(names), progress,
                                               meta, original)
@@ -1050,6 +1093,8 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
         notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
     if notes:
         result = result.with_notes(*notes)
+    if jobs is not None:  # the report's physical-consistency check, beside the validation
+        submit_physical(jobs, result, base, system)
     scored = score_held_out(cfg0, cfg, system, base, result, force_model, pcfg, held_out, valid_a, fj, periodic,
                             parallel, progress)
     metrics, prior, other, selected, full = scored
@@ -1177,9 +1222,13 @@ def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Pa
     files of this run.
     """
     out = Path(out_dir)
-    with staged_output(out) as stage:
-        write_files(outcome, stage)
-        produced = sorted(p.name for p in stage.iterdir())
+    try:
+        with staged_output(out) as stage:
+            write_files(outcome, stage)
+            produced = sorted(p.name for p in stage.iterdir())
+    finally:
+        if outcome.jobs is not None:  # the worker's work is done (or no longer wanted)
+            outcome.jobs.close()
     # outputs of an earlier run that this run did not write (e.g. plots now switched off)
     # would describe another identification: remove them
     for name in OUTPUT_FILES:
@@ -1306,7 +1355,9 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     expressions = res.expressions if res.expressions is not None else outcome.base.expressions()
     system = outcome.system if outcome.system is not None else as_system(outcome.robot)
     # the physical-consistency check (a semidefinite program) runs with the report only
-    flags = parameter_flags(res, outcome.base, system, physical=outcome.config.output.plots)
+    jobs = outcome.jobs if outcome.config.output.plots else None
+    physical = jobs.result("physical") if jobs is not None and "physical" in jobs else outcome.config.output.plots
+    flags = parameter_flags(res, outcome.base, system, physical=physical)
     res.save(
         stage / "result",
         extra={
@@ -1360,7 +1411,10 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     if outcome.config.output.plots:
         from dynid.report import plot_validation, write_html_report
 
-        plot_validation(outcome.validation, stage / "validation.png", units=outcome.units or None)
+        if jobs is not None and "validation.png" in jobs:
+            jobs.write_figure("validation.png", stage / "validation.png")
+        else:
+            plot_validation(outcome.validation, stage / "validation.png", units=outcome.units or None)
         images = {"validation.png": "Validation: measured against predicted"}
         if "hierarchical" in res.solver:
             from dynid.pipeline.hierarchical import plot_history
@@ -1368,10 +1422,13 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             plot_history(res.solver["hierarchical"], tuple(res.channel_names), stage / "hierarchical.png")
             images["hierarchical.png"] = "Hierarchical iterations"
         if outcome.raw_train is not None:
-            from dynid.report.plots import plot_processing
+            if jobs is not None and "processing.png" in jobs:
+                jobs.write_figure("processing.png", stage / "processing.png")
+            else:
+                from dynid.report.plots import plot_processing
 
-            plot_processing(outcome.raw_train, outcome.train, stage / "processing.png",
-                            steps=outcome.train.meta.get("processing"))
+                plot_processing(outcome.raw_train, outcome.train, stage / "processing.png",
+                                steps=outcome.train.meta.get("processing"))
             images["processing.png"] = "Processing: raw and processed training signals"
         write_html_report(res, outcome.validation, stage / "report.html",
                           images={stage / name: title for name, title in images.items()},
