@@ -27,8 +27,8 @@ import numpy as np
 from dynid.errors import DynidError, InputError
 from dynid.estimation.results import IdentificationResult
 
-__all__ = ["REL_STD_LIMIT_PCT", "effort_units", "file_sha256", "git_commit", "parameter_flags", "physical_check", "run_facts",
-           "submit_physical"]
+__all__ = ["REL_STD_LIMIT_PCT", "effort_units", "file_sha256", "git_commit", "parameter_flags", "physical_check",
+           "run_facts", "submit_physical"]
 
 REL_STD_LIMIT_PCT = 15.0
 """A base parameter whose relative standard deviation :math:`100\\,\\sigma_i/|\\hat\\beta_i|` (paper 001

@@ -1,11 +1,11 @@
 """The report's figures and its physical-consistency check, computed beside the identification.
 
 A plotted ``dynid identify`` run pays, on top of the identification, for matplotlib's import
-(~0.6-1 s), its figures (~1.5 s) and the report's physical-consistency check (cvxpy's import and
-one semidefinite program, ~1.5 s; :func:`dynid.pipeline.reporting.physical_check`). None of it
-feeds the identification, so with a second core it can run at the same time:
-:class:`WorkerJobs` starts one worker process when the run begins; the worker imports matplotlib
-and cvxpy while the main process reads and identifies, receives each job as soon as its data
+(~0.6-1 s), its figures (~1.5 s) and the report's physical-consistency check (one semidefinite
+program, :func:`dynid.pipeline.reporting.physical_check`; tenths of a second since it calls
+Clarabel without cvxpy). None of it feeds the identification, so with a second core it can run
+at the same time: :class:`WorkerJobs` starts one worker process when the run begins; the worker
+imports matplotlib and the solver while the main process reads and identifies, receives each job as soon as its data
 exist (the processing figure right after processing, the check right after the fit, the
 validation figure after validation) and sends back the PNG bytes and the check's result, which
 the main process writes into its staging folder (:func:`dynid.io.output.staged_output`: a failure
@@ -37,7 +37,7 @@ from dynid.errors import DynidError
 __all__ = ["InProcessJobs", "WorkerJobs", "report_jobs"]
 
 # imported by the worker while it waits for its first jobs, in the order the jobs come
-_WARMUP = ("matplotlib.pyplot", "dynid.report.plots", "cvxpy", "dynid.estimation.identifiability")
+_WARMUP = ("matplotlib.pyplot", "dynid.report.plots", "dynid.estimation.identifiability", "scipy.sparse", "clarabel")
 
 
 def _resolve(func: str) -> Any:
