@@ -63,7 +63,7 @@ from dynid.pipeline.data import (
     velocity_mask,
     velocity_noise_std,
 )
-from dynid.pipeline.reporting import effort_units, file_sha256, git_commit, parameter_flags, run_facts, submit_physical
+from dynid.pipeline.reporting import effort_units, file_sha256, git_commit, parameter_flags, run_facts
 from dynid.signals import decimation_filter, decimation_segments, lowpass_sos, padlen_for
 
 __all__ = ["Chunk", "FullRate", "Progress", "ValidationMetrics", "IdentifyOutcome", "RowSelection", "SelectedRows", "build_problem",
@@ -1093,8 +1093,6 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
         notes.append(f"largest RMS inconsistency of the redundant actuator positions: {worst:.3g}")
     if notes:
         result = result.with_notes(*notes)
-    if jobs is not None:  # the report's physical-consistency check, beside the validation
-        submit_physical(jobs, result, base, system)
     scored = score_held_out(cfg0, cfg, system, base, result, force_model, pcfg, held_out, valid_a, fj, periodic,
                             parallel, progress)
     metrics, prior, other, selected, full = scored
@@ -1354,10 +1352,10 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     res = outcome.result
     expressions = res.expressions if res.expressions is not None else outcome.base.expressions()
     system = outcome.system if outcome.system is not None else as_system(outcome.robot)
-    # the physical-consistency check (a semidefinite program) runs with the report only
+    # the physical-consistency check (a semidefinite program, ~15 ms: is_feasible calls Clarabel
+    # directly) runs with the report only; here, not in the plot worker, which would import for it
     jobs = outcome.jobs if outcome.config.output.plots else None
-    physical = jobs.result("physical") if jobs is not None and "physical" in jobs else outcome.config.output.plots
-    flags = parameter_flags(res, outcome.base, system, physical=physical)
+    flags = parameter_flags(res, outcome.base, system, physical=outcome.config.output.plots)
     res.save(
         stage / "result",
         extra={

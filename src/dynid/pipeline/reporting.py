@@ -28,7 +28,7 @@ from dynid.errors import DynidError, InputError
 from dynid.estimation.results import IdentificationResult
 
 __all__ = ["REL_STD_LIMIT_PCT", "effort_units", "file_sha256", "git_commit", "parameter_flags", "physical_check",
-           "run_facts", "submit_physical"]
+           "run_facts"]
 
 REL_STD_LIMIT_PCT = 15.0
 """A base parameter whose relative standard deviation :math:`100\\,\\sigma_i/|\\hat\\beta_i|` (paper 001
@@ -62,7 +62,7 @@ def effort_units(system: Any, force_model: str | None, effort_kind: str) -> tupl
     return ("N",) * len(channels)  # point coordinates: forces along x, y, z
 
 
-def parameter_flags(result: IdentificationResult, base: Any, system: Any, *, physical: bool | dict[str, Any] = True,
+def parameter_flags(result: IdentificationResult, base: Any, system: Any, *, physical: bool = True,
                     limit_pct: float = REL_STD_LIMIT_PCT) -> dict[str, Any]:
     """The parameters of ``result`` a reader must not trust (written to result.json and the report).
 
@@ -73,8 +73,7 @@ def parameter_flags(result: IdentificationResult, base: Any, system: Any, *, phy
     - ``physical``: with ``physical``, :func:`~dynid.estimation.identifiability.is_feasible` on the
       base parameters (paper 000 §6.2, after Yoshida et al. 1996: is there a physically consistent
       standard parameter vector behind them?) and the parameters whose grouping touches a violated
-      constraint; ``{"checked": False, "reason": ...}`` when not checked, with the reason. A dict
-      ``physical`` is that entry computed already (:func:`submit_physical`, the report's worker).
+      constraint; ``{"checked": False, "reason": ...}`` when not checked, with the reason.
     """
     out: dict[str, Any] = {
         "rel_std_limit_pct": limit_pct,
@@ -90,11 +89,8 @@ def parameter_flags(result: IdentificationResult, base: Any, system: Any, *, phy
         out.update(assessed=True,
                    rel_std_above=[n for n, r in zip(result.names, rel) if np.isfinite(r) and r >= limit_pct],
                    undetermined=[n for n, r in zip(result.names, rel) if not np.isfinite(r)])
-    if isinstance(physical, dict):
-        out["physical"] = physical
-    else:
-        out["physical"] = _physical(result, base, system) if physical else {
-            "checked": False, "reason": "checked when the report is written (output.plots = true)"}
+    out["physical"] = _physical(result, base, system) if physical else {
+        "checked": False, "reason": "checked when the report is written (output.plots = true)"}
     return out
 
 
@@ -113,16 +109,6 @@ def _physical_inputs(result: IdentificationResult, base: Any, system: Any) -> di
 def _physical(result: IdentificationResult, base: Any, system: Any) -> dict[str, Any]:
     inputs = _physical_inputs(result, base, system)
     return inputs if isinstance(inputs, dict) else physical_check(*inputs)
-
-
-def submit_physical(jobs: Any, result: IdentificationResult, base: Any, system: Any) -> None:
-    """Hand the report's physical-consistency check of ``result`` to ``jobs``
-    (:mod:`dynid.report.worker`, key ``"physical"``: the same :func:`physical_check` on the
-    same numbers, run beside the rest of the identification); nothing when there is nothing to
-    check (:func:`parameter_flags` then says why, in process)."""
-    inputs = _physical_inputs(result, base, system)
-    if not isinstance(inputs, dict):
-        jobs.submit_call("physical", "dynid.pipeline.reporting:physical_check", *inputs)
 
 
 def physical_check(params: Any, names: tuple[str, ...], base_names: tuple[str, ...], smap: Any) -> dict[str, Any]:

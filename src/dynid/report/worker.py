@@ -1,21 +1,21 @@
-"""The report's figures and its physical-consistency check, computed beside the identification.
+"""The report's figures, drawn beside the identification.
 
 A plotted ``dynid identify`` run pays, on top of the identification, for matplotlib's import
-(~0.6-1 s), its figures (~1.5 s) and the report's physical-consistency check (one semidefinite
-program, :func:`dynid.pipeline.reporting.physical_check`; tenths of a second since it calls
-Clarabel without cvxpy). None of it feeds the identification, so with a second core it can run
-at the same time: :class:`WorkerJobs` starts one worker process when the run begins; the worker
-imports matplotlib and the solver while the main process reads and identifies, receives each job as soon as its data
-exist (the processing figure right after processing, the check right after the fit, the
-validation figure after validation) and sends back the PNG bytes and the check's result, which
-the main process writes into its staging folder (:func:`dynid.io.output.staged_output`: a failure
-anywhere leaves no output). On one core the worker only shares it: the gain needs a second one.
+(~0.6-1 s) and its figures (~1.5 s of CPU). None of it feeds the identification, so with a
+second core it can run at the same time: :class:`WorkerJobs` starts one worker process when the
+run begins; the worker imports matplotlib while the main process reads and identifies, receives
+each figure's data as soon as they exist (the processing figure right after processing, the
+validation figure after validation), draws it, and the main process copies the PNG into its
+staging folder (:func:`dynid.io.output.staged_output`: a failure anywhere leaves no output). On
+one core the worker only shares it: the gain needs a second core, free (bench/README.md, "TX40
+identify: plot and import cost").
 
 The worker is a fresh interpreter running this module only (not ``fork``: the main process holds
 pinocchio and BLAS threads, which a fork copies in whatever state they are; and not
 multiprocessing's ``spawn``, which runs the caller's ``__main__`` again: a script without a main
-guard would start its identification twice), fed through two pipes. It runs the same functions on the
-same arrays as :class:`InProcessJobs` (the PNG bytes are identical, ``tests/test_plot_worker.py``).
+guard would start its identification twice), fed through two pipes. It runs the same functions
+on the same arrays as :class:`InProcessJobs` (the PNG bytes are identical,
+``tests/test_plot_worker.py``).
 A job that fails in the worker fails the run the same way (a :class:`~dynid.errors.DynidError`,
 one line ``dynid: error: ...`` from the command line).
 
@@ -37,7 +37,7 @@ from dynid.errors import DynidError
 __all__ = ["InProcessJobs", "WorkerJobs", "report_jobs"]
 
 # imported by the worker while it waits for its first jobs, in the order the jobs come
-_WARMUP = ("matplotlib.pyplot", "dynid.report.plots", "dynid.estimation.identifiability", "scipy.sparse", "clarabel")
+_WARMUP = ("matplotlib.pyplot", "dynid.report.plots")
 
 
 def _resolve(func: str) -> Any:
