@@ -1,4 +1,4 @@
-"""The report's figures and physical-consistency check drawn in a worker process
+"""The report's figures drawn in a worker process
 (:mod:`dynid.report.worker`, issue 20 item 8) give the same files as drawn in process, and a
 failure there ends the run as one line, with no output.
 
@@ -9,6 +9,7 @@ failure there ends the run as one line, with no output.
 - a figure that fails in the worker: ``dynid: error: ...`` on one line, status 2, no output folder;
   a worker that dies: a :class:`~dynid.errors.DynidError` naming the job, not a hang;
 - the worker runs nothing of the caller's ``__main__`` (a script without a main guard runs once);
+- by default the worker is used only with a second CPU idle (one-minute load average);
 - the numpy frequency response the processing figure draws equals ``scipy.signal.sosfreqz``'s to
   rounding (the same polynomials evaluated in another order).
 """
@@ -175,3 +176,17 @@ def test_filter_gain_matches_scipy(order, cutoff, fs):
     # rounding of a product of `order/2` ratios of quadratics near the unit circle (poles close to it)
     np.testing.assert_allclose(got, ref, rtol=1e-8, atol=1e-300)
     assert abs(_sos_power_gain(sos, [cutoff], fs)[0] - 0.5) < 1e-9  # |H|^2 = 1/2 at the cut-off (Butterworth)
+
+
+@pytest.mark.parametrize("cpus, load, worker", [(1, 0.0, False), (2, 1.5, False), (2, 0.3, True), (8, 6.5, True)])
+def test_worker_only_with_an_idle_cpu(monkeypatch, cpus, load, worker):
+    import os
+
+    monkeypatch.delenv("DYNID_PLOT_WORKER", raising=False)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cpus)), raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    jobs = report_jobs()
+    try:
+        assert (type(jobs) is WorkerJobs) == worker
+    finally:
+        jobs.close()

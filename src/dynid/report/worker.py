@@ -19,8 +19,11 @@ on the same arrays as :class:`InProcessJobs` (the PNG bytes are identical,
 A job that fails in the worker fails the run the same way (a :class:`~dynid.errors.DynidError`,
 one line ``dynid: error: ...`` from the command line).
 
-:func:`report_jobs` chooses: the worker when more than one CPU is available to this process,
-unless ``DYNID_PLOT_WORKER=0`` (``1`` asks for it on one CPU too).
+:func:`report_jobs` chooses: the worker when a second CPU is available to this process and idle
+(the one-minute load average leaves at least one CPU free), unless ``DYNID_PLOT_WORKER=0``
+(``1`` asks for it whatever the CPUs and the load). On a busy machine the worker is a loss: its
+interpreter, numpy and pickling cost ~1 s of CPU more than drawing in process, and the figures
+then wait for a core the identification also wants (bench/README.md).
 """
 
 from __future__ import annotations
@@ -179,8 +182,9 @@ class WorkerJobs(InProcessJobs):
 
 
 def report_jobs() -> InProcessJobs:
-    """:class:`WorkerJobs` when this process may use more than one CPU (``DYNID_PLOT_WORKER=0``:
-    never; ``1``: always), else :class:`InProcessJobs`."""
+    """:class:`WorkerJobs` when this process may use more than one CPU and the one-minute load
+    average leaves one of them idle (``DYNID_PLOT_WORKER=0``: never; ``1``: always), else
+    :class:`InProcessJobs`."""
     choice = os.environ.get("DYNID_PLOT_WORKER", "").strip()
     if choice not in ("", "0", "1"):
         raise DynidError(f"DYNID_PLOT_WORKER must be 0 or 1, got {choice!r}")
@@ -191,7 +195,11 @@ def report_jobs() -> InProcessJobs:
             cpus = len(os.sched_getaffinity(0))
         except AttributeError:  # not Linux
             cpus = os.cpu_count() or 1
-        if cpus < 2:
+        try:
+            load = os.getloadavg()[0]
+        except (AttributeError, OSError):  # not available here: the CPU count decides alone
+            load = 0.0
+        if cpus < 2 or cpus - load < 1.0:
             return InProcessJobs()
     return WorkerJobs()
 
