@@ -22,7 +22,7 @@ one line ``dynid: error: ...`` from the command line).
 :func:`report_jobs` chooses: the worker when a second CPU is available to this process and idle
 (the one-minute load average leaves at least one CPU free), unless ``DYNID_PLOT_WORKER=0``
 (``1`` asks for it whatever the CPUs and the load). On a busy machine the worker is a loss: its
-interpreter, numpy and pickling cost ~1 s of CPU more than drawing in process, and the figures
+interpreter, numpy and pickling cost 1-1.5 s of CPU more than drawing in process, and the figures
 then wait for a core the identification also wants (bench/README.md).
 """
 
