@@ -414,7 +414,7 @@ class IdentifyOutcome:
     learning: Any = None  # [learning]: dynid.pipeline.learning.LearningOutcome (the residual network)
     units: tuple[str, ...] = ()  # unit of each output channel, from the log (effort_units)
     prediction: dict[str, Any] | None = None  # what dynid predict needs (result.json "prediction_inputs")
-    # the report's figures and check, under way beside the run (dynid.report.worker; plots only)
+    # the report's figures, under way beside the run (dynid.report.worker; plots only)
     jobs: Any = dataclasses.field(default=None, repr=False, compare=False)
 
     def summary_text(self) -> str:
@@ -494,19 +494,26 @@ def _versions() -> dict[str, str]:
     }
 
 
-def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | None = None) -> IdentifyOutcome:
+def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | None = None,
+             plot_worker: bool = False) -> IdentifyOutcome:
     """Run the whole identification described by ``cfg`` (nothing is written).
 
     ``readers`` maps the files of ``cfg.data`` and ``cfg.validation`` to readers already open (the
     interface of :class:`~dynid.io.readers.TableReader`: ``columns``, ``sha256``); the array API
     (:func:`dynid.pipeline.arrays.identify_arrays`) hands its arrays in this way, through the
-    same steps as a log on disk."""
+    same steps as a log on disk.
+
+    ``plot_worker``: with ``output.plots``, draw the report's figures in a worker process started
+    now, beside the identification, when a CPU is idle (:func:`dynid.report.worker.report_jobs`;
+    ``dynid identify`` asks for it); :func:`write_outputs` collects them and stops the worker.
+    Without it (the default: a library call starts no process) the figures are drawn by
+    :func:`write_outputs`, in this process; the files are the same bytes either way."""
     t0 = time.perf_counter()
     jobs = None
-    if cfg.output.plots:  # the report's figures and check start now, in a worker process when there is a second CPU
-        from dynid.report.worker import report_jobs
+    if cfg.output.plots:  # the report's figures: queued as their data appear, drawn beside the run or at the end
+        from dynid.report.worker import InProcessJobs, report_jobs
 
-        jobs = report_jobs()
+        jobs = report_jobs() if plot_worker else InProcessJobs()
     try:
         outcome = _identify(cfg, progress, readers, jobs)
     except BaseException:
@@ -1352,8 +1359,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     res = outcome.result
     expressions = res.expressions if res.expressions is not None else outcome.base.expressions()
     system = outcome.system if outcome.system is not None else as_system(outcome.robot)
-    # the physical-consistency check (a semidefinite program, ~15 ms: is_feasible calls Clarabel
-    # directly) runs with the report only; here, not in the plot worker, which would import for it
+    # the physical-consistency check (a semidefinite program) runs with the report only
     jobs = outcome.jobs if outcome.config.output.plots else None
     flags = parameter_flags(res, outcome.base, system, physical=outcome.config.output.plots)
     res.save(

@@ -27,8 +27,7 @@ import numpy as np
 from dynid.errors import DynidError, InputError
 from dynid.estimation.results import IdentificationResult
 
-__all__ = ["REL_STD_LIMIT_PCT", "effort_units", "file_sha256", "git_commit", "parameter_flags", "physical_check",
-           "run_facts"]
+__all__ = ["REL_STD_LIMIT_PCT", "effort_units", "file_sha256", "git_commit", "parameter_flags", "run_facts"]
 
 REL_STD_LIMIT_PCT = 15.0
 """A base parameter whose relative standard deviation :math:`100\\,\\sigma_i/|\\hat\\beta_i|` (paper 001
@@ -94,35 +93,19 @@ def parameter_flags(result: IdentificationResult, base: Any, system: Any, *, phy
     return out
 
 
-def _physical_inputs(result: IdentificationResult, base: Any, system: Any) -> dict[str, Any] | tuple:
-    """The arguments of :func:`physical_check` for ``result``, or the entry saying why it is not checked."""
+def _physical(result: IdentificationResult, base: Any, system: Any) -> dict[str, Any]:
     if tuple(result.names) != tuple(base.names):
         return {"checked": False, "reason": "the result's parameters are not the base parameters of the robot "
                                             "description (reduced or extended parameter set)"}
-    try:
-        smap = system.standard_map(base)
-    except (DynidError, InputError) as exc:
-        return {"checked": False, "reason": str(exc)}
-    return np.asarray(result.params, dtype=float), tuple(result.names), tuple(base.names), smap
-
-
-def _physical(result: IdentificationResult, base: Any, system: Any) -> dict[str, Any]:
-    inputs = _physical_inputs(result, base, system)
-    return inputs if isinstance(inputs, dict) else physical_check(*inputs)
-
-
-def physical_check(params: Any, names: tuple[str, ...], base_names: tuple[str, ...], smap: Any) -> dict[str, Any]:
-    """The ``physical`` entry of :func:`parameter_flags`: :func:`~dynid.estimation.identifiability.is_feasible`
-    on the base parameters ``params`` (paper 000 §6.2) and the parameters whose grouping touches a
-    violated constraint."""
     from dynid.estimation.identifiability import is_feasible, violating_parameters
 
     try:
-        feas = is_feasible(np.asarray(params, dtype=float), smap)
+        smap = system.standard_map(base)
+        feas = is_feasible(np.asarray(result.params, dtype=float), smap)
     except (DynidError, InputError) as exc:  # cvxpy missing, NaN estimates, solver failure: said, not hidden
         return {"checked": False, "reason": str(exc)}
     return {"checked": True, "feasible": bool(feas.feasible), "violated": list(feas.violated),
-            "parameters": list(violating_parameters(names, feas, base_names, smap)), "solver_status": feas.status}
+            "parameters": list(violating_parameters(result.names, feas, base.names, smap)), "solver_status": feas.status}
 
 
 def file_sha256(path: str | Path | None) -> str | None:
