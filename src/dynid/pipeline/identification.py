@@ -518,7 +518,7 @@ def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | 
         outcome = _identify(cfg, progress, readers, jobs)
     except BaseException:
         if jobs is not None:
-            jobs.close()
+            jobs.close(kill=True)
         raise
     validation = dataclasses.replace(outcome.validation, overlap=motion_overlap(outcome.train, outcome.held_out))
     prior = outcome.prior
@@ -1231,9 +1231,12 @@ def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Pa
         with staged_output(out) as stage:
             write_files(outcome, stage)
             produced = sorted(p.name for p in stage.iterdir())
-    finally:
-        if outcome.jobs is not None:  # the worker's work is done (or no longer wanted)
-            outcome.jobs.close()
+    except BaseException:
+        if outcome.jobs is not None:  # the figures still under way are no longer wanted
+            outcome.jobs.close(kill=True)
+        raise
+    if outcome.jobs is not None:  # every figure collected: the worker is idle and ends
+        outcome.jobs.close()
     # outputs of an earlier run that this run did not write (e.g. plots now switched off)
     # would describe another identification: remove them
     for name in OUTPUT_FILES:

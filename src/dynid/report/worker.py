@@ -21,9 +21,11 @@ one line ``dynid: error: ...`` from the command line).
 
 :func:`report_jobs` chooses: the worker when a second CPU is available to this process and idle
 (the one-minute load average leaves at least one CPU free), unless ``DYNID_PLOT_WORKER=0``
-(``1`` asks for it whatever the CPUs and the load). On a busy machine the worker is a loss: its
-interpreter, numpy and pickling cost 1-1.5 s of CPU more than drawing in process, and the figures
-then wait for a core the identification also wants (bench/README.md).
+(``1`` asks for it whatever the CPUs and the load; POSIX only). On a busy machine the worker is
+a loss: its interpreter, numpy and pickling cost 1-1.5 s of CPU more than drawing in process,
+and the figures then wait for a core the identification also wants (bench/README.md).
+``dynid identify`` asks for it (``identify(..., plot_worker=True)``); a library call of
+:func:`dynid.pipeline.identify` starts no process unless asked.
 """
 
 from __future__ import annotations
@@ -46,8 +48,6 @@ _WARMUP = ("matplotlib.pyplot", "dynid.report.plots")
 def _resolve(func: str) -> Any:
     module, name = func.split(":")
     return getattr(importlib.import_module(module), name)
-
-
 
 
 class InProcessJobs:
@@ -83,7 +83,7 @@ class InProcessJobs:
             self._done[key] = _resolve(func)(*args, **kwargs)
         return self._done[key]
 
-    def close(self) -> None:
+    def close(self, *, kill: bool = False) -> None:
         pass
 
 
@@ -162,13 +162,16 @@ class WorkerJobs(InProcessJobs):
         except subprocess.TimeoutExpired:
             return None
 
-    def close(self) -> None:
+    def close(self, *, kill: bool = False) -> None:
         """Stop the worker: it ends when its job pipe closes (between jobs); killed if it is still
-        running one after 5 s."""
+        running one after 5 s, or at once with ``kill`` (the run failed: its figures are not wanted)."""
         if not hasattr(self, "_proc"):
             return
         self._out.close()
-        if self._proc.poll() is None and self._exit_code() is None:
+        if kill and self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
+        elif self._proc.poll() is None and self._exit_code() is None:
             self._proc.kill()
             self._proc.wait()
         self._in.close()
@@ -176,7 +179,7 @@ class WorkerJobs(InProcessJobs):
 
     def __del__(self) -> None:  # an outcome dropped without write_outputs: no process left behind
         try:
-            self.close()
+            self.close(kill=True)
         except Exception:
             pass
 
@@ -188,7 +191,7 @@ def report_jobs() -> InProcessJobs:
     choice = os.environ.get("DYNID_PLOT_WORKER", "").strip()
     if choice not in ("", "0", "1"):
         raise DynidError(f"DYNID_PLOT_WORKER must be 0 or 1, got {choice!r}")
-    if choice == "0":
+    if choice == "0" or os.name == "nt":  # (the worker's pipes are POSIX file descriptors)
         return InProcessJobs()
     if choice == "":
         try:
