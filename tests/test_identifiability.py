@@ -217,6 +217,23 @@ def test_infeasible_base_vectors_name_the_violation():
         is_feasible(BETA[:-1], SMAP)
 
 
+@pytest.mark.parametrize("case", ["consistent", "fv1", "Izz6", "Izz2"])
+def test_direct_clarabel_is_the_same_program_as_through_cvxpy(case):
+    """is_feasible's default path hands Clarabel the conic form itself (no cvxpy import); through
+    cvxpy the same solver gets cvxpy's canonicalization of the same program. Same verdict, same
+    violated set, and the same optimum to the solver's accuracy (~1e-8 of the problem's scale)."""
+    pytest.importorskip("cvxpy")
+    beta = BETA.copy()
+    if case != "consistent":
+        beta[BASE.names.index(case)] = {"fv1": -1.0, "Izz6": -0.01, "Izz2": -0.5}[case]
+    direct, through = is_feasible(beta, SMAP), is_feasible(beta, SMAP, solver="cvxpy:CLARABEL")
+    assert (direct.feasible, direct.violated, direct.status) == (through.feasible, through.violated, through.status)
+    scale = max(1.0, float(np.max(np.abs(beta))))
+    assert abs(direct.violation - through.violation) < 1e-6 * scale
+    np.testing.assert_allclose(direct.min_eigenvalues, through.min_eigenvalues, atol=1e-6 * scale)
+    np.testing.assert_allclose(SMAP.B @ direct.standard_params, beta, atol=1e-7 * scale)
+
+
 def test_structure_search_on_a_simulated_robot():
     from dynid.simulation import FourierTrajectory
 

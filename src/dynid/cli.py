@@ -186,7 +186,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from dynid.pipeline import identify, write_outputs
 
     with _progress_bar(not args.quiet) as progress:
-        outcome = identify(cfg, progress)
+        outcome = identify(cfg, progress, plot_worker=True)
     written = write_outputs(outcome, args.out)
     if not args.quiet:
         print(outcome.summary_text())

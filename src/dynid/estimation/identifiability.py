@@ -157,7 +157,9 @@ def is_feasible(
         parameters, of the pseudo-inertia eigenvalues and of the non-negative parameters
         found; at least 1). The solver's accuracy is about 1e-8 of that scale.
     solver : str
-        cvxpy solver name.
+        ``"CLARABEL"`` (default): Clarabel called directly on the conic form below (no cvxpy:
+        its import, ~1-2 s, was most of the check's time); ``"cvxpy:NAME"`` or any other name:
+        that cvxpy solver, through cvxpy (``"cvxpy:CLARABEL"``: the same solver through cvxpy).
 
     Returns
     -------
@@ -189,14 +191,18 @@ def is_feasible(
         raise InputError("base_params contain NaN/inf")
     if not (np.isfinite(tol) and tol > 0):
         raise InputError(f"tol must be positive, got {tol!r}")
+    n_std, n_b, nn = smap.B.shape[1], len(smap.body_blocks), smap.nonnegative
+    scale = max(float(np.max(np.abs(beta))), 1.0) if beta.size else 1.0
+    if solver == "CLARABEL":
+        pi_hat, value, status = _feasibility_clarabel(beta, smap, scale)
+        return _feasibility_of(pi_hat, value, status, smap, scale, tol)
     cp = require("cvxpy", "sdp")
+    solver = solver.removeprefix("cvxpy:")
     if solver not in cp.installed_solvers():
         raise DynidError(f"solver {solver} is not installed (installed: {', '.join(cp.installed_solvers())})")
-    n_std, n_b, nn = smap.B.shape[1], len(smap.body_blocks), smap.nonnegative
     pi = cp.Variable(n_std)
     s_body = cp.Variable(n_b, nonneg=True) if n_b else None
     s_nn = cp.Variable(nn.size, nonneg=True) if nn.size else None
-    scale = max(float(np.max(np.abs(beta))), 1.0) if beta.size else 1.0
     constraints = [smap.B @ pi == beta] + ([pi[smap.zero] == 0] if smap.zero.size else [])
     objective = 0
     for k, blk in enumerate(smap.body_blocks):
@@ -215,7 +221,76 @@ def is_feasible(
         raise DynidError(f"{solver} failed on the feasibility problem ({exc})") from None
     if prob.status not in ("optimal", "optimal_inaccurate") or pi.value is None:
         raise DynidError(f"feasibility check failed: solver status {prob.status!r}")
-    pi_hat = np.asarray(pi.value, dtype=float)
+    return _feasibility_of(np.asarray(pi.value, dtype=float), float(prob.value), str(prob.status), smap, scale, tol)
+
+
+# Clarabel's statuses in cvxpy's words (cvxpy's CLARABEL interface), so that both paths report alike
+_CLARABEL_STATUS = {"Solved": "optimal", "AlmostSolved": "optimal_inaccurate", "PrimalInfeasible": "infeasible",
+                    "DualInfeasible": "unbounded", "AlmostPrimalInfeasible": "infeasible_inaccurate",
+                    "AlmostDualInfeasible": "unbounded_inaccurate", "MaxIterations": "user_limit",
+                    "MaxTime": "user_limit"}
+
+
+def _feasibility_clarabel(beta: FloatArray, smap: StandardMap, scale: float) -> tuple[FloatArray, float, str]:
+    """The semidefinite program of :func:`is_feasible` in Clarabel's standard form (Goulart & Chen
+    2024, arXiv:2405.12762) :math:`\\min q^T x` s.t. :math:`A x + s = b`, :math:`s \\in K`, with
+    :math:`x = (\\pi, s_{body}, s_{nn})` and :math:`K` = zero cone (:math:`B\\pi = \\beta`, the
+    structural zeros) x non-negative orthant (the slacks, :math:`\\pi_i + s_i`) x one 4x4 PSD cone
+    per body (:math:`J_k(\\pi) + s_k\\mathbf 1`: upper triangle by columns, off-diagonal entries
+    times :math:`\\sqrt 2`, Clarabel's ``PSDTriangleConeT``). The pseudo-inertia is linear in the
+    body's ten parameters, so its coefficients are :func:`pseudo_inertia` of the unit vectors.
+    Returns :math:`\\hat\\pi`, the objective :math:`\\sum s / S` and the status in cvxpy's words."""
+    clarabel = require("clarabel", "sdp")
+    from scipy import sparse
+
+    n_std, n_b, nn, zero = smap.B.shape[1], len(smap.body_blocks), smap.nonnegative, smap.zero
+    n_x = n_std + n_b + nn.size
+    rows: list[FloatArray] = []
+    rhs: list[FloatArray] = []
+    eq = np.zeros((smap.B.shape[0] + zero.size, n_x))
+    eq[: smap.B.shape[0], :n_std] = smap.B
+    eq[smap.B.shape[0] + np.arange(zero.size), zero] = 1.0
+    rows.append(eq)
+    rhs.append(np.concatenate([beta, np.zeros(zero.size)]))
+    # the slacks and pi[nn] + s_nn in the orthant: rows -x, b = 0 (its cone element s = b - A x is x)
+    nonneg = np.zeros((n_b + 2 * nn.size, n_x))
+    nonneg[np.arange(n_b + nn.size), n_std + np.arange(n_b + nn.size)] = -1.0
+    nonneg[n_b + nn.size + np.arange(nn.size), nn] = -1.0
+    nonneg[n_b + nn.size + np.arange(nn.size), n_std + n_b + np.arange(nn.size)] = -1.0
+    rows.append(nonneg)
+    rhs.append(np.zeros(nonneg.shape[0]))
+    unit = np.array([pseudo_inertia(e) for e in np.eye(10)])  # (10, 4, 4): J = sum_l unit[l] pi_l
+    tri = [(i, j) for j in range(4) for i in range(j + 1)]
+    for k, blk in enumerate(smap.body_blocks):
+        psd = np.zeros((len(tri), n_x))
+        for r, (i, j) in enumerate(tri):
+            w = 1.0 if i == j else np.sqrt(2.0)
+            psd[r, np.asarray(blk)] = -w * unit[:, i, j]
+            if i == j:
+                psd[r, n_std + k] = -1.0
+        rows.append(psd)
+        rhs.append(np.zeros(len(tri)))
+    cones = [clarabel.ZeroConeT(eq.shape[0]), clarabel.NonnegativeConeT(nonneg.shape[0])]
+    cones += [clarabel.PSDTriangleConeT(4) for _ in range(n_b)]
+    if not nonneg.shape[0]:
+        cones.pop(1)
+    q = np.concatenate([np.zeros(n_std), np.full(n_b + nn.size, 1.0 / scale)])
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    A = sparse.csc_matrix(np.vstack(rows))
+    P = sparse.csc_matrix((n_x, n_x))
+    sol = clarabel.DefaultSolver(P, q, A, np.concatenate(rhs), cones, settings).solve()
+    status = _CLARABEL_STATUS.get(str(sol.status), "solver_error")
+    if status not in ("optimal", "optimal_inaccurate") or sol.x is None:
+        raise DynidError(f"feasibility check failed: solver status {status!r}")
+    x = np.asarray(sol.x, dtype=float)
+    return x[:n_std], float(sol.obj_val), status
+
+
+def _feasibility_of(pi_hat: FloatArray, value: float, status: str, smap: StandardMap, scale: float,
+                    tol: float) -> Feasibility:
+    """:class:`Feasibility` from the program's solution (see :func:`is_feasible`)."""
+    nn = smap.nonnegative
     eigs = [np.linalg.eigvalsh(pseudo_inertia(pi_hat[blk])) for blk in smap.body_blocks]
     min_eigs = [float(ev[0]) for ev in eigs]
     # one absolute tolerance for the whole problem: relative to a single body, the
@@ -230,9 +305,9 @@ def is_feasible(
         feasible=not violated,
         min_eigenvalues=tuple(min_eigs),
         violated=tuple(violated),
-        violation=float(prob.value) * scale,
+        violation=value * scale,
         standard_params=pi_hat,
-        status=str(prob.status),
+        status=status,
     )
 
 

@@ -422,6 +422,8 @@ class IdentifyOutcome:
     # which path ran (result.json "data_path"): "in-memory", or "streamed" (dynid.pipeline.streaming: then
     # train, held_out and raw_train are None and the validation metrics keep no arrays)
     data_path: dict[str, Any] | None = None
+    # the report's figures, under way beside the run (dynid.report.worker; plots only)
+    jobs: Any = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def n_train(self) -> int:
@@ -507,15 +509,32 @@ def _versions() -> dict[str, str]:
     }
 
 
-def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | None = None) -> IdentifyOutcome:
+def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | None = None,
+             plot_worker: bool = False) -> IdentifyOutcome:
     """Run the whole identification described by ``cfg`` (nothing is written).
 
     ``readers`` maps the files of ``cfg.data`` and ``cfg.validation`` to readers already open (the
     interface of :class:`~dynid.io.readers.TableReader`: ``columns``, ``sha256``); the array API
     (:func:`dynid.pipeline.arrays.identify_arrays`) hands its arrays in this way, through the
-    same steps as a log on disk."""
+    same steps as a log on disk.
+
+    ``plot_worker``: with ``output.plots``, draw the report's figures in a worker process started
+    now, beside the identification, when a CPU is idle (:func:`dynid.report.worker.report_jobs`;
+    ``dynid identify`` asks for it); :func:`write_outputs` collects them and stops the worker.
+    Without it (the default: a library call starts no process) the figures are drawn by
+    :func:`write_outputs`, in this process; the files are the same bytes either way."""
     t0 = time.perf_counter()
-    outcome = _identify(cfg, progress, readers)
+    jobs = None
+    if cfg.output.plots:  # the report's figures: queued as their data appear, drawn beside the run or at the end
+        from dynid.report.worker import InProcessJobs, report_jobs
+
+        jobs = report_jobs() if plot_worker else InProcessJobs()
+    try:
+        outcome = _identify(cfg, progress, readers, jobs)
+    except BaseException:
+        if jobs is not None:
+            jobs.close(kill=True)
+        raise
     overlap = outcome.validation.overlap if outcome.train is None else motion_overlap(outcome.train, outcome.held_out)
     validation = dataclasses.replace(outcome.validation, overlap=overlap)
     prior = outcome.prior
@@ -531,8 +550,33 @@ def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | 
     if full is not None and full.nominal is not None and prior is not None:
         full = dataclasses.replace(full, prior=prior_comparison(full.metrics, full.nominal, prior["comparable"],
                                                                 f"full-rate {validation.label}"))
+    if jobs is not None:
+        jobs.submit_figure("validation.png", "dynid.report.plots:plot_validation", _validation_series(validation),
+                           units=outcome.units or None)
     return dataclasses.replace(outcome, validation=validation, prior=prior, selected=selected, full_rate=full,
-                               elapsed_s=time.perf_counter() - t0)
+                               elapsed_s=time.perf_counter() - t0, jobs=jobs)
+
+
+def _validation_series(v: ValidationMetrics) -> Any:
+    """What :func:`~dynid.report.plots.plot_validation` draws of ``v`` (arrays only: light to send
+    to the plot worker, which then needs no dynid.estimation)."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(t=v.t, measured=v.measured, predicted=v.predicted, channel_names=tuple(v.channel_names),
+                           rmse=np.asarray(v.rmse), rel_rmse_pct=np.asarray(v.rel_rmse_pct), label=v.label)
+
+
+def _submit_processing(jobs: Any, raw: Dataset, processed: Dataset) -> None:
+    """Hand the processing figure (raw against processed positions) to ``jobs``, filters designed here."""
+    from types import SimpleNamespace
+
+    from dynid.report.plots import with_filter_sections
+
+    def series(ds: Dataset) -> Any:
+        return SimpleNamespace(t=ds.t, q=ds.q, names=ds.names)
+
+    jobs.submit_figure("processing.png", "dynid.report.plots:plot_processing", series(raw), series(processed),
+                       steps=with_filter_sections(processed.meta.get("processing")))
 
 
 def _selected_prior(sel: ValidationMetrics, nominal: ValidationMetrics, comparable: bool, label: str) -> dict[str, Any]:
@@ -963,7 +1007,7 @@ def _with_row_selection(result: IdentificationResult, pcfg, system: System, forc
     return result
 
 
-def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> IdentifyOutcome:
+def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs: Any = None) -> IdentifyOutcome:
     cfg0 = cfg
     if cfg.identification.hierarchical:  # the friction-free regressor Phi_br (paper 003 Eq. 37)
         from dynid.pipeline.hierarchical import rigid_robot_config
@@ -1004,6 +1048,8 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
         return system.base_parameters(force_model, n_samples=icfg.base_samples, seed=icfg.base_seed)
 
     train, steps = preprocess(train_a, pcfg, "data", unknowns=lambda: (base_parameters().n_base, len(channels)))
+    if jobs is not None and icfg.method != "ml":  # (maximum likelihood processes again at its cut-off)
+        _submit_processing(jobs, train_a, train)
     held_out, _ = preprocess(valid_a, pcfg, "validation")
     smoothing = _coulomb_smoothing(icfg.coulomb_smoothing, train_a, pcfg, system)
     if smoothing is not None:
@@ -1040,11 +1086,15 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None) -> I
             system = system.with_coulomb_width(smoothing["width"])
         train, _ = preprocess(train_a, pcfg, "data")  # both logs as processed at the estimated f_c
         held_out, _ = preprocess(valid_a, pcfg, "validation")
+        if jobs is not None:
+            _submit_processing(jobs, train_a, train)
     elif icfg.method == "ml":
         result, periodic, worst = _maximum_likelihood(cfg, system, base, train_a, force_model, progress, meta)
         at_fc = dataclasses.replace(pcfg, periodic=periodic)  # both logs as processed at the estimated f_c
         train, _ = preprocess(train_a, at_fc, "data")
         held_out, _ = preprocess(valid_a, at_fc, "validation")
+        if jobs is not None:
+            _submit_processing(jobs, train_a, train)
     elif icfg.hierarchical:
         result, fj, worst = _hierarchical_fit(cfg, system, base, train, steps, tuple(channels), tuple(names), progress,
                                               meta, original)
@@ -1324,9 +1374,16 @@ def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Pa
     files of this run.
     """
     out = Path(out_dir)
-    with staged_output(out) as stage:
-        write_files(outcome, stage)
-        produced = sorted(p.name for p in stage.iterdir())
+    try:
+        with staged_output(out) as stage:
+            write_files(outcome, stage)
+            produced = sorted(p.name for p in stage.iterdir())
+    except BaseException:
+        if outcome.jobs is not None:  # the figures still under way are no longer wanted
+            outcome.jobs.close(kill=True)
+        raise
+    if outcome.jobs is not None:  # every figure collected: the worker is idle and ends
+        outcome.jobs.close()
     # outputs of an earlier run that this run did not write (e.g. plots now switched off)
     # would describe another identification: remove them
     for name in OUTPUT_FILES:
@@ -1453,6 +1510,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     expressions = res.expressions if res.expressions is not None else outcome.base.expressions()
     system = outcome.system if outcome.system is not None else as_system(outcome.robot)
     # the physical-consistency check (a semidefinite program) runs with the report only
+    jobs = outcome.jobs if outcome.config.output.plots else None
     flags = parameter_flags(res, outcome.base, system, physical=outcome.config.output.plots)
     res.save(
         stage / "result",
@@ -1508,7 +1566,10 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     if outcome.config.output.plots:
         from dynid.report import plot_validation, write_html_report
 
-        plot_validation(outcome.validation, stage / "validation.png", units=outcome.units or None)
+        if jobs is not None and "validation.png" in jobs:
+            jobs.write_figure("validation.png", stage / "validation.png")
+        else:
+            plot_validation(outcome.validation, stage / "validation.png", units=outcome.units or None)
         images = {"validation.png": "Validation: measured against predicted"}
         if "hierarchical" in res.solver:
             from dynid.pipeline.hierarchical import plot_history
@@ -1516,10 +1577,13 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             plot_history(res.solver["hierarchical"], tuple(res.channel_names), stage / "hierarchical.png")
             images["hierarchical.png"] = "Hierarchical iterations"
         if outcome.raw_train is not None:
-            from dynid.report.plots import plot_processing
+            if jobs is not None and "processing.png" in jobs:
+                jobs.write_figure("processing.png", stage / "processing.png")
+            else:
+                from dynid.report.plots import plot_processing
 
-            plot_processing(outcome.raw_train, outcome.train, stage / "processing.png",
-                            steps=outcome.train.meta.get("processing"))
+                plot_processing(outcome.raw_train, outcome.train, stage / "processing.png",
+                                steps=outcome.train.meta.get("processing"))
             images["processing.png"] = "Processing: raw and processed training signals"
         write_html_report(res, outcome.validation, stage / "report.html",
                           images={stage / name: title for name, title in images.items()},

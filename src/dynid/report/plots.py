@@ -209,6 +209,45 @@ def plot_speed_schedule(design: Any, t, dq, path: str | Path) -> Path:
     return Path(path)
 
 
+def _step_sos(step: dict, order: int, cutoff_hz: float, fs: float) -> Any:
+    """The second-order sections of a processing step's Butterworth filter: ``step["sos"]`` when
+    the caller designed them already (:func:`with_filter_sections`: the plot worker then needs no
+    scipy.signal, about a second of import), else designed here."""
+    if "sos" in step:
+        return step["sos"]
+    from dynid.signals import butter_sos
+
+    return butter_sos(order, cutoff_hz, fs)
+
+
+def with_filter_sections(steps: Any) -> Any:
+    """``steps`` (the processing record) with each Butterworth step's second-order sections
+    added (key ``"sos"``), designed exactly as :func:`_filter_gain` would design them."""
+    out = []
+    for st in steps or ():
+        kind = st.get("step")
+        if kind == "lowpass":
+            st = {**st, "sos": _step_sos(st, st["order"], st["cutoff_hz"], st["fs_hz"])}
+        elif kind == "decimate" and str(st.get("method", "")).startswith("parallel"):
+            nyq = 0.5 * st["fs_hz"]
+            st = {**st, "sos": _step_sos(st, 8, 0.8 * nyq, st["fs_hz"] * st["factor"])}
+        out.append(st)
+    return out if steps is not None else None
+
+
+def _sos_power_gain(sos: Any, f: Any, fs: float) -> Any:
+    """:math:`|H(e^{j 2\\pi f / f_s})|^2` of cascaded second-order sections (rows
+    ``b0 b1 b2 a0 a1 a2``): the product of the sections' ratios of polynomials in
+    :math:`z^{-1}` (what ``scipy.signal.sosfreqz`` evaluates, here with numpy alone)."""
+    import numpy as np
+
+    w = np.exp(-2j * np.pi * np.asarray(f, dtype=float) / fs)  # z^-1 on the unit circle
+    h = np.ones_like(w)
+    for b0, b1, b2, a0, a1, a2 in np.asarray(sos, dtype=float):
+        h = h * ((b0 + w * (b1 + w * b2)) / (a0 + w * (a1 + w * a2)))
+    return np.abs(h) ** 2
+
+
 def _filter_gain(steps: Any, f: Any) -> tuple[Any, list[tuple[float, str]]]:
     """Amplitude gain of the processing's filters at the frequencies ``f`` [Hz] (None without a
     filter) and the frequencies to mark (cut-off, Nyquist frequency after decimation).
@@ -218,16 +257,12 @@ def _filter_gain(steps: Any, f: Any) -> tuple[Any, list[tuple[float, str]]]:
     Gautier's parallel decimation low-passes at 0.8 x the new Nyquist frequency (order 8, zero
     phase) before keeping one sample in ``factor``."""
     import numpy as np
-    from scipy import signal
-
-    from dynid.signals import butter_sos
 
     gain, marks = None, []
     for st in steps or ():
         kind = st.get("step")
         if kind == "lowpass":
-            _, h = signal.sosfreqz(butter_sos(st["order"], st["cutoff_hz"], st["fs_hz"]), worN=f, fs=st["fs_hz"])
-            g = np.abs(h) ** 2
+            g = _sos_power_gain(_step_sos(st, st["order"], st["cutoff_hz"], st["fs_hz"]), f, st["fs_hz"])
             marks.append((st["cutoff_hz"], f"low-pass {st['cutoff_hz']:g} Hz"))
         elif kind == "periodic":
             g = (f <= st["cutoff_hz"]).astype(float)
@@ -238,8 +273,7 @@ def _filter_gain(steps: Any, f: Any) -> tuple[Any, list[tuple[float, str]]]:
             if not str(st.get("method", "")).startswith("parallel"):
                 continue
             fs = st["fs_hz"] * st["factor"]
-            _, h = signal.sosfreqz(butter_sos(8, 0.8 * nyq, fs), worN=f, fs=fs)
-            g = np.abs(h) ** 2
+            g = _sos_power_gain(_step_sos(st, 8, 0.8 * nyq, fs), f, fs)
         else:
             continue
         gain = g if gain is None else gain * g
