@@ -16,6 +16,8 @@
   signal); a longer one gives a coarser frequency grid (``fs / nperseg``) and a smoother, lower
   variance noise floor (a broadband floor reads higher per bin, a sinusoid's peak the same). The
   figure says which it shows. Mean removal is per segment (Welch's), the whole log's in memory.
+  Nothing below ``1 / (nperseg dt)`` is resolved: the default segment (65 s at 1 kHz) is longer
+  than an excitation period of the papers' designs (10-20 s), not necessarily of every log.
 * :class:`ValidationPlot`, :class:`ProcessingPlot`: the accumulators of the two figures and the
   objects handed to :func:`dynid.report.plots.plot_validation` (the ``thinned`` field of
   :class:`~dynid.estimation.validation.ValidationMetrics`) and
@@ -141,7 +143,7 @@ class WelchSpectrum:
     def note(self) -> str:
         if self.segments <= 1:
             return "one Hann-windowed FFT of the whole log"
-        return f"Welch: mean of {self.segments} Hann-windowed segments of {self.m} samples, half overlapping"
+        return f"Welch, {self.segments} half-overlapping Hann segments of {self.m} samples"
 
 
 @dataclasses.dataclass

@@ -336,7 +336,8 @@ def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: in
     axes[-1, 1].set_xlabel("frequency [Hz]")
     fig.suptitle("positions before and after processing, and their amplitude spectra"
                  + (" (dashed: the filters' amplitude gain, scaled to the raw spectrum's peak)" if gain is not None else "")
-                 + (f"\nspectra streamed: raw {raw.spectrum_note}; processed {processed.spectrum_note}" if pre else ""),
+                 + ((f"\nstreamed log, spectra: {raw.spectrum_note}" if raw.spectrum_note == processed.spectrum_note else
+                     f"\nstreamed log, spectra: raw {raw.spectrum_note}; processed {processed.spectrum_note}") if pre else ""),
                  fontsize=10)
     path = Path(path)
     fig.savefig(path, dpi=dpi)
