@@ -119,19 +119,27 @@ class WelchSpectrum:
         self.m = int(min(n, NPERSEG if nperseg is None else nperseg))
         self.dt, self.c = float(dt), int(c)
         self.w = np.hanning(self.m)
-        self.buf = np.empty((0, c))
+        self.buf = np.empty((self.m, c))  # one segment, filled in place (no copy of a chunk)
+        self.fill = 0
         self.power = np.zeros((self.m // 2 + 1, c))
         self.segments = 0
 
     def add(self, y: FloatArray) -> None:
-        self.buf = np.concatenate([self.buf, np.asarray(y, dtype=float).reshape(-1, self.c)])
+        y = np.asarray(y, dtype=float).reshape(-1, self.c)
         m, step = self.m, max(1, self.m // 2)
-        while self.buf.shape[0] >= m:
-            seg = self.buf[:m]
-            spec = np.abs(np.fft.rfft((seg - seg.mean(axis=0)) * self.w[:, None], axis=0)) * 2 / self.w.sum()
-            self.power += spec ** 2
-            self.segments += 1
-            self.buf = self.buf[step:]
+        pos = 0
+        while pos < y.shape[0]:
+            take = min(m - self.fill, y.shape[0] - pos)
+            self.buf[self.fill:self.fill + take] = y[pos:pos + take]
+            self.fill += take
+            pos += take
+            if self.fill == m:
+                seg = self.buf
+                spec = np.abs(np.fft.rfft((seg - seg.mean(axis=0)) * self.w[:, None], axis=0)) * 2 / self.w.sum()
+                self.power += spec ** 2
+                self.segments += 1
+                self.buf[:m - step] = self.buf[step:].copy()
+                self.fill = m - step
 
     def spectra(self) -> list[tuple[FloatArray, FloatArray]]:
         """Per channel ``(f, amplitude)`` without the zero frequency (as in memory)."""
