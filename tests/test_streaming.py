@@ -176,7 +176,8 @@ def test_chunk_size_does_not_change_the_answer(tmp_path, log12k, monkeypatch):
 
 
 def test_auto_rule(tmp_path, log12k, monkeypatch):
-    """'auto' streams from AUTO_ROWS training rows on, and keeps the in-memory path with plots on."""
+    """'auto' streams from AUTO_ROWS training rows on, with plots on too (their series are thinned
+    chunk by chunk: test_stream_plots)."""
     data = _write(tmp_path, log12k, "npz")
     cfg = _config(tmp_path, data, (0, 9_000), (9_000, 12_000), "auto")
     assert identify(cfg).data_path["mode"] == "in-memory"
@@ -188,7 +189,7 @@ def test_auto_rule(tmp_path, log12k, monkeypatch):
     from dynid.pipeline.data import build_system
 
     streams, record = streaming.plan(plotted, build_system(cfg.robot), {})
-    assert streams is None and "plots" in record["reason"]
+    assert streams is not None and record["mode"] == "streamed"
 
 
 def _peak(cfg) -> int:

@@ -43,6 +43,9 @@ class ValidationMetrics:
     # rows of each channel the errors are over when the arrays are not kept (a streamed identification,
     # dynid.pipeline.streaming: t, measured and predicted are then empty)
     counts: np.ndarray | None = None
+    # a streamed identification with plots: the series of the validation figure already thinned to its pixel
+    # columns ({"n_px", "measured", "predicted", "error"}: per channel (t - t0, y); dynid.pipeline.stream_plots)
+    thinned: dict[str, Any] | None = None
 
     @property
     def rows_per_channel(self) -> np.ndarray:

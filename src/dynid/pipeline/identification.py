@@ -424,6 +424,9 @@ class IdentifyOutcome:
     data_path: dict[str, Any] | None = None
     # the report's figures, under way beside the run (dynid.report.worker; plots only)
     jobs: Any = dataclasses.field(default=None, repr=False, compare=False)
+    # a streamed run with plots: (raw, processed) training signals for plot_processing, thinned and with Welch
+    # spectra (dynid.pipeline.stream_plots.StreamedSignals); the validation figure's series are in validation.thinned
+    streamed_plots: tuple[Any, Any] | None = None
 
     @property
     def n_train(self) -> int:
@@ -563,7 +566,8 @@ def _validation_series(v: ValidationMetrics) -> Any:
     from types import SimpleNamespace
 
     return SimpleNamespace(t=v.t, measured=v.measured, predicted=v.predicted, channel_names=tuple(v.channel_names),
-                           rmse=np.asarray(v.rmse), rel_rmse_pct=np.asarray(v.rel_rmse_pct), label=v.label)
+                           rmse=np.asarray(v.rmse), rel_rmse_pct=np.asarray(v.rel_rmse_pct), label=v.label,
+                           thinned=v.thinned)  # a streamed run: its series already thinned (stream_plots)
 
 
 def _submit_processing(jobs: Any, raw: Dataset, processed: Dataset) -> None:
@@ -1152,6 +1156,7 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
     step of this configuration can be done so."""
     from types import SimpleNamespace
 
+    from dynid.pipeline.stream_plots import ProcessingPlot, ValidationPlot
     from dynid.pipeline.streaming import ErrorSums, StateSample, motion_overlap_streamed
 
     icfg, pcfg = cfg.identification, cfg.processing
@@ -1185,13 +1190,18 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
     q_lo = np.full(system.n_actuators, np.inf)
     q_hi = np.full(system.n_actuators, -np.inf)
     reference = StateSample(n_eff, 20000, std=True)
+    plots = cfg.output.plots
+    proc_plot = ProcessingPlot(tr.t, n_eff, proc["k"], system.n_actuators) if plots else None
 
     def training_chunks() -> Iterator[Chunk]:
         nonlocal q_lo, q_hi
         rows = system.rows(force_model)
-        for j0, p in tr.processed(system, pcfg, size, constant=constant, notes=notes):
+        for j0, p in tr.processed(system, pcfg, size, constant=constant, notes=notes,
+                                  raw_tap=proc_plot.add_raw if plots else None):
             q_lo, q_hi = np.minimum(q_lo, p["q"].min(axis=0)), np.maximum(q_hi, p["q"].max(axis=0))
             reference.add(j0, p)
+            if plots:
+                proc_plot.add_processed(j0, p)
             r = rows(p["q"], p["dq"], p["ddq"], p["tau"], j0)
             yield Chunk(base.regressor(r.W), r.y, p["dq"], r.inconsistency, r.joint_dq, None, r.Ga, None)
             progress("compress", j0 + p["t"].shape[0], n_eff)
@@ -1220,11 +1230,12 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
         rows_rule = RowSelection(pcfg.min_velocity, pcfg.min_velocity_passive, None, ", ".join(rule))
     src = va.meta.get("source")
 
-    def score(decimate: int | None, sample: StateSample | None, selection: RowSelection | None):
+    def score(decimate: int | None, sample: StateSample | None, selection: RowSelection | None, plot: bool = False):
         nc = len(channels)
         sums = [ErrorSums(nc) for _ in range(4)]  # identified, nominal, and both on the selected rows
         rows = system.rows(force_model)
         n_val = len(va.processing(pcfg, decimate)["rows"])
+        vplot = ValidationPlot(n_val, nc) if plot else None
         for j0, p in va.processed(system, pcfg, size, decimate=decimate):
             if sample is not None:
                 sample.add(j0, p)
@@ -1233,6 +1244,8 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
             pred, prior = W @ result.params, W @ nominal
             sums[0].add(r.y, pred)
             sums[1].add(r.y, prior)
+            if vplot is not None:
+                vplot.add(j0, p["t"], r.y, pred, prior)
             if selection is not None:
                 mask = row_mask(system, force_model, p["dq"], selection.min_velocity, joint_dq=r.joint_dq,
                                 min_velocity_passive=selection.min_velocity_passive)
@@ -1244,10 +1257,14 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
         selected = None if selection is None else SelectedRows(
             rule=selection.rule, metrics=sums[2].metrics(channels, src, counts=True),
             nominal=sums[3].metrics(channels, src, counts=True))
-        return sums[0].metrics(channels, src), sums[1].metrics(channels, src), selected
+        ident, nom = sums[0].metrics(channels, src), sums[1].metrics(channels, src)
+        if vplot is not None:
+            ident = dataclasses.replace(ident, thinned=vplot.thinned())
+            nom = dataclasses.replace(nom, thinned=vplot.thinned(nominal=True))
+        return ident, nom, selected
 
     held = StateSample(len(va.processing(pcfg)["rows"]), 1000, std=False)
-    metrics, prior, selected = score(None, held, rows_rule)
+    metrics, prior, selected = score(None, held, rows_rule, plot=plots)
     metrics = dataclasses.replace(metrics, overlap=motion_overlap_streamed(reference, held))
     full = None
     if pcfg.decimate > 1:
@@ -1260,7 +1277,8 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
                            selected=selected, full_rate=full,
                            units=effort_units(system, force_model, tr.meta["effort_kind"]), prediction=prediction,
-                           data_path={**data_path, "training_samples": n_eff})
+                           data_path={**data_path, "training_samples": n_eff},
+                           streamed_plots=proc_plot.signals(names, steps) if plots else None)
 
 
 def score_held_out(cfg0: Config, cfg: Config, system: System, base: BaseParameters, result: IdentificationResult,
@@ -1576,14 +1594,15 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
 
             plot_history(res.solver["hierarchical"], tuple(res.channel_names), stage / "hierarchical.png")
             images["hierarchical.png"] = "Hierarchical iterations"
-        if outcome.raw_train is not None:
+        raw, proc = (outcome.raw_train, outcome.train) if outcome.raw_train is not None else (outcome.streamed_plots
+                                                                                              or (None, None))
+        if raw is not None:
             if jobs is not None and "processing.png" in jobs:
                 jobs.write_figure("processing.png", stage / "processing.png")
             else:
                 from dynid.report.plots import plot_processing
 
-                plot_processing(outcome.raw_train, outcome.train, stage / "processing.png",
-                                steps=outcome.train.meta.get("processing"))
+                plot_processing(raw, proc, stage / "processing.png", steps=proc.meta.get("processing"))
             images["processing.png"] = "Processing: raw and processed training signals"
         write_html_report(res, outcome.validation, stage / "report.html",
                           images={stage / name: title for name, title in images.items()},

@@ -34,11 +34,15 @@ When the path runs (:func:`plan`): ``[identification] streaming = "auto"`` (defa
 training window of at least :data:`AUTO_ROWS` rows when everything the run needs can be computed
 chunk by chunk; ``"on"`` streams or refuses with the reason (:class:`~dynid.errors.ConfigError`);
 ``"off"`` keeps the in-memory path. Left in memory (the same method, only the memory differs):
-plots (``[output] plots = true``), ROS bags, closed-loop mechanisms, ``[processing.periodic]``,
+ROS bags, closed-loop mechanisms, ``[processing.periodic]``,
 parallel decimation, ``reversal_guard`` and ``coulomb_smoothing = "auto"`` (whole-log quantities),
 resampling of irregular timestamps, methods that are not one compressed least-squares problem
 (``ml``, ``iv``, ``didim``, ``friction_model = "stribeck"``, ``hierarchical``) and ``[learning]``.
 ``result.json`` (``data_path``) and ``summary.txt`` say which path ran.
+
+Plots (``[output] plots = true``) stream too: the figures' series are thinned chunk by chunk to the
+panels' pixel columns and the processing figure's spectra are Welch-averaged
+(:mod:`dynid.pipeline.stream_plots`), so a plotted run holds no more than an unplotted one.
 """
 
 from __future__ import annotations
@@ -86,7 +90,6 @@ def _why_not(cfg: Config, system) -> str | None:
     """Why this configuration needs the in-memory path (None: it can be streamed)."""
     icfg, pcfg = cfg.identification, cfg.processing
     checks = [
-        (cfg.output.plots, "plots are on ([output] plots = true)"),
         (system.kind != "serial", "closed-loop mechanisms are processed in memory"),
         (cfg.data.bag or cfg.validation.bag, "ROS bags are read in memory"),
         (pcfg.periodic is not None, "[processing.periodic] averages whole periods"),
@@ -222,16 +225,19 @@ class LogStream:
 
     def processed(self, system, pcfg: ProcessingConfig, out_rows: int, *, decimate: int | None = None,
                   read_rows: int | None = None, constant: dict | None = None,
-                  notes: list | None = None) -> Iterator[tuple[int, dict[str, FloatArray]]]:
+                  notes: list | None = None, raw_tap=None) -> Iterator[tuple[int, dict[str, FloatArray]]]:
         """(first processed row, ``t q dq ddq tau``) of blocks of ``out_rows`` processed rows, equal
         to the rows of :func:`~dynid.pipeline.data.preprocess` of the whole window to rounding
-        (module docstring)."""
+        (module docstring). ``raw_tap(a, arrays)``: called on every raw actuator-space block of the
+        window, in order (the processing figure, :class:`dynid.pipeline.stream_plots.ProcessingPlot`)."""
         from dynid.signals import central_difference
 
         p = self.processing(pcfg, decimate)
         sos, L, k, rows, padlen = p["sos"], p["overlap"], p["k"], p["rows"], p["padlen"]
         lp = pcfg.lowpass
         raw = self.raw_blocks(system, read_rows or READ_ROWS, constant)
+        if raw_tap is not None:
+            raw = _tapped(raw, raw_tap)
         buf: dict[str, FloatArray] = {}
         buf_lo = buf_hi = 0
 
@@ -284,6 +290,12 @@ class LogStream:
                 yield f0 + j, {w: v[j: j + out_rows] for w, v in out.items()}
         for _ in raw:  # the rows after the last kept one: the constant-effort flags cover the whole window
             pass
+
+
+def _tapped(blocks, tap):
+    for a, arrays, notes in blocks:
+        tap(a, arrays)
+        yield a, arrays, notes
 
 
 def _scale(table, sig, n, label):

@@ -7,7 +7,7 @@ from typing import Any
 
 from dynid.errors import require
 
-__all__ = ["plot_design", "plot_speed_schedule", "plot_friction", "plot_montecarlo_chi2", "plot_montecarlo_history", "plot_processing", "plot_tracking", "plot_validation"]
+__all__ = ["panel_pixels", "plot_design", "plot_speed_schedule", "plot_friction", "plot_montecarlo_chi2", "plot_montecarlo_history", "plot_processing", "plot_tracking", "plot_validation"]
 
 _MAX_POINTS = 4000
 
@@ -33,6 +33,16 @@ def _fixed_layout(fig: Any, *, left: float, right: float, bottom: float, top: fl
     fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
                         hspace=hspace / ah, wspace=wspace / aw)
     return aw, ah
+
+
+def panel_pixels(figure: str) -> int:
+    """Pixel columns of one time panel of :func:`plot_validation` (``"validation"``) or
+    :func:`plot_processing` (``"processing"``), the ``n_px`` they thin to: the streamed
+    identification thins to it before the figure is drawn (:mod:`dynid.pipeline.stream_plots`).
+    The same arithmetic as :func:`_fixed_layout` on each figure's width, margins and dpi."""
+    w, left, right, nc, wspace, dpi = {"validation": (10.0, 0.95, 0.15, 1, 0.0, 110),
+                                       "processing": (12.0, 0.75, 0.2, 2, 0.75, 100)}[figure]
+    return int((w - left - right - (nc - 1) * wspace) / nc * dpi)
 
 
 def _thin(x: Any, y: Any, n_px: int) -> tuple[Any, Any]:
@@ -72,12 +82,17 @@ def plot_validation(metrics: Any, path: str | Path, units: Any = None) -> Path:
     fig, axes = plt.subplots(n, 1, figsize=(10, 1.9 * n + 0.6), sharex=True, squeeze=False)
     aw, _ = _fixed_layout(fig, left=0.95, right=0.15, bottom=0.5, top=0.45, hspace=0.12)
     n_px = int(aw * dpi)
-    t = metrics.t - metrics.t[0]
+    pre = getattr(metrics, "thinned", None)  # a streamed run: the series already thinned to n_px (panel_pixels)
+    t = metrics.t - metrics.t[0] if pre is None else None
     for j, ax in enumerate(axes[:, 0]):
-        meas, pred = metrics.measured[:, j], metrics.predicted[:, j]
-        ax.plot(*_thin(t, meas, n_px), lw=0.9, color="0.35", label="measured")
-        ax.plot(*_thin(t, pred, n_px), lw=0.9, color="tab:blue", label="predicted")
-        ax.plot(*_thin(t, meas - pred, n_px), lw=0.7, color="tab:red", alpha=0.8, label="error")
+        if pre is None:
+            meas, pred = metrics.measured[:, j], metrics.predicted[:, j]
+            lines = _thin(t, meas, n_px), _thin(t, pred, n_px), _thin(t, meas - pred, n_px)
+        else:
+            lines = pre["measured"][j], pre["predicted"][j], pre["error"][j]
+        ax.plot(*lines[0], lw=0.9, color="0.35", label="measured")
+        ax.plot(*lines[1], lw=0.9, color="tab:blue", label="predicted")
+        ax.plot(*lines[2], lw=0.7, color="tab:red", alpha=0.8, label="error")
         ax.set_ylabel(f"{metrics.channel_names[j]}\n[{units[j] if units is not None else 'N·m or N'}]", fontsize=8)
         ax.text(0.995, 0.95, f"RMSE {metrics.rmse[j]:.3g} ({metrics.rel_rmse_pct[j]:.2g} %)",
                 transform=ax.transAxes, ha="right", va="top", fontsize=8)
@@ -285,23 +300,32 @@ def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: in
     channel: what the filters removed and what they kept. With ``steps`` (the processing record,
     ``Dataset.meta["processing"]``) the filters' amplitude gain (:func:`_filter_gain`), scaled to
     the raw spectrum's peak, is drawn over the spectra, with the cut-off and the Nyquist frequency
-    after decimation marked."""
+    after decimation marked.
+
+    A streamed identification hands :class:`dynid.pipeline.stream_plots.StreamedSignals` for
+    ``raw`` and ``processed``: the positions already thinned to the panel's pixels and Welch-averaged
+    spectra (a bounded-memory equivalent of the whole-log FFT, said in the title)."""
     import numpy as np
 
     plt = _pyplot()
     from matplotlib.ticker import LogLocator
 
-    n = min(raw.q.shape[1], max_channels)
+    pre = getattr(raw, "thinned", None) is not None
+    n = min(raw.n_channels if pre else raw.q.shape[1], max_channels)
     dpi = 100
     fig, axes = plt.subplots(n, 2, figsize=(12, 1.8 * n + 0.8), squeeze=False)
     aw, _ = _fixed_layout(fig, left=0.75, right=0.2, bottom=0.5, top=0.8, hspace=0.35, wspace=0.75)
     n_px = int(aw * dpi)
 
-    def spectrum(t, x):  # Hann-windowed amplitude spectrum (records are not whole periods)
-        dt = float(np.median(np.diff(t)))
-        f = np.fft.rfftfreq(x.shape[0], dt)
-        w = np.hanning(x.shape[0])
-        f, a = f[1:], (np.abs(np.fft.rfft((x - x.mean()) * w)) * 2 / w.sum())[1:]
+    def spectrum(ds, j):  # Hann-windowed amplitude spectrum (records are not whole periods)
+        if pre:
+            f, a = ds.spectra[j]
+        else:
+            t, x = ds.t, ds.q[:, j]
+            dt = float(np.median(np.diff(t)))
+            f = np.fft.rfftfreq(x.shape[0], dt)
+            w = np.hanning(x.shape[0])
+            f, a = f[1:], (np.abs(np.fft.rfft((x - x.mean()) * w)) * 2 / w.sum())[1:]
         if f.size > n_px:  # long logs: the largest amplitude in each of log-spaced bins, one a pixel (peaks kept)
             edges = np.unique(np.geomspace(1, f.size, n_px).astype(int) - 1)
             f, a = f[edges], np.maximum.reduceat(a, edges)
@@ -309,18 +333,20 @@ def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: in
 
     gain, marks = None, []
     if steps:  # one response for every channel (the same filters), on the raw spectrum's frequencies
-        f_raw = spectrum(raw.t, raw.q[:, 0])[0]
+        f_raw = spectrum(raw, 0)[0]
         fg = np.geomspace(f_raw[0], f_raw[-1], 400)
         gain, marks = _filter_gain(steps, fg)
     for j in range(n):
         ax, axs = axes[j, 0], axes[j, 1]
-        ax.plot(*_thin(raw.t - raw.t[0], raw.q[:, j], n_px), lw=0.7, color="0.6", label="raw")
-        ax.plot(*_thin(processed.t - raw.t[0], processed.q[:, j], n_px), lw=0.9, color="tab:blue", label="processed")
+        ax.plot(*(raw.thinned[j] if pre else _thin(raw.t - raw.t[0], raw.q[:, j], n_px)), lw=0.7, color="0.6",
+                label="raw")
+        ax.plot(*(processed.thinned[j] if pre else _thin(processed.t - raw.t[0], processed.q[:, j], n_px)), lw=0.9,
+                color="tab:blue", label="processed")
         ax.set_ylabel(f"{processed.names[j] if processed.names else j}", fontsize=8)
         ax.grid(alpha=0.3)
         peak, floor = 1e-14, 1e-14
         for label, ds, color in (("raw", raw, "0.6"), ("processed", processed, "tab:blue")):
-            f, a = spectrum(ds.t, ds.q[:, j])
+            f, a = spectrum(ds, j)
             if label == "raw":
                 peak, floor = max(peak, float(a.max())), max(floor, float(a.min()))
             axs.plot(f, np.maximum(a, 1e-14), lw=0.8, color=color, label=label)
@@ -343,7 +369,9 @@ def plot_processing(raw: Any, processed: Any, path: str | Path, max_channels: in
     axes[-1, 0].set_xlabel("t [s]")
     axes[-1, 1].set_xlabel("frequency [Hz]")
     fig.suptitle("positions before and after processing, and their amplitude spectra"
-                 + (" (dashed: the filters' amplitude gain, scaled to the raw spectrum's peak)" if gain is not None else ""),
+                 + (" (dashed: the filters' amplitude gain, scaled to the raw spectrum's peak)" if gain is not None else "")
+                 + ((f"\nstreamed log, spectra: {raw.spectrum_note}" if raw.spectrum_note == processed.spectrum_note else
+                     f"\nstreamed log, spectra: raw {raw.spectrum_note}; processed {processed.spectrum_note}") if pre else ""),
                  fontsize=10)
     path = Path(path)
     fig.savefig(path, dpi=dpi)
