@@ -232,3 +232,22 @@ def test_streamed_metrics_keep_the_arrays_empty(tmp_path, log12k):
     assert v.t.size == 0 and v.measured.shape[0] == 0
     assert all(x.size <= panel_pixels("validation") for x, _ in v.thinned["measured"])
     assert dataclasses.replace(v, overlap=None).thinned is v.thinned
+
+
+def test_streamed_figures_from_the_plot_worker_are_the_in_process_bytes(tmp_path, log12k, monkeypatch, capsys):
+    """``dynid identify`` on a streamed plotted run: the figures drawn by the plot worker
+    (``DYNID_PLOT_WORKER=1``: the validation series go to it already thinned) are byte for byte the
+    ones drawn in process."""
+    from dynid.cli import main
+
+    data = _write(tmp_path, log12k, "npz")
+    cfg = _plotted(_config(tmp_path, data, (0, 9_000), (9_000, 12_000), "on"))
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1764000000")
+    for worker in ("0", "1"):
+        monkeypatch.setenv("DYNID_PLOT_WORKER", worker)
+        assert main(["identify", str(cfg.source), "--out", str(tmp_path / f"w{worker}"), "-q"]) == 0, \
+            capsys.readouterr().err
+    doc = (tmp_path / "w1" / "result.json").read_text()
+    assert '"streamed"' in doc
+    for name in ("validation.png", "processing.png", "report.html"):
+        assert (tmp_path / "w0" / name).read_bytes() == (tmp_path / "w1" / name).read_bytes(), name
