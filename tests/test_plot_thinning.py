@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynid.report.plots import _thin
+from dynid.report.plots import _thin, _thin_edges
 
 
 @pytest.mark.parametrize("n, n_px", [(100_003, 880), (24_750, 490), (5_000, 1_000), (1_001, 2_000), (7, 3)])
@@ -29,9 +29,22 @@ def test_thin_keeps_the_envelope_within_the_pixel_budget(n, n_px):
     # the envelope over any span of pixel columns is the full series': global and the spike
     assert ty.max() == y.max() == 40.0 and ty.min() == y.min()
     # per run of samples the thinning used, the extremes are kept exactly
-    buckets = max(1, n_px // 2 - 1)
-    k = n // buckets
-    for b in range(0, buckets, max(1, buckets // 17)):
-        seg = slice(b * k, (b + 1) * k)
+    edges = _thin_edges(n, n_px)
+    for b in range(0, edges.size - 1, max(1, (edges.size - 1) // 17)):
+        seg = slice(edges[b], edges[b + 1])
         inside = (tx >= x[seg][0]) & (tx <= x[seg][-1])
         assert ty[inside].max() == y[seg].max() and ty[inside].min() == y[seg].min()
+
+
+@pytest.mark.parametrize("n, n_px", [(1_463, 978), (24_749, 490), (100_003, 880)])
+def test_thin_runs_cover_the_series_evenly(n, n_px):
+    """No stretch of the series is drawn coarser than the rest: the runs differ in length by at
+    most one sample, so two kept points are never more than two runs apart (runs of n // buckets
+    with the rest in one run drew the last third of a 1 463-sample series as two points)."""
+    edges = _thin_edges(n, n_px)
+    runs = np.diff(edges)
+    assert edges[0] == 0 and edges[-1] == n and runs.max() - runs.min() <= 1 and edges.size - 1 == n_px // 2
+    x = np.arange(n, dtype=float)
+    y = np.random.default_rng(1).standard_normal(n)
+    tx, _ = _thin(x, y, n_px)
+    assert np.diff(tx).max() <= 2 * runs.max() - 1 and tx[0] <= runs.max() - 1 and tx[-1] >= n - runs.max()

@@ -31,7 +31,7 @@ from dynid.report.plots import _thin, panel_pixels  # noqa: E402
                                             (1_001, 2_000, 100), (2_500, 979, 1), (9_000, 515, 4_500)])
 def test_streamed_thinning_is_the_whole_series_thinning(n, n_px, chunk):
     """Any chunking, ties (a quantised series: many equal extremes, the first kept), a one-sample
-    spike, the leftover run: the same points as _thin of the whole series."""
+    spike, runs of two lengths: the same points as _thin of the whole series."""
     rng = np.random.default_rng(n + chunk)
     x = np.linspace(0.0, 7.0, n)
     y = np.column_stack([np.round(np.sin(2 * np.pi * 0.7 * x) * 20) / 20,  # quantised: ties everywhere

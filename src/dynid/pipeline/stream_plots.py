@@ -46,10 +46,11 @@ class MinMaxThinner:
 
     def __init__(self, n: int, n_px: int, c: int) -> None:
         self.n, self.c = int(n), int(c)
-        buckets = max(1, n_px // 2 - 1)  # the rule of _thin
-        self.all = self.n <= 2 * buckets  # _thin returns such a series whole (at most n_px samples)
-        self.k = 0 if self.all else self.n // buckets
-        nb = self.n if self.all else buckets + (1 if buckets * self.k < self.n else 0)
+        from dynid.report.plots import _thin_edges
+
+        self.edges = _thin_edges(self.n, n_px)  # the runs of _thin
+        self.all = self.edges is None  # _thin returns such a series whole (at most n_px samples)
+        nb = self.n if self.all else self.edges.size - 1
         self.lo_v = np.full((nb, c), np.inf)
         self.hi_v = np.full((nb, c), -np.inf)
         self.lo_i = np.zeros((nb, c), dtype=np.int64)
@@ -73,14 +74,13 @@ class MinMaxThinner:
             self.lo_i[s] = self.hi_i[s] = np.arange(j0, j0 + r)[:, None]
             self.lo_x[s] = self.hi_x[s] = x[:, None]
             return
-        k = self.k
-        b0, b1 = j0 // k, (j0 + r - 1) // k
-        last = self.lo_v.shape[0] - 1
+        e_ = self.edges
+        b0 = int(np.searchsorted(e_, j0, side="right")) - 1
+        b1 = int(np.searchsorted(e_, j0 + r - 1, side="right")) - 1
         cols = np.arange(self.c)
-        for b in range(b0, b1 + 1):
-            bb = min(b, last)  # rows past buckets * k: the leftover run, the last one
-            a = max(j0, b * k) - j0
-            e = min(j0 + r, (b + 1) * k if b < last else self.n) - j0
+        for bb in range(b0, b1 + 1):
+            a = max(j0, int(e_[bb])) - j0
+            e = min(j0 + r, int(e_[bb + 1])) - j0
             if e <= a:
                 continue
             seg = y[a:e]
@@ -94,8 +94,6 @@ class MinMaxThinner:
             self.hi_v[bb] = np.where(hi, vmax, self.hi_v[bb])
             self.hi_i[bb] = np.where(hi, j0 + a + imax, self.hi_i[bb])
             self.hi_x[bb] = np.where(hi, x[a + imax], self.hi_x[bb])
-            if b >= last:
-                break
 
     def series(self, x0: float = 0.0) -> list[tuple[FloatArray, FloatArray]]:
         """Per series, its kept ``(x - x0, y)`` in time order (the indices of ``_thin``)."""

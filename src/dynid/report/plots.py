@@ -45,27 +45,38 @@ def panel_pixels(figure: str) -> int:
     return int((w - left - right - (nc - 1) * wspace) / nc * dpi)
 
 
+def _thin_edges(n: int, n_px: int):
+    """The runs of :func:`_thin`: ``None`` when a series of ``n`` samples is drawn whole, else the
+    edges (``buckets + 1`` indices from 0 to ``n``) of ``n_px // 2`` runs of equal length to one
+    sample (runs of ``n // buckets`` with the rest in one short run drew up to a third of a series
+    as two points when ``n`` was just below a multiple of the run count)."""
+    import numpy as np
+
+    buckets = max(1, n_px // 2)
+    if n <= 2 * buckets:
+        return None
+    return (np.arange(buckets + 1) * n) // buckets
+
+
 def _thin(x: Any, y: Any, n_px: int) -> tuple[Any, Any]:
     """At most ``n_px`` points of the series ``(x, y)`` (x increasing) for a panel ``n_px``
-    pixels wide: in each of ``n_px // 2`` consecutive runs of samples, its smallest and its
-    largest value, in their order (the drawn envelope is that of the full series, spikes kept;
-    a stride would drop them)."""
+    pixels wide: in each of ``n_px // 2`` consecutive runs of samples (:func:`_thin_edges`: equal
+    lengths to one sample), its smallest and its largest value, in their order (the drawn envelope
+    is that of the full series, spikes kept; a stride would drop them)."""
     import numpy as np
 
     n = x.shape[0]
-    buckets = max(1, n_px // 2 - 1)  # + the leftover run's two: at most n_px
-    if n <= 2 * buckets:
+    edges = _thin_edges(n, n_px)
+    if edges is None:
         return x, y
-    k = n // buckets
-    m = buckets * k
-    blocks = y[:m].reshape(buckets, k)
-    base = np.arange(buckets) * k
-    idx = np.concatenate([base + blocks.argmin(axis=1), base + blocks.argmax(axis=1)])
-    if m < n:  # the samples left over: their extremes too
-        tail = y[m:]
-        idx = np.concatenate([idx, [m + int(tail.argmin()), m + int(tail.argmax())]])
-    idx = np.unique(idx)
-    return x[idx], y[idx]
+    start, length = edges[:-1], np.diff(edges)
+    # runs of k or k + 1 samples: a (buckets, k + 1) gather that repeats a short run's last sample
+    # (a repeat is later than the original: argmin/argmax still take the first occurrence)
+    idx = np.minimum(start[:, None] + np.arange(int(length.max()))[None, :], (edges[1:] - 1)[:, None])
+    blocks = y[idx]
+    rows = np.arange(idx.shape[0])
+    keep = np.unique(np.concatenate([idx[rows, blocks.argmin(axis=1)], idx[rows, blocks.argmax(axis=1)]]))
+    return x[keep], y[keep]
 
 
 def plot_validation(metrics: Any, path: str | Path, units: Any = None) -> Path:
