@@ -103,9 +103,11 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
     regressor and each measured output are low-passed by the same zero-phase filter and one
     sample in ``k`` is kept, so forces and model see identical filtering even where the
-    regressor is non-smooth (Coulomb ``sign`` columns). Chunks overlap by 15 filter time
-    constants, which makes the result equal to whole-signal filtering to ~1e-12 without ever
-    holding the full regressor. ``periodic`` with ``domain = "pose"``: the whole averaged period
+    regressor is non-smooth (Coulomb ``sign`` columns). The rows are streamed through the filter
+    (:func:`_parallel_chunks`): the backward pass of a chunk runs 15 filter time constants past it,
+    which makes the result equal to whole-signal filtering to ~1e-12 without ever holding the full
+    regressor. Full-rate chunks hold at most :data:`CHUNK_BYTES` of regressor rows (fewer rows than
+    ``chunk_size`` where the rows are wide). ``periodic`` with ``domain = "pose"``: the whole averaged period
     at once through the platform pose (paper 004 §3.3).
 
     ``reversal_guard`` [s]: each chunk carries :func:`~dynid.pipeline.data.reversal_keep` of its
