@@ -253,3 +253,40 @@ class TestStagedOutput:
             with staged_output(tmp_path / "f" / "out"):
                 pytest.fail("the body must not run")
         assert os.listdir(tmp_path) == ["f"]
+
+
+# ---------------------------------------------------------------------- plain numeric CSV without pandas
+def test_plain_numeric_csv_reads_what_pandas_reads_without_loading_it(tmp_path):
+    """A CSV of numbers only is read by NumPy (pandas + pyarrow weigh ~77 MB, issue 20 item 10):
+    the same doubles as pandas' reader for 17-significant-digit text (both round decimal text to the
+    nearest double: round trip of repr exact), and files pandas reads by other rules (NA markers,
+    quoted fields, unnamed columns) still go through pandas, with its results and messages."""
+    import subprocess
+    import sys
+
+    rng = np.random.default_rng(4)
+    values = rng.standard_normal((200, 3)) * 10.0 ** rng.integers(-8, 8, (200, 3))
+    path = tmp_path / "log.csv"
+    path.write_text("a,b,c\n" + "".join(",".join(repr(float(v)) for v in r) + "\n" for r in values))
+    code = ("import sys; from dynid.io import TableReader; x = TableReader(sys.argv[1]).columns(['c', 'a']); "
+            "import numpy as np; np.save(sys.argv[2], x); print('pandas' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code, str(path), str(tmp_path / "x.npy")], capture_output=True,
+                         text=True, check=True)
+    assert out.stdout.strip() == "False"
+    got = np.load(tmp_path / "x.npy")
+    np.testing.assert_array_equal(got, values[:, [2, 0]])
+    pd = pytest.importorskip("pandas")
+    np.testing.assert_array_equal(got, pd.read_csv(path)[["c", "a"]].to_numpy(dtype=float))
+    # NA markers: pandas' rules (NaN), not a refusal
+    na = write_csv(tmp_path / "na.csv", ["a", "b"], [[1.0, 2.0], ["NA", 3.0], [4.0, ""]])
+    got = TableReader(na).columns(["a", "b"])
+    assert np.isnan(got[1, 0]) and np.isnan(got[2, 1]) and got[0, 0] == 1.0 and got[1, 1] == 3.0
+    # a word among the numbers: pandas' message, with its row and column
+    bad = write_csv(tmp_path / "bad.csv", ["a", "b"], [[1.0, 2.0], [3.0, "x"]])
+    with pytest.raises(InputError, match=r"non-numeric value 'x' in column 'b' \(row 2\)"):
+        TableReader(bad).columns(["a", "b"])
+    # header only: pandas' message
+    empty = tmp_path / "empty.csv"
+    empty.write_text("a,b\n")
+    with pytest.raises(InputError, match="no data rows"):
+        TableReader(empty).columns(["a"])

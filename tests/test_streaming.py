@@ -202,16 +202,22 @@ def _peak(cfg) -> int:
         tracemalloc.stop()
 
 
-def test_memory_does_not_grow_with_the_log(tmp_path):
+def test_memory_does_not_grow_with_the_log(tmp_path, monkeypatch):
     """The traced peak at 4N is the peak at N plus at most 40 bytes a sample of the extra rows (the
     time column, its steps and their median's copy: 24 B); the in-memory path holds ~700 B/sample.
-    chunk_size 5000: both sizes hold several full chunks, so the per-chunk part of the peak is the same."""
+    chunk_size 2000 and read/filter blocks of 4096 rows: both sizes hold several full chunks and
+    blocks in the training AND the validation window (8 000 rows at N), so the per-chunk part of the
+    peak is the same. With the default 65 536-row blocks and 5000-row chunks the N log fills neither
+    (the peaks differ by their unfilled share, ~9-35 MB); that went unseen while the 256 x 20 000
+    block of motion-overlap distances (~120 MB with its temporaries) set both peaks."""
+    monkeypatch.setattr(streaming, "READ_ROWS", 4096)
+    monkeypatch.setattr(streaming, "FILTER_ROWS", 4096)
     peaks = {}
     for n in (40_000, 160_000):
         d = tmp_path / str(n)
         d.mkdir()
         data = _write(d, _log(n), "npz")
-        peaks[n] = _peak(_config(d, data, (0, int(0.8 * n)), (int(0.8 * n), n), "on", chunk=5000))
+        peaks[n] = _peak(_config(d, data, (0, int(0.8 * n)), (int(0.8 * n), n), "on", chunk=2000))
     growth = (peaks[160_000] - peaks[40_000]) / 120_000
     assert growth < 40.0, f"{growth:.1f} B per sample (peaks {peaks})"
 

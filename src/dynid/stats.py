@@ -379,6 +379,10 @@ def nearest_distances(reference: FloatArray, query: FloatArray, *, max_reference
                                      ref.std(axis=0))
 
 
+_DISTANCE_BYTES = 4 * 2**20
+"""Bytes of one block of squared distances (query rows x reference rows) in :func:`nearest_distances_thinned`."""
+
+
 def nearest_distances_thinned(ref: FloatArray, qry: FloatArray, std: FloatArray) -> FloatArray:
     """:func:`nearest_distances` of rows already thinned, with the standard deviation ``std`` of every
     reference row (the streamed identification samples the rows and merges the deviation chunk by
@@ -388,8 +392,9 @@ def nearest_distances_thinned(ref: FloatArray, qry: FloatArray, std: FloatArray)
     qry = qry / scale
     r2 = np.einsum("ij,ij->i", ref, ref)
     best = np.empty(len(qry))
-    for a in range(0, len(qry), 256):  # blocks of query rows: bounded memory
-        block = qry[a : a + 256]
+    step = max(1, _DISTANCE_BYTES // (8 * max(1, len(ref))))  # blocks of query rows: bounded memory
+    for a in range(0, len(qry), step):
+        block = qry[a : a + step]
         d2 = np.einsum("ij,ij->i", block, block)[:, None] + r2[None, :] - 2.0 * block @ ref.T
-        best[a : a + 256] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
+        best[a : a + step] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
     return best

@@ -64,7 +64,7 @@ from dynid.pipeline.data import (
     velocity_noise_std,
 )
 from dynid.pipeline.reporting import effort_units, file_sha256, git_commit, parameter_flags, run_facts
-from dynid.signals import decimation_filter, decimation_segments, lowpass_sos, padlen_for
+from dynid.signals import decimation_filter, padlen_for
 
 __all__ = ["Chunk", "FullRate", "Progress", "ValidationMetrics", "IdentifyOutcome", "RowSelection", "SelectedRows", "build_problem",
            "prior_comparison", "row_mask", "validate", "validate_with_prior", "identify", "write_outputs",
@@ -103,9 +103,11 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
     regressor and each measured output are low-passed by the same zero-phase filter and one
     sample in ``k`` is kept, so forces and model see identical filtering even where the
-    regressor is non-smooth (Coulomb ``sign`` columns). Chunks overlap by 15 filter time
-    constants, which makes the result equal to whole-signal filtering to ~1e-12 without ever
-    holding the full regressor. ``periodic`` with ``domain = "pose"``: the whole averaged period
+    regressor is non-smooth (Coulomb ``sign`` columns). The rows are streamed through the filter
+    (:func:`_parallel_chunks`): the backward pass of a chunk runs 15 filter time constants past it,
+    which makes the result equal to whole-signal filtering to ~1e-12 without ever holding the full
+    regressor. Full-rate chunks hold at most :data:`CHUNK_BYTES` of regressor rows (fewer rows than
+    ``chunk_size`` where the rows are wide). ``periodic`` with ``domain = "pose"``: the whole averaged period
     at once through the platform pose (paper 004 §3.3).
 
     ``reversal_guard`` [s]: each chunk carries :func:`~dynid.pipeline.data.reversal_keep` of its
@@ -133,6 +135,8 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     if keep is not None:
         guard = np.asarray(keep, dtype=bool)
     if parallel_decimate <= 1:
+        n_ch = len(system.channel_names(force_model))
+        size = min(size, max(512, CHUNK_BYTES // (8 * n_ch * (base.n_standard + base.n_base))))  # bounded memory
         for a in range(0, n, size):
             b = min(a + size, n)
             r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
@@ -144,13 +148,70 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     sos, margin = decimation_filter(k, ds.fs)
     if n <= 2 * k:
         raise InputError(f"{n} samples are too few to decimate by {k}")
-    for a, b, keep in decimation_segments(n, k, margin, max(size, 4 * margin)):
-        r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
-        filt = lambda x: lowpass_sos(x, sos)[keep]  # noqa: E731
-        yield Chunk(filt(base.regressor(r.W)), filt(r.y), filt(ds.dq[a:b]), r.inconsistency[keep],
-                    None if r.joint_dq is None else filt(r.joint_dq), None if guard is None else guard[a:b][keep],
-                    None if r.Ga is None else r.Ga[keep], None if r.Ga is None else filt(ds.tau[a:b]))
-        progress(task, b, n)
+    yield from _parallel_chunks(system, base, ds, force_model, k, sos, margin, size, rows, guard, joint_q,
+                                progress, task)
+
+
+CHUNK_BYTES = 8 * 2**20
+"""Bytes of full-rate regressor rows parallel decimation computes at once (:func:`_parallel_chunks`);
+the rows it holds, ``out_rows + margin`` of the packed columns, follow from it."""
+
+
+def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, k: int,
+                     sos: FloatArray, margin: int, size: int, rows, guard: np.ndarray | None,
+                     joint_q: FloatArray | None, progress: Progress, task: str) -> Iterator[Chunk]:
+    """The parallel-decimated chunks of :func:`_chunks`, streamed (:class:`~dynid.signals.streamed.StreamedDecimation`):
+    the base-regressor rows, outputs and velocities are computed in blocks of about
+    :data:`CHUNK_BYTES`, packed side by side as the columns of one signal, low-passed and decimated
+    together; the whole-window full-rate regressor ``(n, n_ch, r)`` is never held, only a window
+    of ``out_rows + margin`` rows. Equal to the whole-signal filtering to rounding (the module
+    docstring of :mod:`dynid.signals.streamed` bounds the difference). The quantities that are not
+    filtered (position inconsistency, a redundant mechanism's ``G_a``, the row selection ``guard``)
+    are taken at the kept rows."""
+    from dynid.signals.streamed import StreamedDecimation
+
+    n = ds.n_samples
+    n_ch, r, n_std = len(system.channel_names(force_model)), base.n_base, base.n_standard
+    block = min(size, max(4 * k, CHUNK_BYTES // (8 * n_ch * (n_std + r))))
+    block = max(block, min(n, 3 * (2 * sos.shape[0] + 1) + 1))  # the first block holds the odd extension
+    packed = None  # (start, stop) of each field in the packed columns
+    stream = None
+    n_out = -(-n // k)
+    sampled: dict[str, np.ndarray] = {}
+
+    def take(name: str, a: int, values: np.ndarray | None) -> None:
+        if values is None:
+            return
+        if name not in sampled:
+            sampled[name] = np.empty((n_out,) + values.shape[1:], dtype=values.dtype)
+        first = -(-a // k) * k
+        sampled[name][first // k:first // k + len(values[first - a::k])] = values[first - a::k]
+
+    for a in range(0, n, block):
+        b = min(a + block, n)
+        rr = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
+        fields = {"W": base.regressor(rr.W), "y": rr.y, "dq": ds.dq[a:b], "joint_dq": rr.joint_dq,
+                  "tau": None if rr.Ga is None else ds.tau[a:b]}
+        fields = {key: np.asarray(v, dtype=float).reshape(b - a, -1) for key, v in fields.items() if v is not None}
+        if packed is None:
+            edges = np.cumsum([0] + [v.shape[1] for v in fields.values()])
+            packed = {key: (int(edges[i]), int(edges[i + 1])) for i, key in enumerate(fields)}
+            row_bytes = 8 * int(edges[-1])
+            out_rows = max(margin, min(size, CHUNK_BYTES // row_bytes))
+            stream = StreamedDecimation(sos, n, k, margin, out_rows)
+        x = np.concatenate(list(fields.values()), axis=1)
+        take("inconsistency", a, rr.inconsistency)
+        take("Ga", a, rr.Ga)
+        take("guard", a, None if guard is None else guard[a:b])
+        del rr, fields
+        for s, e, out in stream.feed(x):
+            i0, i1 = s // k, s // k + out.shape[0]
+            cut = {key: out[:, lo:hi] for key, (lo, hi) in packed.items()}
+            yield Chunk(cut["W"].reshape(-1, n_ch, r), cut["y"], cut["dq"], sampled["inconsistency"][i0:i1],
+                        cut.get("joint_dq"), sampled["guard"][i0:i1] if "guard" in sampled else None,
+                        sampled["Ga"][i0:i1] if "Ga" in sampled else None, cut.get("tau"))
+            progress(task, e, n)
+        del x
 
 
 def row_mask(system: System, force_model: str | None, dq: FloatArray, min_velocity: tuple[float, ...] | None,
