@@ -27,6 +27,10 @@ Method
   log, identification, validation, plots and outputs, as a user experiences them.
 * Both get the same environment: ``OPENBLAS_NUM_THREADS`` / ``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS``
   = ``--blas-threads`` (1 by default: the recording machine has 2 shared cores), ``MPLBACKEND=Agg``.
+  dynid also gets ``DYNID_PLOT_WORKER=0``: its figures are drawn in its own process, so that the
+  process's ``VmHWM`` is the run's whole peak (the plot worker, which ``dynid identify`` starts when
+  a CPU is idle, is a second process whose memory this wrapper would not see; on this shared
+  machine the load rule kept it off anyway).
 * Rounds alternate the order: even rounds run dynid, FIGAROH (plots on), then FIGAROH, dynid (plots
   off); odd rounds the reverse. ``--repeats`` rounds (5). Reported: per tool the median wall and
   peak memory, and the medians of the PAIRED ratios dynid/FIGAROH of each round, for wall with plots,
@@ -203,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env[var] = str(args.blas_threads)
     fig_env = {k: v for k, v in env.items() if k != "PYTHONPATH"}  # FIGAROH sees only its own environment
+    env["DYNID_PLOT_WORKER"] = "0"  # one process: its VmHWM is the whole run's peak (module docstring)
     prep = work / "figaroh_prep"
     prep.mkdir(exist_ok=True)
     proc = subprocess.run([fig_py, str(DRIVER), "prepare", str(data), str(prep)], capture_output=True, text=True,
