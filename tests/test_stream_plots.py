@@ -200,10 +200,16 @@ def test_memory_of_a_plotted_run_does_not_grow_with_the_log(tmp_path, log12k, mo
     path holds ~700 B/sample). The segment is set to 8192 rows so that both logs are longer than
     one (a log shorter than a segment holds the whole log in its one segment: that part of the
     peak grows up to the segment's size, ~3 MB for 6 channels at the default 65536 rows, then
-    stops). A plotted run first, untraced: matplotlib's imports and font cache are not the log's."""
+    stops). A plotted run first, untraced: matplotlib's imports and font cache are not the log's.
+    Read/filter blocks of 4096 rows and chunk_size 2000, as in test_streaming's memory test: both
+    sizes then fill several blocks and chunks in both windows (with the default 65 536-row blocks
+    the N log fills none, and the peaks differ by the unfilled share: 296 B/sample measured once the
+    motion-overlap distances no longer set both peaks)."""
     import tracemalloc
 
     monkeypatch.setattr(stream_plots, "NPERSEG", 8192)
+    monkeypatch.setattr(streaming, "READ_ROWS", 4096)
+    monkeypatch.setattr(streaming, "FILTER_ROWS", 4096)
     warm = _write(tmp_path, log12k, "npz")
     write_outputs(identify(_plotted(_config(tmp_path, warm, (0, 9_000), (9_000, 12_000), "on"))), tmp_path / "warm")
     peaks = {}
@@ -211,7 +217,7 @@ def test_memory_of_a_plotted_run_does_not_grow_with_the_log(tmp_path, log12k, mo
         d = tmp_path / str(n)
         d.mkdir()
         data = _write(d, _log(n), "npz")
-        cfg = _plotted(_config(d, data, (0, int(0.8 * n)), (int(0.8 * n), n), "on", chunk=5000))
+        cfg = _plotted(_config(d, data, (0, int(0.8 * n)), (int(0.8 * n), n), "on", chunk=2000))
         tracemalloc.start()
         try:
             out = identify(cfg)
