@@ -142,6 +142,20 @@ def _constant_efforts(ds: Dataset, columns: Sequence[str], path: Path, label: st
                      "information (a disconnected sensor?)")
 
 
+def log_meta(spec: DataConfig, files: dict, readers: dict) -> dict:
+    """A log's provenance (the dataset's ``meta``): which sides and kind its signals are, the files
+    of its columns (``files``: signal -> path) with their SHA-256 (``readers``: path -> reader), and
+    the window read. The streamed path (:mod:`dynid.pipeline.streaming`) records the same."""
+    return {
+        "position_side": spec.position.side,
+        "effort_kind": spec.effort.kind,
+        "effort_side": spec.effort.side if spec.effort.kind == "torque" else "motor",
+        "source": {k: str(v) for k, v in files.items()},
+        "sha256": {str(p): readers[p].sha256() for p in dict.fromkeys(files.values())},
+        "window": {"rows": list(spec.rows)} if spec.rows else ({"time": list(spec.time_window)} if spec.time_window else "all"),
+    }
+
+
 def read_log(
     spec: DataConfig, n_channels: int, names: tuple[str, ...], label: str, readers: dict[Path, TableReader] | None = None
 ) -> Dataset:
@@ -198,14 +212,7 @@ def read_log(
         if idx.size < 2:
             raise InputError(f"{label}.time_window {list(spec.time_window)} s selects {idx.size} samples")
         sl = slice(int(idx[0]), int(idx[-1]) + 1)
-    meta = {
-        "position_side": spec.position.side,
-        "effort_kind": spec.effort.kind,
-        "effort_side": spec.effort.side if spec.effort.kind == "torque" else "motor",
-        "source": {k: str(v) for k, v in files.items()},
-        "sha256": {str(p): readers[p].sha256() for p in dict.fromkeys(files.values())},
-        "window": {"rows": list(spec.rows)} if spec.rows else ({"time": list(spec.time_window)} if spec.time_window else "all"),
-    }
+    meta = log_meta(spec, files, readers)
     if spec.bag:
         meta["ros_topics"] = topics
         meta["time_source"] = spec.time.column

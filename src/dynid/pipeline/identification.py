@@ -30,7 +30,7 @@ import csv
 import dataclasses
 import platform
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -1049,6 +1049,28 @@ def _hierarchical_prior(cfg0: Config, result: IdentificationResult, force_model:
     return metrics, None if selected is None else selected.metrics, full
 
 
+def _run_meta(cfg: Config, system: System, force_model: str | None, base: BaseParameters, n_channels: int, n_eff: int,
+              train_meta: Mapping[str, Any], valid_meta: Mapping[str, Any], steps: Any) -> dict[str, Any]:
+    """The result's provenance common to the in-memory and the streamed path, after refusing
+    fewer equations (``n_eff`` processed samples x ``n_channels``) than base parameters."""
+    if n_eff * n_channels <= base.n_base:
+        per = "joints" if system.kind == "serial" else "equations"
+        raise InputError(f"data: {n_eff} processed samples x {n_channels} {per} are fewer than the "
+                         f"{base.n_base} base parameters")
+    return {
+        "versions": _versions(),
+        "config_file": str(cfg.source) if cfg.source else None,
+        "config_sha256": file_sha256(cfg.source) if cfg.source else None,
+        "config": cfg.raw,
+        "robot": {"model": cfg.robot.model, **system.describe(),
+                  **({"force_model": force_model or "actuator forces (non-redundant)"} if system.kind != "serial" else {})},
+        "training_data": dict(train_meta),
+        "validation_data": dict(valid_meta),
+        "processing": steps,
+        "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
+    }
+
+
 def _with_row_selection(result: IdentificationResult, pcfg, system: System, force_model: str | None) -> IdentificationResult:
     """The training's row selection in the result's provenance (``row_selection``)."""
     if pcfg.selects_rows:
@@ -1125,22 +1147,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     progress("base parameters", 1, 1)
     parallel = pcfg.decimate if pcfg.decimate_method == "parallel" else 1
     n_eff = -(-train.n_samples // parallel)
-    if n_eff * len(channels) <= base.n_base:
-        per = "joints" if system.kind == "serial" else "equations"
-        raise InputError(f"data: {n_eff} processed samples x {len(channels)} {per} are fewer than the "
-                         f"{base.n_base} base parameters")
-    meta: dict[str, Any] = {
-        "versions": _versions(),
-        "config_file": str(cfg.source) if cfg.source else None,
-        "config_sha256": file_sha256(cfg.source) if cfg.source else None,
-        "config": cfg.raw,
-        "robot": {"model": cfg.robot.model, **system.describe(),
-                  **({"force_model": force_model or "actuator forces (non-redundant)"} if system.kind != "serial" else {})},
-        "training_data": dict(raw_train.meta),
-        "validation_data": dict(raw_valid.meta),
-        "processing": steps,
-        "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
-    }
+    meta = _run_meta(cfg, system, force_model, base, len(channels), n_eff, raw_train.meta, raw_valid.meta, steps)
     periodic, fj = pcfg.periodic, None
     if icfg.method == "ml" and pcfg.periodic is None:
         result, pcfg, worst = _maximum_likelihood_time(cfg, system, base, train_a, force_model, progress, meta)
@@ -1230,21 +1237,7 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
     base = system.base_parameters(force_model, n_samples=icfg.base_samples, seed=icfg.base_seed)
     progress("base parameters", 1, 1)
     n_eff = len(proc["rows"])
-    if n_eff * len(channels) <= base.n_base:
-        per = "joints" if system.kind == "serial" else "equations"
-        raise InputError(f"data: {n_eff} processed samples x {len(channels)} {per} are fewer than the "
-                         f"{base.n_base} base parameters")
-    meta: dict[str, Any] = {
-        "versions": _versions(),
-        "config_file": str(cfg.source) if cfg.source else None,
-        "config_sha256": file_sha256(cfg.source) if cfg.source else None,
-        "config": cfg.raw,
-        "robot": {"model": cfg.robot.model, **system.describe()},
-        "training_data": dict(tr.meta),
-        "validation_data": dict(va.meta),
-        "processing": steps,
-        "base_parameters": {"n_base": base.n_base, "seed": base.seed, "n_samples": base.n_samples, "rank_tol": base.rank_tol},
-    }
+    meta = _run_meta(cfg, system, force_model, base, len(channels), n_eff, tr.meta, va.meta, steps)
     size = max(1, int(icfg.chunk_size) if system.max_chunk is None else min(int(icfg.chunk_size), system.max_chunk))
     constant: dict[str, Any] = {}
     notes: list[str] = []

@@ -406,14 +406,9 @@ def open_stream(spec: DataConfig, n_channels: int, names: tuple[str, ...], label
             files[what] = sig.file or spec.file
     if spec.time is not None:
         files["time"] = spec.time.file or spec.file
-    meta = {
-        "position_side": spec.position.side,
-        "effort_kind": spec.effort.kind,
-        "effort_side": spec.effort.side if spec.effort.kind == "torque" else "motor",
-        "source": {k: str(v) for k, v in files.items()},
-        "sha256": {str(p): readers[p].sha256() for p in dict.fromkeys(files.values())},
-        "window": {"rows": list(spec.rows)} if spec.rows else ({"time": list(spec.time_window)} if spec.time_window else "all"),
-    }
+    from dynid.pipeline.data import log_meta
+
+    meta = log_meta(spec, files, readers)
     scales = {"q": _scale(POSITION_UNITS, spec.position, n_channels, f"{label}.position"),
               "tau": _scale(EFFORT_UNITS[spec.effort.kind], spec.effort, n_channels, f"{label}.effort")}
     if spec.velocity is not None:
