@@ -14,7 +14,7 @@ PIP    := PIP_CONSTRAINT=$(CURDIR)/$(LOCK) $(BIN)/python -m pip
 # (a module fixture runs once); TEST_WORKERS=0 runs everything in one process
 TEST_WORKERS ?= 2
 
-.PHONY: setup demo test bench lock clean
+.PHONY: setup demo test test-robust bench lock clean
 
 setup: $(STAMP)
 
@@ -37,6 +37,11 @@ demo: setup
 
 test: setup
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+
+# the numerically sensitive tests (marker numerics) under other BLAS kernels, one thread, numpy
+# without its widest SIMD paths, solver tolerances x0.01 and x10, another data seed (tests/robust.py)
+test-robust: setup
+	TEST_WORKERS=$(TEST_WORKERS) $(BIN)/python tests/robust.py
 
 bench: setup
 	$(BIN)/python bench/regressor_throughput.py

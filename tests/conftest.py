@@ -44,6 +44,41 @@ SLOW_MODULES = ("test_demo.py", "test_estimator_study.py", "test_physical_study.
                 "test_reproducible.py")
 
 
+# ---------------------------------------------------------------- make test-robust (tools/robust.py)
+# The tests marked ``numerics`` assert on the output of an iterative or solver-based method, or on
+# statistics of simulated data. `make test-robust` reruns them under what another machine brings:
+# another OpenBLAS kernel, one BLAS thread, numpy without its widest SIMD paths, every solver
+# tolerance tightened 100x and loosened 10x (DYNID_SOLVER_TOL_SCALE, dynid.tolerances), and another
+# random seed for simulated data (DYNID_TEST_SEED, through seed() below).
+SEED_ENV = "DYNID_TEST_SEED"
+
+
+def seed(base: int) -> int:
+    """The seed of a test's simulated data (noise, trajectories, random draws): ``base`` itself,
+    or, with ``DYNID_TEST_SEED=k`` (k != 0), a seed drawn from ``(base, k)`` by numpy's
+    SeedSequence: another draw of the same experiment. Every assertion on such data must hold
+    for any draw with a stated small probability of a false alarm, not for one seed."""
+    k = os.environ.get(SEED_ENV, "").strip()
+    if not k or int(k) == 0:
+        return int(base)
+    import numpy as np
+
+    return int(np.random.SeedSequence([int(base), int(k)]).generate_state(1)[0] % 2**31)
+
+
+def pytest_report_header(config):
+    """What make test-robust perturbs, as this process sees it (BLAS kernels and threads, numpy's
+    disabled SIMD features, the solver tolerance scale, the simulated-data seed)."""
+    from threadpoolctl import threadpool_info
+
+    from dynid.tolerances import scale
+
+    blas = ", ".join(sorted({f"{i.get('internal_api')} {i.get('architecture')} x{i.get('num_threads')}"
+                             for i in threadpool_info() if i.get("user_api") == "blas"}))
+    return (f"dynid numerics: BLAS {blas}; NPY_DISABLE_CPU_FEATURES={os.environ.get('NPY_DISABLE_CPU_FEATURES', '')!r}; "
+            f"solver tolerance scale {scale():g}; {SEED_ENV}={os.environ.get(SEED_ENV, '0') or '0'}")
+
+
 def pytest_collection_modifyitems(config, items):
     rank = {name: k for k, name in enumerate(SLOW_MODULES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order

@@ -33,6 +33,7 @@ LAYERS = {
     "_typing": 1,
     "_files": 1,
     "errors": 1,
+    "tolerances": 2,  # imports errors
 }
 
 

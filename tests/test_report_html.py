@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -239,6 +240,8 @@ def _browser() -> list[str] | None:
 
 def test_the_report_renders_in_a_headless_browser(reports, tmp_path):
     browser = _browser()
+    if browser is None and os.environ.get("DYNID_REQUIRE_BROWSER"):
+        pytest.fail("DYNID_REQUIRE_BROWSER is set (.ci/run found or installed a browser) but none is on PATH")
     if browser is None:
         pytest.skip("no headless browser on this machine (looked for chromium, chromium-browser, google-chrome, "
                     "firefox): the report is parsed, not rendered")

@@ -41,6 +41,7 @@ from scipy.optimize import least_squares, nnls
 from dynid._typing import FloatArray
 from dynid.errors import InputError
 from dynid.model.friction import CoulombViscous, PowerLawViscous, SmoothStribeck, Stribeck
+from dynid.tolerances import scaled
 
 __all__ = ["MODELS", "CurveFit", "curve_force", "fit_curve", "fit_statistics", "held_out_split"]
 
@@ -221,7 +222,7 @@ def fit_curve(model: str, v: FloatArray, f: FloatArray, sigma: FloatArray | None
               else _starts(model, v, f, w, lo, hi, speed_range=speed_range))
     for x0 in starts:
         x0 = np.minimum(np.maximum(x0, lo), hi)  # trf moves a start on a bound strictly inside
-        res = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+        res = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=scaled(1e-12), ftol=scaled(1e-12), gtol=scaled(1e-12),
                             max_nfev=2000 * p)
         if best is None or res.cost < best.cost:
             best = res

@@ -48,6 +48,7 @@ from dynid.estimation.linear import _channel_noise_std, _result, _Solve, check_i
 from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult
 from dynid.stats import condition_number
+from dynid.tolerances import scaled
 
 __all__ = ["GaussMarkov", "IRLS", "TLS", "gls_solve", "residual_covariance"]
 
@@ -210,7 +211,7 @@ class GaussMarkov:
                 _check_cov(cov, problem.n_channels, "residual covariance")
                 prev = s.beta
                 s = gls_solve(problem, cov)
-                if np.linalg.norm(s.beta - prev) <= self.tol * max(np.linalg.norm(prev), 1e-300):
+                if np.linalg.norm(s.beta - prev) <= scaled(self.tol) * max(np.linalg.norm(prev), 1e-300):
                     break
             source = "residuals (feasible GLS, OLS start)"
         solver = {"algorithm": "QR of the Sigma-whitened wide factor (cross-channel products)",
@@ -253,7 +254,7 @@ class IRLS:
                 raise IdentifiabilityError(f"zero residual on channels {zero}: cannot weight by noise variance")
             prev = s.beta
             s = whitened_solve(problem, 1.0 / sigma**2)
-            if np.linalg.norm(s.beta - prev) <= self.tol * max(np.linalg.norm(prev), 1e-300):
+            if np.linalg.norm(s.beta - prev) <= scaled(self.tol) * max(np.linalg.norm(prev), 1e-300):
                 break
         else:
             raise IdentifiabilityError(f"IRLS did not settle in {self.max_iter} iterations")

@@ -37,6 +37,7 @@ from dynid.estimation.physical import _pseudo_inertia_expr
 from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult, Summary
 from dynid.model.base_parameters import StandardMap, pseudo_inertia
+from dynid.tolerances import clarabel_tolerances, solver_tolerances
 
 __all__ = [
     "Feasibility",
@@ -216,7 +217,7 @@ def is_feasible(
     try:
         with warnings.catch_warnings():  # "Solution may be inaccurate": reported as the status instead
             warnings.simplefilter("ignore", UserWarning)
-            prob.solve(solver=solver)
+            prob.solve(solver=solver, **solver_tolerances(solver))
     except cp.error.SolverError as exc:
         raise DynidError(f"{solver} failed on the feasibility problem ({exc})") from None
     if prob.status not in ("optimal", "optimal_inaccurate") or pi.value is None:
@@ -277,6 +278,8 @@ def _feasibility_clarabel(beta: FloatArray, smap: StandardMap, scale: float) -> 
     q = np.concatenate([np.zeros(n_std), np.full(n_b + nn.size, 1.0 / scale)])
     settings = clarabel.DefaultSettings()
     settings.verbose = False
+    for name, value in clarabel_tolerances().items():
+        setattr(settings, name, value)
     A = sparse.csc_matrix(np.vstack(rows))
     P = sparse.csc_matrix((n_x, n_x))
     sol = clarabel.DefaultSolver(P, q, A, np.concatenate(rhs), cones, settings).solve()

@@ -66,6 +66,7 @@ from dynid.estimation.results import IdentificationResult
 from dynid.estimation.stribeck_problem import SampleProblem, _friction_rows, stribeck_basis, stribeck_predict
 from dynid.model.base_parameters import parameters_from_pseudo_inertia, pseudo_inertia
 from dynid.stats import condition_number
+from dynid.tolerances import scaled
 
 __all__ = ["SampleProblem", "StribeckLS", "stribeck_basis", "stribeck_predict"]
 
@@ -190,7 +191,7 @@ def _refine_identifiable(sp: SampleProblem, sw, start, vs, delta, log_vs_lim, de
     ub = np.r_[np.full(p + f, np.inf), log_vs_lim[1], np.full(f, delta_lim[1])]
     z0 = np.clip(np.r_[start, np.log(vs), delta], lb, ub)
     sol = least_squares(fun, z0, jac=jac, bounds=(lb, ub), method="trf", tr_solver="exact", x_scale="jac",
-                        ftol=1e-12, xtol=xtol, gtol=xtol, max_nfev=max_nfev)
+                        ftol=scaled(1e-12), xtol=scaled(xtol), gtol=scaled(xtol), max_nfev=max_nfev)
     return sol, np.exp(sol.x[p + f : p + 2 * f]), sol.x[p + 2 * f :]
 
 
@@ -323,7 +324,8 @@ class StribeckLS:
         c[ref.n_std :] = 0.0  # damping on the standard coordinates only (their null space)
         sol = least_squares(lambda th: np.r_[ref.residual(th), c * (th - x0)], x0,
                             jac=lambda th: np.vstack([ref.jacobian(th), np.diag(c)]), bounds=(lb, ub), method="trf",
-                            tr_solver="lsmr", ftol=self.ftol, xtol=self.xtol, gtol=self.xtol, max_nfev=self.max_nfev)
+                            tr_solver="lsmr", ftol=scaled(self.ftol), xtol=scaled(self.xtol), gtol=scaled(self.xtol),
+                            max_nfev=self.max_nfev)
         passes = [_pass_info("log-Cholesky", sol)]
         _, vs, delta = ref.split(sol.x)
         if self.reweight and self.weighting == "wls":

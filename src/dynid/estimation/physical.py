@@ -90,6 +90,7 @@ from dynid.estimation.linear import _channel_noise_std, _Solve, gautier_noise_st
 from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult
 from dynid.model.base_parameters import StandardMap, pseudo_inertia
+from dynid.tolerances import scaled, solver_tolerances
 
 __all__ = ["BodyBounds", "PhysicalConstraints", "PhysicalLS", "REGULARIZATIONS", "WEIGHTINGS", "logdet_divergence"]
 
@@ -358,7 +359,7 @@ class PhysicalLS:
         try:
             with warnings.catch_warnings():  # "solution may be inaccurate": the status says so
                 warnings.simplefilter("ignore", UserWarning)
-                prob.solve(solver=self.solver)
+                prob.solve(solver=self.solver, **solver_tolerances(self.solver))
         except cp.error.SolverError as exc:
             raise DynidError(f"{self.solver} failed on {what} ({str(exc).splitlines()[0]})") from None
         st = prob.solver_stats
@@ -368,7 +369,7 @@ class PhysicalLS:
     def _sdp(self, cp, smap, A, d, extra, squared: bool = False):
         """min ||A pi - d|| (+ its square with ``squared``) + extra(pi) under the constraints,
         tightened by a buffer that is widened until the solution satisfies them as stated."""
-        tau = self.feasibility_tol
+        tau = scaled(self.feasibility_tol)  # follows the solver's feasibility tolerance
         for _attempt in range(4):
             pi = cp.Variable(smap.B.shape[1])
             # the residual as a second-order cone (its square as a quadratic form squares the

@@ -48,6 +48,7 @@ from dynid.model.base_parameters import robot_base_parameters
 from dynid.model.closed_loop import actuator_regressor, mechanism_base_parameters
 from dynid.model.mechanism import JointCoordinates, Mechanism
 from dynid.model.serial_dynamics import regressor
+from dynid.tolerances import scaled
 from dynid.trajectories import FourierQuintic
 from dynid.trajectories import FourierTrajectory
 
@@ -471,7 +472,7 @@ class ExcitationProblem:
         f0 = self._evaluate(x0, criterion)[0]
         res = minimize(lambda y: self._evaluate(y, criterion)[0], x0, method="SLSQP", bounds=bounds,
                        constraints=[{"type": "ineq", "fun": lambda y: self._evaluate(y, criterion)[1]}],
-                       options={"maxiter": max_iter, "ftol": 1e-6})
+                       options={"maxiter": max_iter, "ftol": scaled(1e-6)})
         fine_ok = lambda y: self.check(self.trajectory(y))[0]  # noqa: E731
         candidates = [res.x] + ([self._best[criterion][1]] if criterion in self._best else [])
         x, fx = None, f0

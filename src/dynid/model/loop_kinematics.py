@@ -30,6 +30,7 @@ from scipy.linalg import lapack as sla_lapack
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
 from dynid.model.closures import JointCoordinates, KinematicState
+from dynid.tolerances import scaled
 
 if TYPE_CHECKING:  # Mechanism.states and Mechanism.kinematic_state call this module
     from dynid.model.mechanism import Mechanism
@@ -546,6 +547,7 @@ def _check(mech: Mechanism, x: FloatArray, shape: tuple[int, int], name: str) ->
 
 
 _BLOCK = 256
+POSITION_TOL = 1e-10  # Gauss-Newton tolerance of the position solve from actuator coordinates (dynid.tolerances)
 """Samples per block: the per-side Jacobians of a block (about 12 x 6 x 24 doubles per sample
 for the hexapod) stay in cache; whole-array temporaries would not (memory-bound)."""
 
@@ -674,7 +676,7 @@ def actuator_states(
     ddqa: FloatArray,
     *,
     q0: FloatArray | None = None,
-    tol: float = 1e-10,
+    tol: float | None = None,
     max_iter: int = 30,
     max_cond: float = 1e8,
     sample_offset: int = 0,
@@ -696,6 +698,9 @@ def actuator_states(
 
     exact for non-redundant actuation; with redundant actuators the measurements are
     over-determined and the fit residual tells how consistent they are.
+
+    ``tol``: the Gauss–Newton tolerance [rad or m] on the step and the residual (infinity
+    norm); default 1e-10 times :func:`dynid.tolerances.scale`.
 
     ``sample_offset`` is added to the sample numbers of error messages (chunked logs).
 
@@ -721,6 +726,7 @@ def actuator_states(
     ddqa = _check(mech, ddqa, (n, na), "actuator accelerations")
     if not np.all(np.isfinite(qa)):
         raise InputError("actuator positions contain NaN or infinite values")
+    tol = scaled(POSITION_TOL) if tol is None else float(tol)
     data = mech.pin_model.createData()
     rows = mech.constraint_rows
     Sa = mech.actuator_selection()

@@ -116,6 +116,7 @@ from dynid._typing import FloatArray
 from dynid.errors import ConfigError, InputError
 from dynid.estimation import IdentificationResult, ProblemBuilder
 from dynid.estimation.friction_curves import MODELS, CurveFit, fit_curve
+from dynid.tolerances import scaled
 
 __all__ = ["FAMILIES", "EPS_RMSE", "EPS_TOTAL", "EPS_PARAM", "MAX_ITER", "HierarchicalFriction", "check_config",
            "rigid_robot_config", "rigid_system", "friction_projection", "read_prior", "hierarchical_fit",
@@ -396,8 +397,8 @@ def _fit_projected(model: str, dq: FloatArray, r: FloatArray, keep: np.ndarray, 
     best = None
     for x0 in starts:
         x0 = np.minimum(np.maximum(x0, lo), hi)
-        res = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12,
-                            gtol=1e-12, max_nfev=500 * p * nj)
+        res = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=scaled(1e-12), ftol=scaled(1e-12),
+                            gtol=scaled(1e-12), max_nfev=500 * p * nj)
         if best is None or res.cost < best.cost:
             best = res
     x = best.x
