@@ -66,6 +66,23 @@ def seed(base: int) -> int:
     return int(np.random.SeedSequence([int(base), int(k)]).generate_state(1)[0] % 2**31)
 
 
+def sdp_chi2_slack(norm: float, status: str = "optimal", safety: float = 10.0) -> float:
+    """How far above its minimum Clarabel may stop on ``min ||A x - d||`` (a second-order cone
+    program, dynid.estimation.PhysicalLS), in the units of the squared norm (chi^2 for a whitened
+    problem): with the duality gap ``g = tol_gap_abs + tol_gap_rel * max(1, norm)`` at which it stops
+    (its ``reduced_`` tolerances for ``optimal_inaccurate``; dynid.tolerances, scaled), the norm it
+    reaches is at most ``norm + g`` and the square at most ``(norm + g)^2 - norm^2`` above the
+    minimum. ``safety`` covers Clarabel measuring the gap on its equilibrated (rescaled) problem
+    and the primal residual ``tol_feas`` of the cone constraint on the norm (a factor of a few)."""
+    from dynid.tolerances import clarabel_tolerances
+
+    t = clarabel_tolerances()
+    pre = "reduced_" if status == "optimal_inaccurate" else ""
+    g = safety * (t[pre + "tol_gap_abs"] + t[pre + "tol_gap_rel"] * max(1.0, norm)
+                  + t[pre + "tol_feas"] * max(1.0, norm))
+    return (norm + g) ** 2 - norm**2
+
+
 def pytest_report_header(config):
     """What make test-robust perturbs, as this process sees it (BLAS kernels and threads, numpy's
     disabled SIMD features, the solver tolerance scale, the simulated-data seed)."""

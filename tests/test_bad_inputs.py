@@ -550,6 +550,10 @@ _info("mjcf-independent-unknown.xml", FIVEBAR, "independent coordinates ['q9'] a
 _info("mjcf-independent-size.xml", FIVEBAR, "but 1 independent coordinates were given", extra=("--independent", "qa1"))
 _info("dh-independent.toml", ROBOT, "is a serial robot: actuated joints and independent coordinates are for closed-loop",
       extra=("--independent", "shoulder"))
+case("demo", "cli-seed-negative", "argument --seed: expected an integer in [0, 2**31), got '-3'")(
+    lambda w: ["demo", "--out", str(w.dir / "out"), "--seed", "-3"])
+case("demo", "cli-seed-text", "argument --seed: expected an integer in [0, 2**31), got 'abc'")(
+    lambda w: ["demo", "--out", str(w.dir / "out"), "--seed", "abc"])
 case("info", "unknown-builtin", "unknown built-in robot 'pumaa560'")(lambda w: ["info", "builtin:pumaa560"])
 case("info", "missing-file", "robot file not found", "nothing.urdf")(lambda w: ["info", str(w.dir / "nothing.urdf")])
 case("info", "folder", "robot file", "is a folder, not a file")(lambda w: ["info", str(w.dir / "models.urdf")] if

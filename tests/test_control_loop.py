@@ -20,6 +20,7 @@ import json
 import numpy as np
 import pytest
 
+from conftest import sdp_chi2_slack, seed
 from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.errors import ConfigError
@@ -47,10 +48,11 @@ def test_iv_with_the_regressor_as_instrument_is_wls():
     np.testing.assert_allclose(cov * wls.scale, wls.cov_params, rtol=1e-8, atol=1e-14)
 
 
+@pytest.mark.numerics
 def test_iv_removes_the_errors_in_variables_bias():
     """y = x beta + e with x measured as x + u: least squares shrinks beta by
     var(x) / (var(x) + var(u)) (here 0.8), IV with the true x as instrument does not."""
-    rng = np.random.default_rng(1)
+    rng = np.random.default_rng(seed(1))
     n, beta = 20000, np.array([2.0, -1.0])
     x = rng.standard_normal((n, 1, 2))
     y = x @ beta + 0.2 * rng.standard_normal((n, 1))
@@ -71,13 +73,14 @@ def test_iv_removes_the_errors_in_variables_bias():
     assert np.all(np.abs(ls.params - beta) > 10 * ls.bse)  # far outside its own intervals
 
 
+@pytest.mark.numerics
 def test_truncated_iv_holds_the_directions_the_instruments_do_not_determine():
     """b2 = b0 + 1e-7 xi in the instruments and the regressor (plus regressor noise): Z^T W has one
     singular value near 1e-7 of the others. With rtol = 0 the truncated solve is :func:`iv_solve`;
     with rtol = 1e-4 the estimate moves from the start only along the two determined directions (the
     held one keeps the start's component exactly), and there it is the truth within its standard
     deviations."""
-    rng = np.random.default_rng(2)
+    rng = np.random.default_rng(seed(2))
     n = 5000
     z = rng.standard_normal((n, 1, 3))
     z[:, :, 2] = z[:, :, 0] + 1e-7 * rng.standard_normal((n, 1))
@@ -131,8 +134,8 @@ def _toml(doc: dict) -> str:
 @pytest.fixture(scope="module")
 def twin(tmp_path_factory):
     d = tmp_path_factory.mktemp("didim")
-    for name, traj, seed in (("train", _TRAIN, 1), ("valid", _VALID, 2)):
-        doc = {**_SIM, "trajectory": traj, "sensors": {**_SIM["sensors"], "seed": seed}}
+    for name, traj, k in (("train", _TRAIN, 1), ("valid", _VALID, 2)):  # the true robot keeps its perturbation_seed
+        doc = {**_SIM, "trajectory": traj, "sensors": {**_SIM["sensors"], "seed": seed(k)}}
         (d / f"{name}.toml").write_text(_toml(doc))
         write_simulation(run_simulation(parse_simulate_config(doc, d)), d / name)
     return d
@@ -159,6 +162,7 @@ def _z(outcome, d) -> np.ndarray:
     return (r.params - true_base) / r.bse
 
 
+@pytest.mark.numerics
 def test_didim_replays_the_experiment_exactly(tmp_path):
     """Truth = nominal model, noise-free forces: the experiment replayed on the nominal model is the
     experiment itself (same controller, reference, instants and processing), so the first DIDIM
@@ -166,7 +170,7 @@ def test_didim_replays_the_experiment_exactly(tmp_path):
     (with the experiment's discontinuous Coulomb law in the replay, DIDIM's default; IV's default
     regularized law is another model near reversals)."""
     doc = {**_SIM, "robot": {"model": "builtin:shang2dof"}, "trajectory": {**_TRAIN, "turns": 2},
-           "sensors": {"encoder_resolution": 5.992e-6, "force_noise_std": 1e-9, "seed": 1}}
+           "sensors": {"encoder_resolution": 5.992e-6, "force_noise_std": 1e-9, "seed": seed(1)}}
     (tmp_path / "train.toml").write_text(_toml(doc))
     write_simulation(run_simulation(parse_simulate_config(doc, tmp_path)), tmp_path / "train")
     write_simulation(run_simulation(parse_simulate_config({**doc, "trajectory": _VALID}, tmp_path)), tmp_path / "valid")
@@ -183,6 +187,7 @@ def test_didim_replays_the_experiment_exactly(tmp_path):
     assert r.solver["converged"]
 
 
+@pytest.mark.numerics
 def test_didim_from_the_nominal_model_beats_it(twin):
     """A 10 % perturbed truth with noise: DIDIM converges from the nominal model, predicts the held-out
     path better than the nominal model, and is no further from the truth than the nominal model in
@@ -207,6 +212,7 @@ def test_didim_from_the_nominal_model_beats_it(twin):
     assert np.linalg.norm(_z(didim, twin)) < np.linalg.norm(z_nominal)
 
 
+@pytest.mark.numerics
 def test_physically_consistent_didim_is_the_projection_of_its_unconstrained_fixed_point(twin):
     """DIDIM with physical_consistency: consistent iterates, and the reported estimate is the
     unconstrained step at the last iterate projected onto the consistent set in the metric of the
@@ -220,8 +226,6 @@ def test_physically_consistent_didim_is_the_projection_of_its_unconstrained_fixe
     assert np.all(np.isfinite(r.bse)) and np.all(r.bse > 0)
     smap = out.system.standard_map(out.base)
     assert is_feasible(r.params, smap)
-    std = np.array(list(r.solver["standard_params"].values()))
-    np.testing.assert_allclose(smap.B @ std, r.params, rtol=0, atol=1e-6 * np.abs(r.params).max())
     for name, v in zip(r.names, r.params):
         if name.startswith(("fv", "fc+")):
             assert v >= 0, (name, v)
@@ -230,7 +234,23 @@ def test_physically_consistent_didim_is_the_projection_of_its_unconstrained_fixe
     free = np.array(r.solver["unconstrained_params"])
     Sinv = np.linalg.inv(r.cov_params)
     d = float((r.params - free) @ Sinv @ (r.params - free))
+    # the reported distance is the SDP's own ||A pi - d||^2 (A = U^-1 B, Sigma = U U^T): the same number
+    # by another factorization, equal to rounding amplified by cond(Sigma) (~1e6 here: ~1e-10 relative)
     np.testing.assert_allclose(d, r.solver["projection_distance_chi2"], rtol=1e-6, atol=1e-9)
+    # the standard vector reported with it solves the same projection with a tie-break towards the
+    # nominal model, which may cost up to its reported residual increase (delta). For every consistent
+    # x, ||x - P||^2 <= f(x) - f(P) in the metric (f the squared distance to the unconstrained estimate,
+    # P the exact projection: the Pythagorean inequality of a projection onto a convex set), and the
+    # first solve stops at most eps above f(P) (Clarabel's gap, conftest.sdp_chi2_slack); so B pi_std
+    # is within sqrt(delta + eps) + sqrt(eps) of the reported estimate in the covariance's metric (on
+    # the issue-33 machine the two differed by 4e-4 relative: a fixed atol was not what the method gives)
+    st = r.solver["projection_stages"]
+    assert st["standard"]["buffer"] == st["sdp"]["buffer"]  # the same feasible set for both solves
+    eps = max(sdp_chi2_slack(np.sqrt(d), st[k]["status"]) for k in ("sdp", "standard"))
+    delta = max(st["standard"]["residual_increase_chi2"], 0.0)
+    std = np.array(list(r.solver["standard_params"].values()))
+    e = smap.B @ std - r.params
+    assert np.sqrt(e @ Sinv @ e) <= np.sqrt(delta + eps) + np.sqrt(eps), (e @ Sinv @ e, delta, eps)
     # the projection is the closest consistent point: moving towards the unconstrained estimate
     # along any segment from it leaves the set or gets no closer (convexity: checked on a segment
     # to the truth, which is consistent, and its convex combinations)
@@ -238,10 +258,11 @@ def test_physically_consistent_didim_is_the_projection_of_its_unconstrained_fixe
     true_base = out.base.from_standard(np.array(truth["true_parameters"]))
     dist = lambda x: float((x - free) @ Sinv @ (x - free))  # noqa: E731
     for a in (0.25, 0.5, 0.75, 1.0):
-        assert dist(r.params + a * (true_base - r.params)) >= d * (1 - 1e-6) - 1e-9
+        assert dist(r.params + a * (true_base - r.params)) >= d - eps  # the solve's own suboptimality
     assert out.prior["beats_nominal"], out.prior["verdict"]
 
 
+@pytest.mark.numerics
 def test_iv_runs_through_the_loop(twin, monkeypatch):
     """IV runs; its instrument rows start the loop-closure solve from the simulated joint positions
     (bench/README, control-loop identification time): the same estimate as starting from the
@@ -397,6 +418,7 @@ def _rounded_copy(twin, dest, rel: float = 1e-12):
     return dest
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("method", ["iv", "didim"])
 def test_converges_to_the_same_estimate_on_logs_that_differ_by_rounding(twin, tmp_path, method):
     """IV and DIDIM from the nominal model converge on the shang2dof twin, and on the same logs with
@@ -435,6 +457,7 @@ _HEXAPOD = {
 }
 
 
+@pytest.mark.numerics
 def test_didim_replay_rows_take_the_replay_coulomb_law(tmp_path, monkeypatch):
     """With ``replay_coulomb_band`` the replay's plant has the Coulomb law tanh(v / v_b); DIDIM's
     rows of that replay take the smooth sign of the same slope at zero (erf, width sqrt(2/pi) v_b,
@@ -449,9 +472,11 @@ def test_didim_replay_rows_take_the_replay_coulomb_law(tmp_path, monkeypatch):
     import dynid.pipeline.control_loop as CL
     from dynid.pipeline.simulate import actuator_states
 
-    (tmp_path / "train.toml").write_text(_toml(_HEXAPOD))
-    write_simulation(run_simulation(parse_simulate_config(_HEXAPOD, tmp_path)), tmp_path / "train")
-    valid = {**_HEXAPOD, "trajectory": {**_HEXAPOD["trajectory"], "seed": 5}}
+    hexapod = {**_HEXAPOD, "trajectory": {**_HEXAPOD["trajectory"], "seed": seed(4)},
+               "sensors": {**_HEXAPOD["sensors"], "seed": seed(4)}}
+    (tmp_path / "train.toml").write_text(_toml(hexapod))
+    write_simulation(run_simulation(parse_simulate_config(hexapod, tmp_path)), tmp_path / "train")
+    valid = {**hexapod, "trajectory": {**hexapod["trajectory"], "seed": seed(5)}}
     write_simulation(run_simulation(parse_simulate_config(valid, tmp_path)), tmp_path / "valid")
     captured = {}
     original = CL.control_loop_estimate
@@ -508,6 +533,7 @@ def test_asymmetric_coulomb_levels_keep_sign_rows():
     assert CL._replay_rows_system(system, 0.01) is None
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("method", ["iv", "didim"])
 def test_loop_results_predict_as_identify_validated(twin, tmp_path, capsys, method):
     """``dynid predict`` (issue 20 item 3) on a saved IV / DIDIM result of the redundant shang2dof

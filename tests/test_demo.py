@@ -1,9 +1,10 @@
 """``dynid demo``, the main job on a built-in default: the parallel-robot study of paper 001
 (simulate shang2dof under control, identify with DIDIM and WLS, validate, track again).
 
-The demo runs twice, as two real processes (into two output folders, from two working
-directories): the first run's outputs are checked, and the second run must have
-written the same bytes in every file (``timing.json``, the wall-clock times, aside).
+The demo runs as a real process and its outputs are checked (``test_demo``, marked ``numerics``:
+``make test-robust`` reruns it with another sensor-noise seed); ``test_two_demos_write_the_same_bytes``
+runs it a second time (another output folder, another working directory), which must write the
+same bytes in every file (``timing.json``, the wall-clock times, aside).
 """
 
 from __future__ import annotations
@@ -15,27 +16,36 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_dynid
+from conftest import run_dynid, seed
+from dynid.pipeline.demo import DEMO_SEED
+
+
+def _run(root: Path, name: str) -> tuple[subprocess.CompletedProcess, Path]:
+    (root / name).mkdir()
+    out = root / name / "out"
+    # the sensor noise from conftest.seed (the README's figures with the default 2026); the true robot is fixed
+    return run_dynid(["demo", "--out", str(out), "--seed", str(seed(DEMO_SEED)), "-q"], root / name), out
 
 
 @pytest.fixture(scope="module")
-def demos(tmp_path_factory) -> list[tuple[subprocess.CompletedProcess, Path]]:
-    root = tmp_path_factory.mktemp("demo")
-    jobs = []
-    for name in ("a", "b"):
-        (root / name).mkdir()
-        jobs.append((root / name, root / name / "out"))
-    runs = [run_dynid(["demo", "--out", str(out), "-q"], cwd) for cwd, out in jobs]  # one after the other: one core
-    return [(r, out) for r, (_, out) in zip(runs, jobs)]
+def demo(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
+    return _run(tmp_path_factory.mktemp("demo"), "a")
 
 
-def test_demo(demos):
+@pytest.fixture(scope="module")
+def demos(demo, tmp_path_factory) -> list[tuple[subprocess.CompletedProcess, Path]]:
+    """The demo again, into another folder from another working directory (after the first: one core)."""
+    return [demo, _run(tmp_path_factory.mktemp("demo"), "b")]
+
+
+@pytest.mark.numerics
+def test_demo(demo):
     """The parallel-robot study: simulate shang2dof, identify (DIDIM and WLS), validate, track again.
 
     The story the demo tells: the model identified through the control loop tracks the rectangle
     better than the nominal model it started from (paper 001, Table 5: 19-25 %; the issue's bar:
     at least 15 % lower P-RSME), and it beats the nominal model on the held-out forces."""
-    r, out = demos[0]
+    r, out = demo
     assert r.returncode == 0, r.stderr
     for label in ("DIDIM", "WLS"):
         m = re.search(rf"Ground truth check \({label}\): (\d+) of (\d+) true base parameters", r.stdout)
@@ -64,7 +74,7 @@ def test_demo(demos):
         if name.startswith("fc-"):
             assert p["value"] <= 0, (name, p["value"])
     # honest intervals: the truth's chi^2 against the reported covariance below chi^2_25's 99.9 %
-    # quantile (52.6), and at most 5 of 25 outside the 95 % intervals (binomial: P(>= 6) = 0.7 %)
+    # quantile (52.6), and at most 6 of 25 outside the 95 % intervals (binomial: P(>= 7) = 0.12 %)
     truth = json.loads((out / "data" / "train" / "truth.json").read_text())["base_parameters"]
     true = dict(zip(truth["names"], truth["true_values"]))
     names = [p["name"] for p in doc["params"]]
@@ -72,25 +82,25 @@ def test_demo(demos):
     cov = np.load(out / "result.npz")["cov_params"]
     assert float(e @ np.linalg.solve(cov, e)) < 52.6
     outside = sum(not (params[n]["ci_low"] <= true[n] <= params[n]["ci_high"]) for n in names)
-    assert outside <= 5, outside
+    assert outside <= 6, outside
     assert (out / "data" / "train" / "config.toml").is_file()
     assert "Ground truth check" in (out / "summary.txt").read_text()
 
 
-def test_demo_provenance_points_at_the_delivered_files(demos):
+def test_demo_provenance_points_at_the_delivered_files(demo):
     # result.json records the config and data files it was computed from; they must be the files
     # in the output folder (named relative to the result's folder), not the staging folder that
     # no longer exists
-    for r, out in demos:
-        assert r.returncode == 0, r.stderr
-        for folder in (out, out / "wls"):
-            doc = json.loads((folder / "result.json").read_text())
-            prov = doc["provenance"]
-            sources = [prov["config_file"], *prov["training_data"]["source"].values(),
-                       *prov["validation_data"]["source"].values(), *doc["validation"]["source"].values()]
-            assert all(not Path(s).is_absolute() for s in sources), sources
-            missing = sorted({s for s in sources if not (folder / s).is_file()})
-            assert not missing, f"provenance names files that do not exist: {missing}"
+    r, out = demo
+    assert r.returncode == 0, r.stderr
+    for folder in (out, out / "wls"):
+        doc = json.loads((folder / "result.json").read_text())
+        prov = doc["provenance"]
+        sources = [prov["config_file"], *prov["training_data"]["source"].values(),
+                   *prov["validation_data"]["source"].values(), *doc["validation"]["source"].values()]
+        assert all(not Path(s).is_absolute() for s in sources), sources
+        missing = sorted({s for s in sources if not (folder / s).is_file()})
+        assert not missing, f"provenance names files that do not exist: {missing}"
 
 
 def test_two_demos_write_the_same_bytes(demos):

@@ -301,6 +301,16 @@ def _trials(value: str) -> int:
     return n
 
 
+def _seed_arg(value: str) -> int:
+    try:
+        n = int(value)
+    except ValueError:
+        n = -1
+    if not 0 <= n < 2**31:
+        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2**31), got {value!r}")
+    return n
+
+
 def _cmd_montecarlo(args: argparse.Namespace) -> int:
     import dataclasses
 
@@ -331,7 +341,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     _check_out(args.out)
     with _progress_bar(not args.quiet) as progress:
-        demo = run_demo(args.out, progress)
+        demo = run_demo(args.out, progress, seed=args.seed)
     print(demo.outcome.summary_text())
     print()
     print(demo.truth_table())
@@ -487,6 +497,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     pd = sub.add_parser("demo", help="simulate builtin:shang2dof under control, identify it, validate, track again (needs nothing else)")
     pd.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    pd.add_argument("--seed", type=_seed_arg, default=None,
+                    help="seed of the sensor noise (default 2026, the README's figures); the true robot stays the same")
     pd.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     pd.set_defaults(func=_cmd_demo)
     return p

@@ -164,8 +164,14 @@ def _tracking(mech, motion, path) -> tuple[np.ndarray, dict]:
                 for k, v in tracking_errors(path.sample(motion.t)[0], xy).items()}
 
 
-def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int = DEMO_SEED) -> DemoOutcome:
-    """Simulate, identify, validate, track again; write everything into ``out_dir``."""
+def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int | None = DEMO_SEED) -> DemoOutcome:
+    """Simulate, identify, validate, track again; write everything into ``out_dir``.
+
+    ``seed``: of the sensor noise of the training and validation experiments (``seed`` and
+    ``seed + 1``; None: :data:`DEMO_SEED`, the README's figures). The true robot (the nominal
+    values perturbed with :data:`DEMO_SEED`) is the same for every seed: another seed is another
+    experiment on the same robot."""
+    seed = DEMO_SEED if seed is None else int(seed)
     out = Path(out_dir)
     t0 = time.perf_counter()
     with staged_output(out) as stage:
