@@ -66,20 +66,24 @@ def seed(base: int) -> int:
     return int(np.random.SeedSequence([int(base), int(k)]).generate_state(1)[0] % 2**31)
 
 
-def sdp_chi2_slack(norm: float, status: str = "optimal", safety: float = 10.0) -> float:
-    """How far above its minimum Clarabel may stop on ``min ||A x - d||`` (a second-order cone
-    program, dynid.estimation.PhysicalLS), in the units of the squared norm (chi^2 for a whitened
-    problem): with the duality gap ``g = tol_gap_abs + tol_gap_rel * max(1, norm)`` at which it stops
-    (its ``reduced_`` tolerances for ``optimal_inaccurate``; dynid.tolerances, scaled), the norm it
-    reaches is at most ``norm + g`` and the square at most ``(norm + g)^2 - norm^2`` above the
-    minimum. ``safety`` covers Clarabel measuring the gap on its equilibrated (rescaled) problem
-    and the primal residual ``tol_feas`` of the cone constraint on the norm (a factor of a few)."""
+def sdp_norm_slack(norm: float, status: str = "optimal", safety: float = 10.0) -> float:
+    """How far above its minimum Clarabel may stop on ``min ||A x - d|| (+ ...)`` (a second-order
+    cone program, dynid.estimation.PhysicalLS), in the units of the norm: the duality gap
+    ``tol_gap_abs + tol_gap_rel * max(1, norm)`` and the primal residual ``tol_feas * max(1, norm)``
+    of the cone constraint on the norm, at which it stops (its ``reduced_`` tolerances for
+    ``optimal_inaccurate``; dynid.tolerances, scaled by DYNID_SOLVER_TOL_SCALE). ``safety`` covers
+    Clarabel measuring both on its equilibrated (rescaled) problem (a factor of a few)."""
     from dynid.tolerances import clarabel_tolerances
 
     t = clarabel_tolerances()
     pre = "reduced_" if status == "optimal_inaccurate" else ""
-    g = safety * (t[pre + "tol_gap_abs"] + t[pre + "tol_gap_rel"] * max(1.0, norm)
-                  + t[pre + "tol_feas"] * max(1.0, norm))
+    return safety * (t[pre + "tol_gap_abs"] + (t[pre + "tol_gap_rel"] + t[pre + "tol_feas"]) * max(1.0, norm))
+
+
+def sdp_chi2_slack(norm: float, status: str = "optimal", safety: float = 10.0) -> float:
+    """:func:`sdp_norm_slack` in the units of the squared norm (chi^2 for a whitened problem): a
+    norm at most ``g`` above its minimum ``norm`` squares to at most ``(norm + g)^2 - norm^2`` above."""
+    g = sdp_norm_slack(norm, status, safety)
     return (norm + g) ** 2 - norm**2
 
 

@@ -42,7 +42,7 @@ import os
 
 from dynid.errors import ConfigError
 
-__all__ = ["ENV", "clarabel_tolerances", "scale", "scaled", "solver_tolerances"]
+__all__ = ["ENV", "clarabel_tolerances", "scale", "scaled", "solver_options"]
 
 ENV = "DYNID_SOLVER_TOL_SCALE"
 
@@ -101,8 +101,12 @@ def clarabel_tolerances() -> dict[str, float]:
     return {k: v * s for k, v in _CLARABEL.items()}
 
 
-def solver_tolerances(solver: str) -> dict[str, float]:
-    """Keyword arguments of cvxpy's ``Problem.solve`` for ``solver``: Clarabel's scaled
-    tolerances (:func:`clarabel_tolerances`); another cvxpy solver keeps its own defaults (its
-    settings have other names and meanings; dynid's default is Clarabel)."""
-    return clarabel_tolerances() if solver.upper() == "CLARABEL" else {}
+def solver_options(solver: str) -> dict:
+    """Keyword arguments of cvxpy's ``Problem.solve`` for ``solver``: for Clarabel its scaled
+    tolerances (:func:`clarabel_tolerances`) and ``accept_unknown``: when Clarabel stops making
+    progress before its tolerances (``InsufficientProgress``, which happens on ill-conditioned
+    problems, sooner with tighter tolerances), its last iterate is returned with cvxpy's status
+    ``optimal_inaccurate`` instead of an error; the callers check that iterate's constraints
+    themselves and report the status. Another cvxpy solver keeps its own defaults (its settings
+    have other names and meanings; dynid's default is Clarabel)."""
+    return {**clarabel_tolerances(), "accept_unknown": True} if solver.upper() == "CLARABEL" else {}

@@ -37,7 +37,7 @@ from dynid.estimation.physical import _pseudo_inertia_expr
 from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult, Summary
 from dynid.model.base_parameters import StandardMap, pseudo_inertia
-from dynid.tolerances import clarabel_tolerances, solver_tolerances
+from dynid.tolerances import clarabel_tolerances, solver_options
 
 __all__ = [
     "Feasibility",
@@ -217,7 +217,7 @@ def is_feasible(
     try:
         with warnings.catch_warnings():  # "Solution may be inaccurate": reported as the status instead
             warnings.simplefilter("ignore", UserWarning)
-            prob.solve(solver=solver, **solver_tolerances(solver))
+            prob.solve(solver=solver, **solver_options(solver))
     except cp.error.SolverError as exc:
         raise DynidError(f"{solver} failed on the feasibility problem ({exc})") from None
     if prob.status not in ("optimal", "optimal_inaccurate") or pi.value is None:
@@ -284,6 +284,8 @@ def _feasibility_clarabel(beta: FloatArray, smap: StandardMap, scale: float) -> 
     P = sparse.csc_matrix((n_x, n_x))
     sol = clarabel.DefaultSolver(P, q, A, np.concatenate(rhs), cones, settings).solve()
     status = _CLARABEL_STATUS.get(str(sol.status), "solver_error")
+    if str(sol.status) == "InsufficientProgress" and sol.x is not None and sol.z is not None:
+        status = "optimal_inaccurate"  # its last iterate, as cvxpy's accept_unknown (dynid.tolerances.solver_options)
     if status not in ("optimal", "optimal_inaccurate") or sol.x is None:
         raise DynidError(f"feasibility check failed: solver status {status!r}")
     x = np.asarray(sol.x, dtype=float)

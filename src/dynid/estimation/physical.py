@@ -90,7 +90,7 @@ from dynid.estimation.linear import _channel_noise_std, _Solve, gautier_noise_st
 from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult
 from dynid.model.base_parameters import StandardMap, pseudo_inertia
-from dynid.tolerances import scaled, solver_tolerances
+from dynid.tolerances import scaled, solver_options
 
 __all__ = ["BodyBounds", "PhysicalConstraints", "PhysicalLS", "REGULARIZATIONS", "WEIGHTINGS", "logdet_divergence"]
 
@@ -359,7 +359,7 @@ class PhysicalLS:
         try:
             with warnings.catch_warnings():  # "solution may be inaccurate": the status says so
                 warnings.simplefilter("ignore", UserWarning)
-                prob.solve(solver=self.solver, **solver_tolerances(self.solver))
+                prob.solve(solver=self.solver, **solver_options(self.solver))
         except cp.error.SolverError as exc:
             raise DynidError(f"{self.solver} failed on {what} ({str(exc).splitlines()[0]})") from None
         st = prob.solver_stats
@@ -477,6 +477,11 @@ class PhysicalLS:
         eta = _TIE_BREAK / max(scale + float(np.linalg.norm(ref0)), 1e-12)
         pi_std, stages["standard"] = self._sdp(cp, smap, A, d, lambda pi: eta * cp.norm(pi - ref0))
         stages["standard"]["residual_increase_chi2"] = float(np.sum((A @ pi_std - d) ** 2)) - cost
+        # what bounds that increase: pi_sdp is feasible for the tie-break problem, so at its optimum
+        # ||A pi_std - d|| - ||A pi_sdp - d|| <= weight * (||pi_sdp - ref|| - ||pi_std - ref||)
+        stages["standard"]["tie_break"] = {"weight": float(eta),
+                                           "reference_distance_before": float(np.linalg.norm(pi_sdp - ref0)),
+                                           "reference_distance_after": float(np.linalg.norm(pi_std - ref0))}
         buf = stages["sdp"]["buffer"]
         active = [] if unchanged else (self._active(smap, pi_sdp, buf) or [self._nearest(smap, pi_sdp, buf)])
         return beta, pi_std, cost, unchanged, active, stages
@@ -523,6 +528,13 @@ class PhysicalLS:
         """Sandwich covariance of the regularized estimate (module docstring); ``A`` is scaled by
         :math:`1/s`, so its right-hand side has unit covariance."""
         lam, P = self.regularization_weight, smap.B.shape[1]
+        if self.regularization != "logdet":
+            # H = A^T A + lam I: in A's right singular vectors H^-1 A^T A H^-1 is diag(s^2 / (s^2 + lam)^2),
+            # exactly 0 on A's null space (the standard directions the data leave free), where forming
+            # H and its pseudo-inverse would leave rounding of order eps * s_max^2 / lam^2 (1e-5 relative
+            # standard errors on a well-excited arm at lam = 1e-2)
+            _, sv, vt = np.linalg.svd(A, full_matrices=False)
+            return smap.B @ ((vt.T * (sv**2 / (sv**2 + lam) ** 2)) @ vt) @ smap.B.T
         hess = 2.0 * np.eye(P)
         if self.regularization == "logdet":
             body = np.concatenate(smap.body_blocks)
