@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import sdp_norm_slack, seed
 from dynid.errors import InputError
 from dynid.estimation import OLS, WLS, ProblemBuilder, RegressionProblem
 from dynid.estimation.identifiability import (
@@ -31,8 +32,8 @@ THETA = np.array([2.0, -1.5, 3.0, 1.0, -2.5, 0.8,  # strong, well excited
                   0.05])  # small but well determined (rel std ~9 %)
 
 
-def _synthetic(seed=0, n=2000, sigma=0.3):
-    rng = np.random.default_rng(seed)
+def _synthetic(k=0, n=2000, sigma=0.3):
+    rng = np.random.default_rng(seed(k))
     W = rng.standard_normal((n, 2, len(NAMES)))
     W[:, :, 7] = W[:, :, 6] + 0.02 * rng.standard_normal((n, 2))  # corr_b ~ corr_a
     W[:, :, 10] *= 1e-3
@@ -44,6 +45,7 @@ def _synthetic(seed=0, n=2000, sigma=0.3):
 PROB = _synthetic()
 
 
+@pytest.mark.numerics
 def test_identified_mask_and_names():
     res = OLS().fit(PROB)
     mask = identified(res)
@@ -57,6 +59,7 @@ def test_identified_mask_and_names():
         identified(res, threshold_pct=-1.0)
 
 
+@pytest.mark.numerics
 def test_structure_search_drops_unidentifiable_and_keeps_the_strong():
     seq = structure_search(PROB, OLS())
     # one at a time: once corr_b is gone, corr_a is well determined and stays
@@ -77,6 +80,7 @@ def test_structure_search_drops_unidentifiable_and_keeps_the_strong():
     assert seq.table()[1][:3] == ("1", "13", str(seq.steps[0].n_identified))
 
 
+@pytest.mark.numerics
 def test_structure_search_always_keep_and_errors():
     seq = structure_search(PROB, OLS(), always_keep=["weak1"])
     assert "weak1" in seq.names and "weak1" not in seq.dropped
@@ -97,6 +101,7 @@ def test_structure_search_always_keep_and_errors():
         structure_search(PROB, NoCov())
 
 
+@pytest.mark.numerics
 def test_essential_parameters_stop_on_residual_growth():
     ess = essential_parameters(PROB, OLS(), tol_pct=2.0)
     # 'small' is identified (~9 % rel std) yet explains < 2 % of the residual norm: not essential
@@ -113,8 +118,9 @@ def test_essential_parameters_stop_on_residual_growth():
 
 
 # ---------------------------------------------------------------------- friction structures
+@pytest.mark.numerics
 def test_select_friction_structure_ranks_by_correlation_condition_number():
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(seed(5))
     t = np.arange(3000) / 200.0
     q = 0.8 * np.sin(2 * np.pi * 0.3 * t) + 0.3 * np.sin(2 * np.pi * 1.1 * t)
     dq = np.gradient(q, t)
@@ -184,16 +190,23 @@ def _random_consistent_standard(rng):
     return pi
 
 
+@pytest.mark.numerics
 def test_feasible_base_vectors_from_consistent_standard_vectors():
-    rng = np.random.default_rng(6)
+    rng = np.random.default_rng(seed(6))
     for beta in (BETA, BASE.from_standard(_random_consistent_standard(rng))):
         f = is_feasible(beta, SMAP)
         assert f.feasible and bool(f) and f.violated == (), f.violated
-        assert f.status == "optimal" and f.violation < 1e-6
-        np.testing.assert_allclose(SMAP.B @ f.standard_params, beta, atol=1e-7)
-        assert min(f.min_eigenvalues) > -1e-6 and len(f.min_eigenvalues) == 6
+        # the optimum is 0 (every slack 0); an interior-point solve stops with each slack within its gap of
+        # 0 (conftest.sdp_norm_slack), so the violation (their sum) below n_slacks x that; B pi = beta and the
+        # eigenvalues hold to its feasibility residual, relative to the problem's scale
+        scale = max(1.0, float(np.abs(beta).max()))
+        n_slacks = len(SMAP.body_blocks) + SMAP.nonnegative.size
+        assert f.status in ("optimal", "optimal_inaccurate") and f.violation < n_slacks * sdp_norm_slack(0.0, f.status)
+        np.testing.assert_allclose(SMAP.B @ f.standard_params, beta, atol=sdp_norm_slack(scale, f.status))
+        assert min(f.min_eigenvalues) > -sdp_norm_slack(scale, f.status) and len(f.min_eigenvalues) == 6
 
 
+@pytest.mark.numerics
 def test_infeasible_base_vectors_name_the_violation():
     idx = BASE.names.index
     neg_friction = BETA.copy()
@@ -217,6 +230,7 @@ def test_infeasible_base_vectors_name_the_violation():
         is_feasible(BETA[:-1], SMAP)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("case", ["consistent", "fv1", "Izz6", "Izz2"])
 def test_direct_clarabel_is_the_same_program_as_through_cvxpy(case):
     """is_feasible's default path hands Clarabel the conic form itself (no cvxpy import); through
@@ -228,16 +242,19 @@ def test_direct_clarabel_is_the_same_program_as_through_cvxpy(case):
         beta[BASE.names.index(case)] = {"fv1": -1.0, "Izz6": -0.01, "Izz2": -0.5}[case]
     direct, through = is_feasible(beta, SMAP), is_feasible(beta, SMAP, solver="cvxpy:CLARABEL")
     assert (direct.feasible, direct.violated, direct.status) == (through.feasible, through.violated, through.status)
+    # two solves of one program: each within the solver's gap and feasibility residual of it
     scale = max(1.0, float(np.max(np.abs(beta))))
-    assert abs(direct.violation - through.violation) < 1e-6 * scale
-    np.testing.assert_allclose(direct.min_eigenvalues, through.min_eigenvalues, atol=1e-6 * scale)
-    np.testing.assert_allclose(SMAP.B @ direct.standard_params, beta, atol=1e-7 * scale)
+    tol = sdp_norm_slack(scale, direct.status) + sdp_norm_slack(scale, through.status)
+    assert abs(direct.violation - through.violation) < tol
+    np.testing.assert_allclose(direct.min_eigenvalues, through.min_eigenvalues, atol=tol)
+    np.testing.assert_allclose(SMAP.B @ direct.standard_params, beta, atol=sdp_norm_slack(scale, direct.status))
 
 
+@pytest.mark.numerics
 def test_structure_search_on_a_simulated_robot():
     from dynid.simulation import FourierTrajectory
 
-    rng = np.random.default_rng(7)
+    rng = np.random.default_rng(seed(7))
     lo, hi = ROBOT.position_limits()
     traj = FourierTrajectory.random(6, 5, 0.1, rng, lo, hi, max_velocity=1.5, max_acceleration=4.0, fill=0.6)
     q, dq, ddq = traj.sample(np.arange(1000) / 100.0)
@@ -248,9 +265,14 @@ def test_structure_search_on_a_simulated_robot():
     prob = b.build(expressions=BASE.expressions(), standard=SMAP)
     seq = structure_search(prob, WLS())
     assert np.all(seq.result.rel_std < 15.0)
-    # parameters that are zero in truth cannot be identified (|estimate| > 6.7 std): all dropped
+    # parameters that are zero in truth are not identified in the full model: |estimate| < 4.5 std
+    # (false alarm 7e-6 each) means a relative std above 22 %. (Not asserted: that the search drops
+    # them all. Dropping weakly excited non-zero parameters biases the reduced model: with another
+    # draw of this experiment mx5 went from 0.0022 +- 0.0013 in the full model to 0.0032 +- 0.0004
+    # after 31 removals, and stayed.)
     zero = {n for n, v in zip(BASE.names, BETA) if abs(v) < 1e-12}
-    assert zero and not zero & set(seq.names), zero & set(seq.names)
+    rel_full = dict(zip(seq.steps[0].names, seq.steps[0].result.rel_std))
+    assert zero and all(rel_full[n] > 15.0 for n in zero), {n: rel_full[n] for n in zero}
     # the well-excited friction of every joint stays
     assert {f"f{k}{j}" for k in "vc" for j in range(1, 7)} <= set(seq.names)
     # feasibility of each model: full base vector with the dropped parameters at zero
