@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import seed
 from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.errors import ConfigError, IdentifiabilityError, InputError
@@ -34,9 +35,9 @@ def rps3_log(tmp_path_factory):
     sim = run_simulation(parse_simulate_config({
         "robot": {"model": "builtin:rps3", "perturbation": 0.1, "perturbation_seed": 3},
         "trajectory": {"kind": "fourier", "base_frequency_hz": F0, "harmonics": H, "fill": 0.4, "max_velocity": 0.1,
-                       "max_acceleration": 1.0, "periods": PERIODS + 1, "seed": 3},
+                       "max_acceleration": 1.0, "periods": PERIODS + 1, "seed": seed(3)},
         "control": {"rate_hz": 500, "kp": 2500, "kd": 100, "model": "true", "substeps": 2},
-        "sensors": {"position_noise_std": 2e-5, "force_noise_std": 5.0, "seed": 3, "log_rate_hz": 250},
+        "sensors": {"position_noise_std": 2e-5, "force_noise_std": 5.0, "seed": seed(3), "log_rate_hz": 250},
     }, d))
     cols = sim.columns
     # drop the first period (start-up transient of the controller), keep 8 whole periods
@@ -66,6 +67,7 @@ def ml_run(rps3_log):
     return identify(parse_config(_doc(d, {"method": "ml", "cutoff_range_hz": [0.6, 30.0]}), d))
 
 
+@pytest.mark.numerics
 def test_ml_keeps_the_excited_band_and_picks_the_best_total_cost(ml_run):
     res = ml_run.result
     assert res.method == "ML"
@@ -86,6 +88,7 @@ def test_ml_keeps_the_excited_band_and_picks_the_best_total_cost(ml_run):
     assert best["force_cost"] < band["force_cost"] and best["position_cost"] < band["position_cost"]
 
 
+@pytest.mark.numerics
 def test_ml_predicts_better_than_the_excited_band(rps3_log, ml_run):
     """Gauss–Markov with the window at the excited band ((n_h + 1/2) f0, paper 004's choice)
     against ML's cut-off on the held-out periods: the cut-off ML finds predicts the forces
@@ -99,6 +102,7 @@ def test_ml_predicts_better_than_the_excited_band(rps3_log, ml_run):
     assert np.mean(ml) < np.mean(gm), (ml, gm)
 
 
+@pytest.mark.numerics
 def test_ml_equals_gauss_markov_at_its_cut_off(rps3_log, ml_run):
     """Independent route: dynid's Gauss–Markov with the period covariance, run with the
     processing cut-off set to the one ML chose, gives the same estimate and the force cost."""
@@ -126,6 +130,7 @@ def ml_time(rps3_log):
                                       {"lowpass": {"cutoff_hz": 8.0, "filter_effort": False}}), d))
 
 
+@pytest.mark.numerics
 def test_ml_in_the_time_domain_searches_the_lowpass_cut_off(rps3_log, ml_time):
     """Without period averaging the filter is the zero-phase Butterworth low-pass: the search runs
     over a logarithmic grid of its cut-off, every candidate scores the same samples (the ends
@@ -153,17 +158,32 @@ def test_ml_in_the_time_domain_searches_the_lowpass_cut_off(rps3_log, ml_time):
         step = next(s for s in ds.meta["processing"] if s["step"] == "lowpass")
         assert step["cutoff_hz"] == fc
     beta, std, quad, log_det = _explicit_gls(ml_time)
-    # M_a and A interpolated between every 3rd sample in the search: agreement to a small share of a std
-    assert np.max(np.abs(res.params - beta) / std) < 0.02
+    _assert_within_the_interpolation(ml_time, beta, std)
     np.testing.assert_allclose(res.bse, std, rtol=1e-2)
     assert best["log_det"] == pytest.approx(log_det, rel=1e-3)
     assert best["force_cost"] == pytest.approx(quad + log_det, rel=1e-3)
 
 
-def _explicit_gls(out):
+def _assert_within_the_interpolation(out, beta, std):
+    """The product's estimate against the explicit GLS at every sample: the search takes M_a and
+    d W / d qdd at every ``inertia_every_samples``-th sample of the log filtered at the configured
+    cut-off and interpolates between them; a relative error d of those moves the corrected estimate
+    by about d |beta| / std standard deviations through N (1e-4 x 1e4 on the best-identified
+    parameters here), so the margin is that approximation's own effect, measured by the explicit
+    GLS with the same interpolation, x3 (the states filtered at 8 Hz rather than f_c, M Sigma M^T
+    interpolated rather than M), plus 0.02 std."""
+    stride = out.result.solver["propagation"]["inertia_every_samples"]
+    approx = _explicit_gls(out, stride)[0]
+    margin = 0.02 + 3 * np.max(np.abs(approx - beta) / std)
+    assert np.max(np.abs(out.result.params - beta) / std) < margin, margin
+
+
+def _explicit_gls(out, stride: int = 1):
     """The explicit per-sample generalized least squares on the rows processed at the chosen f_c
     (the regressor of ``out.system``: with its Coulomb widths), errors-in-variables corrected:
-    estimate, std, quadratic and log-determinant parts of the force cost."""
+    estimate, std, quadratic and log-determinant parts of the force cost. With ``stride`` > 1,
+    d W / d qdd (hence M_a) only at every stride-th sample and interpolated linearly between them,
+    as the product's search does: the size of that approximation, measured."""
     from dynid.estimation.likelihood import processing_noise_gains
     from dynid.pipeline.identification import _chunks
 
@@ -178,6 +198,10 @@ def _explicit_gls(out):
         up = ds.ddq.copy()
         up[:, j] += 1.0
         A[:, :, j, :] = np.concatenate([c.W for c in _chunks(system, base, dataclasses.replace(ds, ddq=up), None)]) - W
+    if stride > 1:
+        idx = np.unique(np.r_[np.arange(0, ds.n_samples, stride), ds.n_samples - 1])
+        flat = A.reshape(ds.n_samples, -1)
+        A = np.column_stack([np.interp(ds.t, ds.t[idx], flat[idx, k]) for k in range(flat.shape[1])]).reshape(A.shape)
     M = A @ pilot
     g2 = processing_noise_gains(4, fc, ds.fs).acceleration
     assert res.solver["propagation"]["acceleration_noise_gain"] == pytest.approx(g2, rel=1e-12)
@@ -186,15 +210,20 @@ def _explicit_gls(out):
     Si = np.linalg.inv(S)
     G = np.einsum("kcp,kcd,kdq->pq", W, Si, W, optimize=True)
     N = g2 * np.einsum("jl,kcjp,kcd,kdlq->pq", cov_d, A, Si, A, optimize=True)  # E of the regressor noise's share of G
-    Gc = np.linalg.inv(G - N)
-    beta = Gc @ np.einsum("kcp,kcd,kd->p", W, Si, y)
-    std = np.sqrt(np.diag(Gc @ G @ Gc))
+    # in coordinates scaled to unit diagonal (Jacobi): the parameters' magnitudes alone make cond(G - N)
+    # ~1e12 here, and unscaled the explicit route's own rounding moved it by 0.2 std between BLAS thread counts
+    sc = 1.0 / np.sqrt(np.diag(G))
+    Gs = sc[:, None] * G * sc[None, :]
+    Gci = np.linalg.inv(Gs - sc[:, None] * N * sc[None, :])
+    beta = sc * (Gci @ (sc * np.einsum("kcp,kcd,kd->p", W, Si, y)))
+    std = sc * np.sqrt(np.diag(Gci @ Gs @ Gci))
     r = y - np.einsum("kcp,p->kc", W, beta)
     quad = 0.5 * np.einsum("kc,kcd,kd->", r, Si, r)
     log_det = 0.5 * np.sum(np.linalg.slogdet(S)[1] - np.linalg.slogdet(cov_e)[1])
     return beta, std, quad, log_det
 
 
+@pytest.mark.numerics
 def test_ml_with_coulomb_smoothing_uses_each_cut_offs_own_width(rps3_log, ml_time):
     """``coulomb_smoothing = "auto"`` with ML: every candidate's Coulomb columns use the velocity
     noise of its own low-pass (a higher cut-off leaves more noise: wider); the widths at the chosen
@@ -223,7 +252,7 @@ def test_ml_with_coulomb_smoothing_uses_each_cut_offs_own_width(rps3_log, ml_tim
     assert np.all(width >= 0) and np.any(width[[j for j in range(width.size) if j not in mech.actuated]] > 0)
     np.testing.assert_allclose(width[list(mech.actuated)], sm["width"], rtol=1e-12)
     beta, std, _, _ = _explicit_gls(out)
-    assert np.max(np.abs(out.result.params - beta) / std) < 0.02
+    _assert_within_the_interpolation(out, beta, std)
     # the smooth sign changes the fit: not the estimate without it
     assert np.max(np.abs(out.result.params - ml_time.result.params) / std) > 1e-6
 
@@ -240,6 +269,7 @@ def test_position_cost_is_half_the_mahalanobis_sum():
     assert position_cost(delta, cov, keep) == pytest.approx(direct, rel=1e-12)
 
 
+@pytest.mark.numerics
 def test_noisier_positions_lower_the_cut_off():
     """The trade-off of Eq. 24 on a synthetic record: a signal of harmonics 1-3 with noise on
     the positions. Weighting the removed positions less (a larger Sigma_dd) lets the window
@@ -247,7 +277,7 @@ def test_noisier_positions_lower_the_cut_off():
     n, fs = 400, 100.0
     t = np.arange(n) / fs
     f0 = fs / n
-    rng = np.random.default_rng(1)
+    rng = np.random.default_rng(seed(1))
     signal = sum(np.sin(2 * np.pi * k * f0 * t + k) / k for k in (1, 2, 3))
     meas = signal + 0.01 * rng.normal(size=n)
     force = 2.0 * signal + 0.05 * rng.normal(size=n)
@@ -327,6 +357,7 @@ def _regressor(v, a):
     return W
 
 
+@pytest.mark.numerics
 def test_propagated_position_noise_settles_the_time_domain_cut_off():
     """Eq. 24 in the time domain weights the force residual by Sigma_eta alone. With slow motion
     (weak inertial forces) the fit absorbs the encoder noise that a high cut-off lets into the
@@ -337,14 +368,16 @@ def test_propagated_position_noise_settles_the_time_domain_cut_off():
     is the negative log-likelihood of the residuals of an unbiased fit: the position term falls as
     the filter removes less noise, the log-determinant rises with g2 ~ f_c^5, and the minimum is
     interior, next to the cut-off where the parameter error is smallest, with the truth inside the
-    estimate's intervals. (Over seeds 0-9 of this record: Eq. 24 at the top in 5, the new search at
-    16.5 Hz in all 10, largest |error|/std 2.5; without the correction it stops at 16.5-21.9 Hz with
-    |error|/std up to 11.)"""
+    estimate's intervals. (Over seeds 0-11 of this record: Eq. 24 at the top in 6 (error 885-914
+    std there), at 16.5-21.9 Hz in the others; the new search at 16.5 Hz in all 12, largest
+    |error|/std 3.2, its parameter error at most 1.61 x the smallest over the grid; without the
+    correction it stops at 16.5-21.9 Hz with |error|/std up to 11.) Asserted: what holds for
+    every draw, not the outcome of one."""
     from dynid.estimation.generalized import gls_solve
     from dynid.estimation.likelihood import CandidateBuilder, _corrected, log_cutoff_grid, processing_noise_gains
     from dynid.signals import central_difference, lowpass
 
-    fs, qm, tau, M, truth, cov_e, cov_d = _slow_record(0)
+    fs, qm, tau, M, truth, cov_e, cov_d = _slow_record(seed(0))
     grid = log_cutoff_grid(4.0, 120.0, 13)
     rows = slice(200, qm.shape[0] - 200)  # the filter's ends, the same samples at every cut-off
     dW = np.zeros((2, 2, 5))  # d W / d qdd_j [channel, j, parameter]: the inertia columns
@@ -365,21 +398,27 @@ def test_propagated_position_noise_settles_the_time_domain_cut_off():
 
     ml = MaximumLikelihood(noise_covariance=cov_e, position_covariance=cov_d)
     eq24, new = ml.fit(family(False)), ml.fit(family(True))
-    assert eq24.solver["cutoff_hz"] == grid[-1]
-    assert np.max(np.abs(eq24.params - truth) / eq24.bse) > 100
     fc = new.solver["cutoff_hz"]
     assert grid[0] < fc < grid[-1]
+    # without the propagated noise the search never stops below the likelihood's cut-off, and where it
+    # runs to the top of the grid its estimate is far off (errors in the variables)
+    assert eq24.solver["cutoff_hz"] >= fc
+    if eq24.solver["cutoff_hz"] == grid[-1]:
+        assert np.max(np.abs(eq24.params - truth) / eq24.bse) > 100
     assert new.solver["propagated_position_noise"] and not eq24.solver["propagated_position_noise"]
-    assert np.max(np.abs(new.params - truth) / new.bse) < 3
-    # the parameter error of the corrected estimate at every candidate: smallest within the
-    # resolution the search reports (its neighbouring candidates)
+    assert np.max(np.abs(new.params - truth) / new.bse) < 4.5  # false alarm < 4e-5 over the 5 parameters
+    # the parameter error of the corrected estimate at every candidate (where it is defined): the chosen
+    # cut-off's within a factor 2 of the smallest (12 draws: at most 1.61)
     err = []
     for f in grid:
         cand = family(True).build(f)
-        s = _corrected(gls_solve(cand.whitened, np.eye(2)), cand.correction, False)
+        try:
+            s = _corrected(gls_solve(cand.whitened, np.eye(2)), cand.correction, False)
+        except IdentifiabilityError:  # the regressor noise outweighs the motion at this cut-off
+            err.append(np.inf)
+            continue
         err.append(np.linalg.norm((s.beta - truth) / truth))
-    lo, hi = new.solver["cutoff_interval_hz"]
-    assert lo <= grid[int(np.argmin(err))] <= hi, (fc, np.round(err, 3))
+    assert err[grid.index(fc)] <= 2 * min(err), (fc, np.round(err, 3))
 
 
 def test_noise_gains_match_the_frequency_response():
@@ -406,6 +445,7 @@ def test_noise_gains_match_the_frequency_response():
     assert low == pytest.approx((2 * np.pi) ** 4 * 2.0**5 / fs * 2 * 0.15939540865975532, rel=2e-3)
 
 
+@pytest.mark.numerics
 def test_whitened_rows_give_the_per_sample_likelihood():
     """CandidateBuilder against the explicit sums: with per-sample covariances S_k and a row
     selection per channel, the whitened problem's least squares is the generalized least squares
@@ -415,7 +455,7 @@ def test_whitened_rows_give_the_per_sample_likelihood():
     from dynid.estimation.generalized import gls_solve
     from dynid.estimation.likelihood import CandidateBuilder
 
-    rng = np.random.default_rng(2)
+    rng = np.random.default_rng(seed(2))
     n, n_ch, p = 400, 3, 4
     W = rng.normal(size=(n, n_ch, p))
     y = rng.normal(size=(n, n_ch))
