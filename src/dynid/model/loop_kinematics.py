@@ -21,7 +21,7 @@ coordinates form the square matrix :math:`A = [J_c; J_u]`, inverted in batch:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -147,6 +147,25 @@ class _Sides:
         if isinstance(ind, JointCoordinates):  # G = dq/du: the identity on the independent joints
             self.G_template = np.zeros((m.nv, ind.size))
             self.G_template[u, np.arange(ind.size)] = 1.0
+        # per-call constants of :func:`_one_geometry` and :func:`_one_rates` (fewer operations on
+        # small arrays, each exact: a selection of elements, or the matrix T without its all-zero
+        # columns): the moving sides' own slots, homogeneous points and ground flags; whether the
+        # joint order, the bodies' order are the identity; T on the linear columns only when no
+        # output row reads an angular one (point closures, point coordinates); the point
+        # coordinate's moving side
+        k_ref = self.moving_ref
+        self.slot_k, self.r1_k, self.r_k = self.slot0[k_ref], self.r1[k_ref], self.r[k_ref]
+        self.ground_k = self.on_ground[k_ref]
+        self.any_ground_k = bool(self.ground_k.any())
+        self.identity_order = bool(np.array_equal(order, np.arange(m.nv)))
+        self.identity_bodies = bool(np.array_equal(self.body_of, np.arange(self.body_of.size)))
+        ang = (np.arange(self.T.shape[1]) % 6) >= 3
+        self.lin_only = not self.T[:, ang].any()
+        self.T_lin = np.ascontiguousarray(self.T[:, ~ang])
+        self.TT, self.T_linT = np.ascontiguousarray(self.T.T), np.ascontiguousarray(self.T_lin.T)
+        side = None if isinstance(ind, JointCoordinates) else row_of.get(len(sides) - 1)
+        self.coordinate_side = side  # flat indices of the point coordinates among the points (k, 3)
+        self.coordinate_index = None if side is None else 3 * side + np.array(ind.axes, dtype=int)
 
 
 class _Closures:
@@ -215,6 +234,9 @@ def _closures(mech: Mechanism) -> _Closures:
     return cached
 
 
+_EPS = float(np.finfo(float).eps)
+
+
 def row_space(A: FloatArray) -> tuple[FloatArray, FloatArray] | None:
     """Householder QR of :math:`A^T` (A: m x n, m <= n, full row rank): ``Q`` (n, m) with
     orthonormal columns spanning the rows of A and ``R`` (m, m) in the upper triangle of the
@@ -227,8 +249,8 @@ def row_space(A: FloatArray) -> tuple[FloatArray, FloatArray] | None:
     if m > n or not m:
         return None
     qr, tau, _, info = sla_lapack.dgeqrf(A.T)
-    d = np.abs(np.diag(qr))
-    if info != 0 or not d.min() > max(m, n) * np.finfo(float).eps * d.max():
+    d = np.abs(qr.diagonal())
+    if info != 0 or not d.min() > max(m, n) * _EPS * d.max():
         return None
     Q, _, info = sla_lapack.dorgqr(qr, tau)
     return (Q, qr[:m]) if info == 0 else None
@@ -248,8 +270,8 @@ def lstsq_full_rank(A: FloatArray, b: FloatArray) -> FloatArray:
                 return f[0] @ y
     else:
         qr, tau, _, info = sla_lapack.dgeqrf(A)
-        d = np.abs(np.diag(qr))
-        if info == 0 and d.min() > m * np.finfo(float).eps * d.max():
+        d = np.abs(qr.diagonal())
+        if info == 0 and d.min() > m * _EPS * d.max():
             Q, _, info = sla_lapack.dorgqr(qr, tau)
             if info == 0:
                 x, info = sla_lapack.dtrtrs(qr[:n], Q.T @ b, lower=0, trans=0)
@@ -309,6 +331,52 @@ def closure_jacobian(mech: Mechanism, q: FloatArray, data: pin.Data, exact: bool
                 Ra, Rb = cl.rotation(Hs, 2 * c), cl.rotation(Hs, 2 * c + 1)
                 rows[r0 : r0 + 3] = Ra @ pin.Jlog3(Ra.T @ Rb) @ Rb.T @ rows[r0 : r0 + 3]
     return rows
+
+
+class _PointRows:
+    """Constants of :func:`point_closure_rows`: the moving sides' slots and homogeneous points,
+    the residual's signed selection ``D`` of their coordinates and the constant ``d0`` of the
+    sides on the ground, and ``_Closures.T`` on the linear columns, both on the independent
+    constraint rows only. Entries 0 and +-1 with at most two non-zero terms per row: the
+    products are the side-by-side differences exactly (as ``_Closures.T``)."""
+
+    def __init__(self, mech: Mechanism) -> None:
+        cl = _closures(mech)
+        rows = mech.constraint_rows
+        k = cl.moving.size
+        self.slot, self.r1 = cl.slot[cl.moving], cl.r1[cl.moving]
+        self.mask = cl.mask
+        D = np.zeros((int(cl.offsets[-1]), 3 * k))
+        d0 = np.zeros(int(cl.offsets[-1]))
+        index = {int(s): i for i, s in enumerate(cl.moving)}
+        for c in range(len(cl.kinds)):
+            r0 = int(cl.offsets[c])
+            for s, sign in ((2 * c + 1, 1.0), (2 * c, -1.0)):
+                if s in index:
+                    D[r0 : r0 + 3, 3 * index[s] : 3 * index[s] + 3] = sign * np.eye(3)
+                else:
+                    d0[r0 : r0 + 3] = sign * cl.r[s]
+        self.D, self.d0 = np.ascontiguousarray(D[rows]), d0[rows]
+        ang = (np.arange(cl.T.shape[1]) % 6) >= 3
+        self.T = np.ascontiguousarray(cl.T[rows][:, ~ang])
+
+
+def point_closure_rows(mech: Mechanism, q: FloatArray, data: pin.Data) -> tuple[FloatArray, FloatArray]:
+    """:func:`closure_residual` and :func:`closure_jacobian` on the independent constraint rows
+    for point closures only (``"3d"``; :meth:`Mechanism.project`, every control period): one
+    ``computeJointJacobians`` pass, the points of the moving sides only, each row the same
+    difference of two sides as there (the same values), without the angular rows' zeros."""
+    pr = mech.__dict__.get("_point_rows_cache")
+    if pr is None:
+        pr = _PointRows(mech)
+        object.__setattr__(mech, "_point_rows_cache", pr)
+    J = pin.computeJointJacobians(mech.pin_model, data, q)
+    oMi = data.oMi
+    H = np.array([oMi[j].homogeneous for j in _closures(mech).joints])
+    P = np.matmul(H[pr.slot, :3], pr.r1)[:, :, 0]  # (moving sides, 3): R r + t
+    Jk = J * pr.mask  # (moving sides, 6, n_v)
+    Jw = Jk[:, 3:]
+    return pr.D @ P.reshape(-1) + pr.d0, pr.T @ (Jk[:, :3] - _skew(P) @ Jw).reshape(-1, q.size)
 
 
 def _sides(mech: Mechanism) -> _Sides:
@@ -584,50 +652,108 @@ def _one_sample(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray,
     and the condition number. The batched route's formulas on 2-D arrays, with the cross
     products as products by skew matrices (a controller calls it every period, and there the
     batched route's cost is the per-call overhead of some hundred operations on small arrays;
-    the two agree to rounding, tests/test_simulation_mechanism.py)."""
+    the two agree to rounding, tests/test_closed_loop.py): :func:`_one_geometry`, then
+    :func:`_one_rates`."""
+    geometry = _one_geometry(mech, q, data, max_cond)
+    dq, ddq = _one_rates(mech, geometry, du, ddu, data)
+    return dq, ddq, geometry.G, geometry.cond
+
+
+class OneGeometry(NamedTuple):
+    """What :func:`_one_geometry` computes at one configuration: the world joint Jacobian ``J``
+    (6, n_v) (pinocchio's ``data.J``, valid until ``data`` is used again), the skew matrices
+    ``Sp`` of the moving sides' points, the assembled rows :math:`[J_c; J_u]` (columns in
+    ``_Sides.order``), the inverse of the inverted block, its 1-norm condition number, ``G``,
+    the moving sides' points ``pk`` (k, 3) and ``q``."""
+
+    J: FloatArray
+    Sp: FloatArray
+    rows: FloatArray
+    inv: FloatArray
+    cond: float
+    G: FloatArray
+    pk: FloatArray
+    q: FloatArray
+
+
+def _one_geometry(mech: Mechanism, q: FloatArray, data: pin.Data, max_cond: float) -> OneGeometry:
+    """The velocity map of one sample: one ``computeJointJacobians`` pass, the moving sides'
+    points :math:`R r + t`, the rows :math:`J_v - [p]_\\times J_\\omega` of all sides at once
+    stacked by ``_Sides.T`` (its linear columns only where no row reads an angular one: the
+    same sums without the exact zeros), and the LU inverse of the square block."""
     sd = _sides(mech)
-    model = mech.pin_model
     nv = q.size
-    J = pin.computeJointJacobians(model, data, q)
+    J = pin.computeJointJacobians(mech.pin_model, data, q)
     oMi = data.oMi
     H = np.array([oMi[j].homogeneous for j in sd.joints]) if sd.joints else np.zeros((1, 4, 4))
-    p = np.matmul(H[sd.slot0, :3], sd.r1)[:, :, 0]  # R r + t
-    if sd.any_ground:
-        p[sd.on_ground] = sd.r[sd.on_ground]
-    pk = p[sd.moving_ref]  # (moving sides, 3)
+    pk = np.matmul(H[sd.slot_k, :3], sd.r1_k)[:, :, 0]  # R r + t
+    if sd.any_ground_k:
+        pk[sd.ground_k] = sd.r_k[sd.ground_k]
     Sp = _skew(pk)
-    Jk = J[:, sd.order] * sd.side_mask  # (moving sides, 6, n_v)
+    Jk = (J if sd.identity_order else J[:, sd.order]) * sd.side_mask  # (moving sides, 6, n_v)
     Jw = Jk[:, 3:]
-    rows = sd.T @ np.concatenate([Jk[:, :3] - Sp @ Jw, Jw], axis=1).reshape(-1, nv)
-    ind = mech.independent
-    joint_coords = isinstance(ind, JointCoordinates)
-    A = rows[:, : sd.w.size] if joint_coords else rows
-    inv, cond = _invert_one(A, max_cond, "the loop-closure Jacobian of the dependent joints" if joint_coords else "[J_c; J_u]")
-    if joint_coords:
-        Jcu = rows[:, sd.w.size :]
-        G = sd.G_template.copy()
-        G[sd.w] = -(inv @ Jcu)
+    if sd.lin_only:
+        rows = sd.T_lin @ (Jk[:, :3] - Sp @ Jw).reshape(-1, nv)
     else:
-        G = np.ascontiguousarray(inv[:, nv - ind.size :])
-    dq = G @ du
-    drift = np.zeros(sd.T.shape[0])
-    if sd.moving.size:
-        pin.computeJointJacobiansTimeVariation(model, data, q, dq)
-        v = dq * sd.body_mask_q  # (bodies, n_v)
-        V, Ac = (v @ J.T)[sd.body_of], (v @ data.dJ.T)[sd.body_of]  # (moving sides, 6)
-        w = V[:, 3:]
-        # p x [omega, alpha]: v_p = v + omega x p, a_p = a + alpha x p + omega x v_p
-        px = Sp @ np.stack([w, Ac[:, 3:]], axis=2)
-        vp = V[:, :3] - px[:, :, 0]
-        lin = Ac[:, :3] - px[:, :, 1] + (_skew(w) @ vp[:, :, None])[:, :, 0]
-        drift = np.concatenate([lin, Ac[:, 3:]], axis=1).reshape(-1) @ sd.T.T
+        rows = sd.T @ np.concatenate([Jk[:, :3] - Sp @ Jw, Jw], axis=1).reshape(-1, nv)
+    joint_coords = sd.u is not None
+    nw = sd.w.size if joint_coords else nv
+    inv, cond = _invert_one(rows[:, :nw] if joint_coords else rows, max_cond,
+                            "the loop-closure Jacobian of the dependent joints" if joint_coords else "[J_c; J_u]")
     if joint_coords:
-        ddq = np.empty(nv)
+        G = sd.G_template.copy()
+        G[sd.w] = -(inv @ rows[:, nw:])
+    else:
+        G = np.ascontiguousarray(inv[:, nv - mech.independent.size :])
+    return OneGeometry(J, Sp, rows, inv, cond, G, pk, q)
+
+
+def _one_coordinates(mech: Mechanism, geometry: OneGeometry, dq: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+    """The independent coordinates and their rates at ``geometry``'s configuration with joint
+    velocities ``dq``: joint coordinates read off ``q`` and ``dq``; point coordinates from the
+    computed point and the coordinate rows of :math:`[J_c; J_u]`. None where the point lies on
+    the fixed base."""
+    sd = _sides(mech)
+    if sd.u is not None:
+        return geometry.q[sd.u], dq[sd.u]
+    if sd.coordinate_side is None:
+        return None
+    return geometry.pk.take(sd.coordinate_index), geometry.rows[-sd.coordinate_index.size :] @ dq
+
+
+def _one_rates(mech: Mechanism, geometry: OneGeometry, du: FloatArray, ddu: FloatArray,
+               data: pin.Data) -> tuple[FloatArray, FloatArray]:
+    """``dq`` and ``ddq`` of one sample from those of the independent coordinates
+    (:math:`\\dot q = G\\dot u`, :math:`\\ddot q = G\\ddot u + \\ddot q_0`): one
+    ``computeJointJacobiansTimeVariation`` pass for the drift :math:`\\dot J \\dot q` of the
+    sides' points (classical accelerations, module docstring)."""
+    sd = _sides(mech)
+    J, Sp, rows, inv, _, G, _, q = geometry
+    dq = G @ du
+    n_rows = rows.shape[0]
+    drift = np.zeros(n_rows)
+    if sd.moving.size:
+        pin.computeJointJacobiansTimeVariation(mech.pin_model, data, q, dq)
+        # spatial velocity and acceleration (at q-ddot = 0) of every body at the world origin,
+        # rows [v, omega, a, alpha] of 3 (J and dJ stacked: one product)
+        X = (dq * sd.body_mask_q) @ np.concatenate([J, data.dJ]).T  # (bodies, 12)
+        X = (X if sd.identity_bodies else X[sd.body_of]).reshape(-1, 4, 3)  # (moving sides, 4, 3)
+        w = X[:, 1]
+        # p x [omega; alpha] as rows: v_p = v + omega x p, a_p = a + alpha x p + omega x v_p
+        px = X[:, 1::2] @ Sp.transpose(0, 2, 1)
+        vp = X[:, 0] - px[:, 0]
+        lin = X[:, 2] - px[:, 1] + (_skew(w) @ vp[:, :, None])[:, :, 0]
+        if sd.lin_only:
+            drift = lin.reshape(-1) @ sd.T_linT
+        else:
+            drift = np.concatenate([lin, X[:, 3]], axis=1).reshape(-1) @ sd.TT
+    if sd.u is not None:
+        ddq = np.empty(q.size)
         ddq[sd.u] = ddu
-        ddq[sd.w] = inv @ (-(Jcu @ ddu) - drift)
+        ddq[sd.w] = inv @ (-(rows[:, sd.w.size :] @ ddu) - drift)
     else:
         ddq = G @ ddu - inv @ drift
-    return dq, ddq, G, cond
+    return dq, ddq
 
 
 _SKEW = np.zeros((3, 9))
@@ -648,7 +774,7 @@ def _invert_one(A: FloatArray, max_cond: float, what: str) -> tuple[FloatArray, 
     if info == 0:
         inv, info = sla_lapack.dgetri(lu, piv)
     cond = float(np.abs(A).sum(axis=0).max() * np.abs(inv).sum(axis=0).max()) if info == 0 else np.inf
-    if not np.isfinite(cond) or cond > max_cond:
+    if not cond <= max_cond:  # above it, infinite or NaN
         raise ModelError(f"sample 0: singular configuration (condition number of {what} = {cond:.3g} > {max_cond:.3g})")
     return inv, cond
 

@@ -668,26 +668,31 @@ class Mechanism:
         tangent space (:math:`\\dot q - J_c^+ J_c \\dot q`). Used to remove the drift of a
         numerical integration; one sample, shapes ``(n_v,)``. ``data`` as in :meth:`coordinates`."""
         q = np.array(q, dtype=float)
-        if not (np.all(np.isfinite(q)) and (dq is None or np.all(np.isfinite(dq)))):
+        if not (np.isfinite(q).all() and (dq is None or np.isfinite(dq).all())):
             # a diverged integration: say so before LAPACK sees NaN (it prints to the terminal)
             raise ModelError("cannot project onto the loop closures: the configuration is not finite (the motion diverged)")
         data = self.pin_model.createData() if data is None else data
         rows = self.constraint_rows
         lk = loop_kinematics
+        point = lk._closures(self).all_3d  # point closures: residual and Jacobian in one pass, the same values
         for _ in range(max_iter):
-            geometry = lk.closure_geometry(self, q, data)  # one pass for the residual and the Jacobian
-            c = lk.closure_residual(self, q, data, geometry)[rows]
+            if point:
+                c, J = lk.point_closure_rows(self, q, data)
+            else:
+                geometry = lk.closure_geometry(self, q, data)  # one pass for the residual and the Jacobian
+                c = lk.closure_residual(self, q, data, geometry)[rows]
             gap = np.abs(c).max(initial=0.0)  # the infinity norm
             if not np.isfinite(gap):
                 raise ModelError("cannot project onto the loop closures: the closure residual is not finite")
             if gap < tol:
                 break
-            q = q - lk.lstsq_full_rank(lk.closure_jacobian(self, q, data, True, geometry)[rows], c)
+            q = q - lk.lstsq_full_rank(J if point else lk.closure_jacobian(self, q, data, True, geometry)[rows], c)
         else:
             raise ModelError(f"cannot project onto the loop closures (residual {np.linalg.norm(c, np.inf):.3g})")
         if dq is None:
             return q
-        J = lk.closure_jacobian(self, q, data, False, geometry)[rows]  # geometry: at this q
+        if not point:
+            J = lk.closure_jacobian(self, q, data, False, geometry)[rows]  # geometry: at this q
         dq = np.asarray(dq, dtype=float)
         f = lk.row_space(J)
         if f is None:
