@@ -355,25 +355,111 @@ def actuator_forces(
 
 def _actuator_forces_one(mech: Mechanism, params: FloatArray, state: KinematicState, distribution, model: pin.Model,
                          data: pin.Data) -> FloatArray:
-    """:func:`actuator_forces` of one sample: the same arithmetic on 1-D arrays (a controller
-    calls it every period)."""
-    q, dq, ddq, G = state.q[0], state.dq[0], state.ddq[0], state.G[0]
-    tau = pin.rnea(model, data, q, dq, ddq)
-    terms = term_columns(mech, state.dq, state.ddq)[0] * params[mech.n_body_params :]  # (n_v, n_terms)
-    act = list(mech.actuated)
-    tau = tau + terms.sum(axis=1)
-    local = None
-    if distribution == "min_norm_local_friction":
-        local = np.zeros_like(tau)
-        local[act] = terms[act, :].sum(axis=1)
-        tau = tau - local
-    proj = G.T @ tau
-    if distribution == "projected":
-        return proj
-    Ga = G[act, :]
-    if not mech.redundant:
-        return np.linalg.solve(Ga.T, proj)
-    return np.linalg.pinv(Ga.T) @ proj + (local[act] if local is not None else 0.0)
+    """:func:`actuator_forces` of one sample (:class:`OneSampleForces`, the joint terms by
+    :func:`term_columns`: nothing to sum once for a single call)."""
+    forces = OneSampleForces(mech, params, distribution, per_joint=False)
+    return forces(state.q[0], state.dq[0], state.ddq[0], state.G[0], model, data)
+
+
+def piecewise_linear_terms(mech: Mechanism, theta: FloatArray) -> FloatArray:
+    """The velocity-dependent joint terms (viscous, Coulomb, their one-sided forms, offsets) summed
+    per joint, as coefficients ``(a, b, c, d, e)``, each (n_v,), of
+    :math:`a\\,v^+ + b\\,v^- + c\\,[v>0] + d\\,[v<0] + e` (one vectorized evaluation per
+    call instead of one per kind of term); unweighted terms with the Coulomb law
+    :math:`\\mathrm{sign}(v)` (no ``coulomb_width``).
+
+    Every such basis function is piecewise linear in the joint velocity with a jump at 0, so its
+    five coefficients follow exactly from :func:`term_basis` at v = 0, +-1, +-2 (no second copy
+    of the basis definitions). Rotor inertia (``inertia`` terms) is not among them."""
+    probe = np.array([0.0, 1.0, 2.0, -1.0, -2.0])
+    coef = np.zeros((5, mech.nv))
+    for kind, ks in mech.term_groups:
+        if kind == "inertia":
+            continue
+        b0, b1, b2, bm1, bm2 = term_basis(kind, probe, np.zeros_like(probe))
+        slope_pos, slope_neg = b2 - b1, bm1 - bm2
+        k = np.array([slope_pos, slope_neg, b1 - slope_pos - b0, bm1 + slope_neg - b0, b0])
+        coef += np.outer(k, mech.term_incidence[:, ks] @ theta[ks])
+    return coef
+
+
+class OneSampleForces:
+    """:func:`actuator_forces` of one sample, with the parameters' per-joint sums computed once (a
+    controller calls it every period, Shang et al. 2009, Eq. 22: :math:`(S^T)^+` of the model's
+    forces plus the actuators' own friction).
+
+    The joint terms are summed per joint: rotor inertia times :math:`\\ddot q` plus the
+    piecewise-linear law of :func:`piecewise_linear_terms`,
+    :math:`s(v)\\,v + l(v) + e` with slope :math:`s = a` or :math:`b` and level
+    :math:`l = c`, :math:`d` or 0 by the sign of :math:`v` (the same value as
+    :math:`a v^+ + b v^- + c[v>0] + d[v<0] + e`: the other terms are exact zeros; the same value
+    as the batched route's sum of :func:`term_columns` wherever a joint has at most two non-zero
+    terms at a time, e.g. one-sided viscous and Coulomb friction without rotor inertia, otherwise
+    the same sum in another order). Weighted terms (coupled motors) and smoothed Coulomb terms
+    take :func:`term_columns`. The projection and the distribution are those of the batched
+    route, operation for operation (numpy's SVD pseudo-inverse for the minimum-norm distribution).
+    Agreement with the batched route: tests/test_closed_loop_fast_paths.py.
+
+    Parameters
+    ----------
+    mech : Mechanism
+    params : array, shape (n_params,)
+    distribution : str or None
+        As in :func:`actuator_forces`.
+    per_joint : bool
+        Sum the joint terms per joint once (default); False: :func:`term_columns` at every call.
+    """
+
+    def __init__(self, mech: Mechanism, params: FloatArray, distribution: Distribution | None = None, *,
+                 per_joint: bool = True) -> None:
+        params = np.asarray(params, dtype=float)
+        theta = params[mech.n_body_params :]
+        self.mech, self.theta, self.distribution = mech, theta, distribution
+        self.act = np.array(mech.actuated, dtype=int)
+        self.redundant = mech.redundant
+        ind = mech.independent
+        self.identity = isinstance(ind, JointCoordinates) and ind.joints == mech.actuated  # G_a = I exactly
+        self.general = not per_joint or mech.coulomb_width is not None or any(t.weights for t in mech.terms)
+        if not self.general:
+            a, b, c, d, e = piecewise_linear_terms(mech, theta)
+            self.a, self.b, self.c, self.d, self.e = a, b, c, d, e
+            self.has_e = bool(np.any(e))
+            inertia = np.zeros(mech.nv)
+            for kind, ks in mech.term_groups:
+                if kind == "inertia":
+                    inertia += mech.term_incidence[:, ks] @ theta[ks]
+            self.inertia = inertia if np.any(inertia) else None
+        self.local = distribution == "min_norm_local_friction"
+        self.own = np.zeros(mech.nv)  # 1 on the actuated joints: their own terms stay local
+        self.own[self.act] = 1.0
+
+    def terms(self, dq: FloatArray, ddq: FloatArray) -> FloatArray:
+        """Generalized forces of the joint terms, (n_v,)."""
+        if self.general:
+            return (term_columns(self.mech, dq[None], ddq[None])[0] * self.theta).sum(axis=1)
+        pos = dq > 0
+        f = np.where(pos, self.a, self.b) * dq + np.where(pos, self.c, np.where(dq < 0, self.d, 0.0))
+        if self.has_e:
+            f = f + self.e
+        if self.inertia is not None:
+            f = f + self.inertia * ddq
+        return f
+
+    def __call__(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, G: FloatArray, model: pin.Model,
+                 data: pin.Data) -> FloatArray:
+        """The forces at one state (``G``: its velocity map), with ``model`` the tree of the
+        parameters' inertias and ``data`` its working memory; (n_a,), or (n_u,) projected."""
+        f = self.terms(dq, ddq)
+        tau = pin.rnea(model, data, q, dq, ddq) + f
+        if self.local:  # the actuators' own terms are added per actuator below, not distributed
+            tau = tau - f * self.own
+        proj = G.T @ tau
+        if self.distribution == "projected" or self.identity:
+            return proj
+        Ga = G[self.act]
+        if not self.redundant:
+            return np.linalg.solve(Ga.T, proj)
+        return np.linalg.pinv(Ga.T) @ proj + (f[self.act] if self.local else 0.0)
 
 
 def random_consistent_states(
