@@ -11,16 +11,19 @@ Joint terms enter as known forces: rotor inertias of single joints through
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 import pinocchio as pin
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
-from dynid.model.closed_loop import actuator_forces, term_basis
-from dynid.model.mechanism import JointCoordinates, Mechanism
+from dynid.model import loop_kinematics
+from dynid.model.closed_loop import OneSampleForces, actuator_forces, piecewise_linear_terms
+from dynid.model.mechanism import Mechanism
 from dynid.simulation._integrate import rk4_step
+from dynid.simulation._joint_laws import piecewise_law
 from dynid.simulation.control import JointPID
 
 __all__ = ["ActuatorReference", "AugmentedPD", "ConstrainedSimulator", "DecentralizedPID", "SimulatedMotion",
@@ -97,7 +100,7 @@ class ConstrainedSimulator:
                 raise ModelError(f"shared inertia term {t.name!r} cannot be simulated as an armature")
         model.armature = arm
         self._theta = np.where(keep, theta, 0.0)
-        self._friction_coefficients = _piecewise_linear_terms(mech, self._theta)
+        self._friction_coefficients = piecewise_linear_terms(mech, self._theta)
         a, b, c, d, e = self._friction_coefficients
         self._symmetric_friction = bool(np.array_equal(a, b) and np.array_equal(d, -c) and not np.any(e))
         self.model = model
@@ -120,26 +123,21 @@ class ConstrainedSimulator:
         if coulomb_band is not None and not (np.isfinite(coulomb_band) and coulomb_band > 0):
             raise InputError(f"coulomb_band must be positive and finite, got {coulomb_band}")
         self.coulomb_band = coulomb_band
+        # tau_joint minus the joint terms, built once (:mod:`dynid.simulation._joint_laws`)
+        self._law = (_friction_law(friction) if friction is not None
+                     else piecewise_law(self._friction_coefficients, coulomb_band))
 
     def joint_forces(self, dq: FloatArray, tau_a: FloatArray) -> FloatArray:
         """Generalized forces on the tree: actuators minus the joint terms (rotor inertia excluded)."""
         return self._joint_forces(dq, self.Sa.T @ tau_a)
 
     def _joint_forces(self, dq: FloatArray, tau_joint: FloatArray) -> FloatArray:
-        """:meth:`joint_forces` with the actuator forces already on the joints (``S_a^T tau_a``)."""
-        if self.friction is not None:
-            return tau_joint - np.asarray(self.friction(dq), dtype=float).reshape(-1)
-        a, b, c, d, e = self._friction_coefficients
-        if self.coulomb_band is not None:  # regularized Coulomb law (class docstring)
-            th = np.tanh(dq / self.coulomb_band)
-            return tau_joint - (a * np.maximum(dq, 0.0) + b * np.minimum(dq, 0.0) + 0.5 * (c - d) * th
-                                + 0.5 * (c + d) * np.abs(th) + e)
-        if self._symmetric_friction:
-            # a = b, d = -c, e = 0: the same value element by element as the general form below
-            # (a v + c sign v; each of the general form's other terms is an exact zero)
-            return tau_joint - (a * dq + c * np.sign(dq))
-        terms = a * np.maximum(dq, 0.0) + b * np.minimum(dq, 0.0) + c * (dq > 0) + d * (dq < 0) + e
-        return tau_joint - terms
+        """:meth:`joint_forces` with the actuator forces already on the joints (``S_a^T tau_a``):
+        :math:`a v^+ + b v^- + c[v>0] + d[v<0] + e` per joint (``_friction_coefficients``), with
+        the regularized Coulomb law :math:`\\tfrac12(c-d)\\tanh(v/v_b) + \\tfrac12(c+d)|\\tanh(v/v_b)|`
+        in place of the levels when ``coulomb_band`` is set, or ``friction(dq)``; evaluated by
+        :func:`dynid.simulation._joint_laws.piecewise_law` (the same values in fewer operations)."""
+        return self._law(dq, tau_joint)
 
     def acceleration(self, q: FloatArray, dq: FloatArray, tau_a: FloatArray) -> FloatArray:
         """Joint accelerations under actuator forces ``tau_a`` (shape (n_a,))."""
@@ -158,8 +156,18 @@ class ConstrainedSimulator:
         tau_a = np.asarray(tau_a, dtype=float)
         if tau_a.shape != (self.mech.n_actuators,):
             raise InputError(f"tau_a must have shape ({self.mech.n_actuators},), got {tau_a.shape}")
-        tau_joint = self.Sa.T @ tau_a
-        return lambda q, dq: self._acceleration(q, dq, tau_joint)
+        return self._held(self.Sa.T @ tau_a)
+
+    def _held(self, tau_joint: FloatArray):
+        """:meth:`held` with the forces on the joints: :meth:`_acceleration` with everything it
+        reads bound once (called four times per RK4 step)."""
+        dynamics, forces = pin.constraintDynamics, self._law
+        model, data, cmodels, cdatas, prox = self.model, self.data, self.cmodels, self.cdatas, self.prox
+
+        def acc(q: FloatArray, dq: FloatArray) -> FloatArray:
+            return dynamics(model, data, q, dq, forces(dq, tau_joint), cmodels, cdatas, prox).copy()
+
+        return acc
 
     def simulate(self, q0: FloatArray, dq0: FloatArray, tau_fn, *, duration: float, dt: float) -> SimulatedMotion:
         """Classical Runge–Kutta 4 integration with actuator forces ``tau_fn(t) -> (n_a,)``.
@@ -192,26 +200,9 @@ class ConstrainedSimulator:
         return SimulatedMotion(t=t, q=Q, dq=V, ddq=A, tau_a=T)
 
 
-def _piecewise_linear_terms(mech: Mechanism, theta: FloatArray) -> FloatArray:
-    """The velocity-dependent joint terms (viscous, Coulomb, their one-sided forms, offsets) summed
-    per joint, as coefficients ``(a, b, c, d, e)``, each (n_v,), of
-    :math:`a\\,v^+ + b\\,v^- + c\\,[v>0] + d\\,[v<0] + e` (one vectorized evaluation per
-    simulation step instead of one per kind of term).
-
-    Every such basis function is piecewise linear in the joint velocity with a jump at 0, so its
-    five coefficients follow exactly from :func:`~dynid.model.closed_loop.term_basis` at
-    v = 0, +-1, +-2 (no second copy of the basis definitions). Rotor inertia (``inertia``
-    terms) is not among them: the simulator puts it into the armature."""
-    probe = np.array([0.0, 1.0, 2.0, -1.0, -2.0])
-    coef = np.zeros((5, mech.nv))
-    for kind, ks in mech.term_groups:
-        if kind == "inertia":
-            continue
-        b0, b1, b2, bm1, bm2 = term_basis(kind, probe, np.zeros_like(probe))
-        slope_pos, slope_neg = b2 - b1, bm1 - bm2
-        k = np.array([slope_pos, slope_neg, b1 - slope_pos - b0, bm1 + slope_neg - b0, b0])
-        coef += np.outer(k, mech.term_incidence[:, ks] @ theta[ks])
-    return coef
+def _friction_law(friction):
+    """``law(dq, tau_joint)`` of a ground-truth friction model ``friction(dq) -> (n_v,)``."""
+    return lambda dq, tau: tau - np.asarray(friction(dq), dtype=float).reshape(-1)
 
 
 class AugmentedPD:
@@ -242,22 +233,30 @@ class AugmentedPD:
         self._model = mech.with_parameters(self.params)  # the model's inertias, for RNEA at every period
         self._data = self._model.createData()
         self._kinematics = mech.pin_model.createData()  # working memory of the kinematics, reused every period
-        ind = mech.independent
-        self._joints = np.array(ind.joints, dtype=int) if isinstance(ind, JointCoordinates) else None
+        self._forces = OneSampleForces(mech, self.params, distribution)  # the parameters' joint terms summed once
 
     def __call__(self, dt: float, q: FloatArray, dq: FloatArray, ref: tuple[FloatArray, FloatArray, FloatArray]) -> FloatArray:
-        data = self._kinematics
-        if self._joints is not None:  # joint coordinates: u and du are read off q and dq
-            u, du = q[self._joints], dq[self._joints]
-        else:
-            u = self.mech.coordinates(q, data=data)[0]
-            du = self.mech.coordinate_velocities(q, dq, data=data)[0]
+        # Mechanism.states and actuator_forces of one sample, fused: one kinematics pass gives the
+        # coordinates, their rates and the velocity map (loop_kinematics._one_geometry), one more
+        # the accelerations at the commanded a_u (_one_rates); the same formulas, the coordinates
+        # from the same placements (tests/test_closed_loop_fast_paths.py)
+        mech, data = self.mech, self._kinematics
+        q, dq = np.asarray(q, dtype=float), np.asarray(dq, dtype=float)
+        if q.shape != (mech.nv,) or dq.shape != (mech.nv,) or not (np.isfinite(q).all() and np.isfinite(dq).all()):
+            raise InputError(f"the controller needs finite joint positions and velocities of shape ({mech.nv},)")
+        mech.check_ball_charts(q, "states")
+        geometry = loop_kinematics._one_geometry(mech, q, data, 1e8)
+        coords = loop_kinematics._one_coordinates(mech, geometry, dq)
+        if coords is None:  # a point on the fixed base (no motion to control)
+            coords = mech.coordinates(q, data=data)[0], mech.coordinate_velocities(q, dq, data=data)[0]
+        u, du = coords
         a = ref[2] + self.kv * (ref[1] - du) + self.kp * (ref[0] - u)
-        state = self.mech.states(q[None], du[None], a[None], data=data)
+        if not np.isfinite(a).all():
+            raise InputError("the commanded acceleration of the independent coordinates is not finite")
+        dq_u, ddq = loop_kinematics._one_rates(mech, geometry, du, a, data)
         # RNEA + joint terms, projected: equal to the closed-loop regressor times the parameters
         # (tests/test_closed_loop.py checks the two routes against each other)
-        return actuator_forces(self.mech, self.params, state, distribution=self.distribution,
-                               model=self._model, data=self._data)[0]
+        return self._forces(q, dq_u, ddq, geometry.G, self._model, self._data)
 
 
 class ActuatorReference:
@@ -376,8 +375,15 @@ def simulate_mechanism_control(
     (:meth:`Mechanism.project`), so the constraint error stays at the 1e-12 level instead of
     drifting. The initial state is the assembly at ``u_d(0)`` at rest unless ``q0`` is given.
     """
-    with threadpool_limits(limits=1, user_api="blas"):  # small matrices, step after step: threads only cost
+    with _threads().limit(limits=1, user_api="blas"):  # small matrices, step after step: threads only cost
         return _simulate_mechanism_control(sim, controller, reference, duration, dt, substeps, q0)
+
+
+@functools.cache
+def _threads() -> ThreadpoolController:
+    """The BLAS libraries, found once (a scan of the loaded libraries costs about 20 ms, as long as a
+    short replay of DIDIM; as :mod:`dynid.estimation.block_covariance`)."""
+    return ThreadpoolController()
 
 
 def _simulate_mechanism_control(sim, controller, reference, duration, dt, substeps, q0) -> SimulatedMotion:
