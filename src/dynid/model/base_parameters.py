@@ -198,6 +198,27 @@ def random_states(
     return q, dq, ddq
 
 
+def rank_cut(levels: FloatArray, rank_tol: float, band: float = 100.0) -> float:
+    """The relative level below which a direction of the regressor counts as not identifiable.
+
+    ``levels``: the pivoted QR diagonal of the unit-norm regressor columns divided by its first
+    entry (decreasing). Where no level lies within a factor ``band`` of ``rank_tol`` the rank is
+    clear and the cut is ``rank_tol`` itself. Where some do, the rank at ``rank_tol`` would be
+    decided by levels that the samples, the loop-closure solve or a BLAS kernel's rounding can
+    move across it (the Gepetto delta robot: 2.6e-3, then 2.0e-7, 1.0e-7, 1.3e-8, 8.5e-10, ...;
+    natural and pivoted orders disagreed about the 1.3e-8); then the cut is put in the widest gap
+    between consecutive levels of which at least one lies in that band (its geometric mean), so
+    that the directions below it are separated from the rest by that gap."""
+    lv = np.asarray(levels, dtype=float)
+    lo, hi = rank_tol / band, rank_tol * band
+    if not np.any((lv >= lo) & (lv <= hi)):
+        return float(rank_tol)
+    a, b = lv[:-1], np.maximum(lv[1:], np.finfo(float).tiny)
+    touch = ((a >= lo) & (a <= hi)) | ((b >= lo) & (b <= hi))
+    k = int(np.argmax(np.where(touch, a / b, 0.0)))
+    return float(np.sqrt(a[k] * b[k]))
+
+
 def _base_from_stack(
     W: FloatArray, names: Sequence[str], rank_tol: float, n_samples: int, seed: int
 ) -> BaseParameters:
@@ -211,11 +232,12 @@ def _base_from_stack(
     # (2) numerical rank from QR with column pivoting
     r_piv = sla.qr(Ws, mode="r", pivoting=True)[0]
     d_piv = np.abs(np.diag(r_piv))
-    rank = int(np.count_nonzero(d_piv > rank_tol * d_piv[0]))
+    cut = rank_cut(d_piv / d_piv[0], rank_tol) * d_piv[0]
+    rank = int(np.count_nonzero(d_piv > cut))
     # (3) natural-order choice of the independent columns
     r_nat = sla.qr(Ws, mode="r")[0]
     d_nat = np.abs(np.diag(r_nat))
-    indep_local = np.flatnonzero(d_nat > rank_tol * d_piv[0])
+    indep_local = np.flatnonzero(d_nat > cut)
     if indep_local.size != rank:
         raise ModelError(
             f"ambiguous base parameters: pivoted QR rank {rank} vs {indep_local.size} independent columns "
