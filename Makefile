@@ -25,11 +25,22 @@ $(STAMP): pyproject.toml $(LOCK)
 	$(BIN)/python -m pip check
 	touch $(STAMP)
 
+# torch: resolved from its CPU build (no CUDA packages in the lock), which these machines keep in
+# pip's find-links folder; TORCH_WHEELS=<folder with torch's CPU wheel> elsewhere. The lock pins
+# the version without the local label (torch==X, not X+cpu): pip's constraint then accepts the CPU
+# build where one is available and the PyPI build elsewhere. A lock that pulled CUDA packages is refused.
+TORCH_WHEELS ?= $(PIP_FIND_LINKS)
+
 lock:
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet uv
 	$(BIN)/uv pip compile --quiet pyproject.toml requirements-tools.in $(foreach e,$(subst $(comma), ,$(EXTRAS)),--extra $(e)) \
-		--python-version 3.11 --annotation-style line -o $(LOCK)
+		--python-version 3.11 --annotation-style line --custom-compile-command "make lock" \
+		$(if $(TORCH_WHEELS),--find-links $(TORCH_WHEELS)) -o $(LOCK).new
+	sed -i -E 's/^(torch==[^+ ]+)\+cpu/\1/' $(LOCK).new
+	if grep -qE '^(nvidia-|triton)' $(LOCK).new; then rm -f $(LOCK).new; \
+		echo "make lock: torch resolved to its CUDA build; set TORCH_WHEELS to a folder with torch's CPU wheel" >&2; exit 1; fi
+	mv $(LOCK).new $(LOCK)
 	rm -f $(STAMP)
 
 demo: setup
