@@ -534,3 +534,36 @@ def test_unknown_config_key(runs):
 
 def test_bad_toml_syntax(runs):
     assert_input_error(runs["bad_toml"], "cfg.toml: invalid TOML")
+
+
+def test_design_that_violates_a_limit_writes_nothing(tmp_path, monkeypatch, capsys):
+    """``dynid design`` whose best design still violates a limit on the fine grid (the search's
+    outcome flagged unsuccessful): one line naming the limit, exit 2, no output folder (nor a
+    changed one). The real search on the corpus' good config, with its design marked infeasible."""
+    import dataclasses
+
+    import dynid.pipeline.design as pd
+    from _bad_inputs import DESIGN, ROBOT
+    from dynid.cli import main
+    from dynid.excitation.design import Violation
+
+    (tmp_path / "rp2.toml").write_text(ROBOT)
+    (tmp_path / "design.toml").write_text(DESIGN)
+    real = pd.run_design
+
+    def infeasible(cfg, progress=None):
+        out = real(cfg, progress)
+        bad = Violation(limit="velocity", actuator="q1", value=2.5, bound=2.0)
+        return dataclasses.replace(out, design=dataclasses.replace(out.design, success=False, violation=bad))
+
+    monkeypatch.setattr(pd, "run_design", infeasible)
+    for existing in (False, True):
+        out = tmp_path / ("kept" if existing else "new")
+        if existing:
+            out.mkdir()
+            (out / "design.json").write_text("{}")
+        before = snapshot(out)
+        rc = main(["design", str(tmp_path / "design.toml"), "--out", str(out), "-q"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and err[0].startswith("dynid: error: no design within the limits"), err
+        assert "velocity" in err[0] and snapshot(out) == before

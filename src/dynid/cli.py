@@ -248,6 +248,11 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
     with _progress_bar(not args.quiet) as progress:
         outcome = run_design(cfg, progress)
+    if isinstance(outcome, DesignOutcome) and not outcome.design.success:
+        # an excitation that violates a limit is not an output: nothing is written
+        print(f"dynid: error: no design within the limits: the best one found violates {outcome.design.violation} "
+              f"(criterion {outcome.design.criterion}; widen the limits or lower harmonics)", file=sys.stderr)
+        return EXIT_INPUT
     written = write_design(outcome, args.out)
     if not args.quiet:
         print(outcome.summary_text())
@@ -256,9 +261,6 @@ def _cmd_design(args: argparse.Namespace) -> int:
     if args.quiet and not isinstance(outcome, DesignOutcome):  # the summary lists them otherwise
         for line in outcome.design.dropped:
             print(line)
-    if isinstance(outcome, DesignOutcome) and not outcome.design.success:
-        print(f"dynid: error: the design violates a limit: {outcome.design.violation}", file=sys.stderr)
-        return EXIT_INPUT
     return EXIT_OK
 
 
