@@ -137,17 +137,18 @@ TABLE2_NOISE = {"noise_covariance": (4.0 * (0.2 * np.ones((6, 6)) + 0.8 * np.eye
 """The simulation's own noise: 2 N correlated 0.2 across the drives; 5 um position noise (ML is given them)."""
 
 
-def table2_log(d: Path, periods: int = TABLE2_PERIODS) -> tuple[dict, dict]:
+def table2_log(d: Path, periods: int = TABLE2_PERIODS, draw: int = 0) -> tuple[dict, dict]:
     """Simulate the Table II twin into ``d/log.npz``: the nominal hexapod (its truth) on the stored
     D-optimal design (bench/README §7: the optimizer ends in another design on every BLAS kernel
     and rounding, and the table changed with it), ``periods`` + 1 periods at 500 Hz, the first
-    (start-up) dropped. Returns the identify document (without processing and identification)
-    and the simulation's truth."""
+    (start-up) dropped; ``draw`` > 0: other sensor noise (:func:`dynid.studies.draw_seed`). Returns
+    the identify document (without processing and identification) and the simulation's truth."""
     from processing_study import DESIGN
 
     from dynid._files import save_npz
     from dynid.config.simulate import parse_simulate_config
     from dynid.pipeline.simulate import run_simulation
+    from dynid.studies import draw_seed
 
     f0 = 0.2
     traj = {"kind": "fourier", "coordinates": "task", "design": str(DESIGN), "periods": periods + 1}
@@ -155,7 +156,7 @@ def table2_log(d: Path, periods: int = TABLE2_PERIODS) -> tuple[dict, dict]:
         "robot": {"model": "builtin:hexapod"}, "trajectory": traj,
         "control": {"rate_hz": 500, "kp": 2500, "kd": 100, "model": "true", "substeps": 2},
         "sensors": {"encoder_resolution": 1e-6, "position_noise_std": 5e-6, "force_noise_std": 2.0,
-                    "force_correlation": 0.2, "seed": 1},
+                    "force_correlation": 0.2, "seed": draw_seed(1, draw)},
     }, d))
     n_per = int(round(500 / f0))  # the first period (start-up) is dropped, as in estimator_study
     cols = {k: v[n_per:] for k, v in sim.columns.items()}
@@ -181,7 +182,7 @@ def table2_z(out, truth: dict) -> tuple[list[str], np.ndarray]:
     return list(PAPER_TABLE2), np.abs(out.result.params - true)[idx] / out.result.bse[idx]
 
 
-def table2(methods: list[str] | None = None, smoothing: list[str] | None = None) -> None:
+def table2(methods: list[str] | None = None, smoothing: list[str] | None = None, draw: int = 0) -> None:
     """Paper 004 Table II's twin in the time domain, with and without the guard (module docstring)."""
     import tempfile
 
@@ -196,7 +197,7 @@ def table2(methods: list[str] | None = None, smoothing: list[str] | None = None)
                 ("ML (f_c in 5-80 Hz), min_velocity + reversal_guard", guard, "ml")]
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        doc, truth = table2_log(d)
+        doc, truth = table2_log(d, draw=draw)
         rows = []
         runs = [(f"{label}{'' if sm is None else f', coulomb_smoothing {sm}'}", proc, method, sm)
                 for label, proc, method in variants for sm in (smoothing or [None])
@@ -245,10 +246,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table2-methods", nargs="+", default=None, help="with --table2: only these methods (wls gm ml)")
     ap.add_argument("--table2-smoothing", nargs="+", default=None, choices=("none", "auto"),
                     help="with --table2: run every row with each of these identification.coulomb_smoothing values")
+    ap.add_argument("--draw", type=int, default=0, help="with --table2: another draw of the sensor noise (0: the recorded one)")
     args = ap.parse_args(argv)
     if args.table2:
         print_machine()
-        table2(args.table2_methods, args.table2_smoothing)
+        table2(args.table2_methods, args.table2_smoothing, args.draw)
         return 0
     if args.figure is not None:
         figure(args.figure)

@@ -28,9 +28,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="small logs (the tests' size)")
     ap.add_argument("--json", default=None, metavar="PATH", help="write the outcome as JSON")
     ap.add_argument("--keep", default=None, metavar="DIR", help="write the simulated logs here (kept)")
+    ap.add_argument("--draw", type=int, default=0, help="another draw of every trajectory and noise (0: the recorded study)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    study = paper000_study(quick=args.quick, folder=args.keep,
+    study = paper000_study(quick=args.quick, folder=args.keep, draw=args.draw,
                            progress=lambda msg: print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", flush=True))
     print()
     print(study.outcome.summary_text())

@@ -32,7 +32,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--record", default=None, metavar="PATH",
                     help="write the conclusions and Sums as JSON (bench/data/paper003_full.json: what the quick test "
                          "must conclude alike)")
+    ap.add_argument("--draw", type=int, default=0,
+                    help="another draw of every trajectory and noise seed (0: the recorded study; --record needs 0)")
     args = ap.parse_args(argv)
+    if args.record and args.draw:
+        ap.error("--record writes the recorded study (draw 0)")
     try:
         import torch
 
@@ -40,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         pass
     t0 = time.perf_counter()
-    study = paper003_study(quick=args.quick, folder=args.keep,
+    study = paper003_study(quick=args.quick, folder=args.keep, draw=args.draw,
                            progress=lambda msg: print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", flush=True))
     print()
     print(study.tables_text())

@@ -69,6 +69,7 @@ from dynid.estimation.validation import ValidationMetrics
 from dynid.model.base_parameters import StandardMap, pseudo_inertia
 from dynid.model.system import as_system
 from dynid.pipeline import identify, stribeck
+from dynid.studies import draw_seed
 from dynid.pipeline.identification import validate
 from dynid.pipeline.simulate import run_simulation, write_simulation
 from dynid.stats import average_error, chi2_radius, relative_absolute_error
@@ -206,16 +207,19 @@ class _Case:
 
 
 def _case(setup: dict, folder: Path, quick: bool, rep: int, valid_folder: Path | None = None, valid_sim=None,
-          train_key: str = "train"):
+          train_key: str = "train", draw: int = 0):
+    """One training log (and the held-out one, unless given); ``draw`` > 0: trajectories and noise
+    from other seeds (:func:`dynid.studies.draw_seed`), the same true robot."""
     train = folder / f"{train_key}{rep}"
-    traj = {**setup[train_key], "seed": 11 + 10 * rep}
+    traj = {**setup[train_key], "seed": draw_seed(11 + 10 * rep, draw)}
     if quick:
         traj["periods"] = 1
-    sim = _simulate(setup, traj, 1 + rep, train)
+    sim = _simulate(setup, traj, draw_seed(1 + rep, draw), train)
     if valid_folder is None:
         valid_folder = folder / "valid"
-        vt = {**setup["valid"], "base_frequency_hz": setup.get("quick_valid_hz", 0.2) if quick else 0.1}
-        valid_sim = _simulate(setup, vt, 1000, valid_folder)
+        vt = {**setup["valid"], "base_frequency_hz": setup.get("quick_valid_hz", 0.2) if quick else 0.1,
+              "seed": draw_seed(setup["valid"]["seed"], draw)}
+        valid_sim = _simulate(setup, vt, draw_seed(1000, draw), valid_folder)
     assert valid_sim is not None and valid_sim.signals is not None
     return _Case(setup, tuple(sim.dataset.names), train, valid_folder, np.asarray(sim.truth["true_parameters"]),
                  np.asarray(sim.truth["nominal_parameters"]), np.asarray(valid_sim.signals.t),
@@ -563,7 +567,7 @@ def limits(case: _Case, run: dict, folder: Path) -> dict:
 
 
 # ---------------------------------------------------------------------- the two parts
-def serial_study(quick: bool = False, reps: int | None = None) -> dict:
+def serial_study(quick: bool = False, reps: int | None = None, draw: int = 0) -> dict:
     reps = (1 if quick else 4) if reps is None else reps
     out: dict = {"robot": "cobot6r", "runs": []}
     with tempfile.TemporaryDirectory() as tmp:
@@ -571,20 +575,20 @@ def serial_study(quick: bool = False, reps: int | None = None) -> dict:
         valid_folder = valid_sim = None
         for rep in range(reps):
             print(f"A. cobot6r, training log {rep + 1}/{reps}", flush=True)
-            case, valid_sim = _case(COBOT, d, quick, rep, valid_folder, valid_sim)
+            case, valid_sim = _case(COBOT, d, quick, rep, valid_folder, valid_sim, draw=draw)
             valid_folder = case.valid
             out["runs"].append(run_case(case, 0 if quick or rep else 2, with_nonlinear=rep == 0, decades=2 if quick else 1))
         if not quick:
             print("A. cobot6r, rich training log", flush=True)
-            case, _ = _case(COBOT, d, quick, 0, valid_folder, valid_sim, train_key="rich_train")
+            case, _ = _case(COBOT, d, quick, 0, valid_folder, valid_sim, train_key="rich_train", draw=draw)
             out["rich"] = run_case(case, 0, with_nonlinear=False)
     return out
 
 
-def parallel_study(quick: bool = False) -> dict:
+def parallel_study(quick: bool = False, draw: int = 0) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         print("B. rps3", flush=True)
-        case, _ = _case(RPS3, Path(tmp), quick, 0)
+        case, _ = _case(RPS3, Path(tmp), quick, 0, draw=draw)
         run = run_case(case, 0 if quick else 2, decades=2 if quick else 1)
         run["limits"] = limits(case, run, Path(tmp))
         return {"robot": "rps3", "runs": [run]}
@@ -864,13 +868,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--part", choices=["A", "B"], action="append")
     ap.add_argument("--reps", type=int, default=None, help="training logs of part A (default 4, --quick 1)")
+    ap.add_argument("--draw", type=int, default=0, help="another draw of every trajectory and noise (0: the recorded study)")
     args = ap.parse_args(argv)
     parts = args.part or ["A", "B"]
     t0 = time.perf_counter()
     if "A" in parts:
-        print_part(serial_study(args.quick, args.reps), "A")
+        print_part(serial_study(args.quick, args.reps, args.draw), "A")
     if "B" in parts:
-        print_part(parallel_study(args.quick), "B")
+        print_part(parallel_study(args.quick, args.draw), "B")
     print(f"total {time.perf_counter() - t0:.0f} s")
     return 0
 

@@ -53,17 +53,22 @@ SLOW_MODULES = ("test_demo.py", "test_estimator_study.py", "test_physical_study.
 SEED_ENV = "DYNID_TEST_SEED"
 
 
+def draw() -> int:
+    """Which draw of the simulated data the tests run on: ``DYNID_TEST_SEED`` (0 when unset: the
+    seeds the tests were written with)."""
+    k = os.environ.get(SEED_ENV, "").strip()
+    return int(k) if k else 0
+
+
 def seed(base: int) -> int:
     """The seed of a test's simulated data (noise, trajectories, random draws): ``base`` itself,
-    or, with ``DYNID_TEST_SEED=k`` (k != 0), a seed drawn from ``(base, k)`` by numpy's
-    SeedSequence: another draw of the same experiment. Every assertion on such data must hold
-    for any draw with a stated small probability of a false alarm, not for one seed."""
-    k = os.environ.get(SEED_ENV, "").strip()
-    if not k or int(k) == 0:
-        return int(base)
-    import numpy as np
+    or, with ``DYNID_TEST_SEED=k`` (k != 0), a seed drawn from ``(base, k)``
+    (:func:`dynid.studies.draw_seed`, as the studies' ``draw``): another draw of the same
+    experiment. Every assertion on such data must hold for any draw with a stated small
+    probability of a false alarm, not for one seed."""
+    from dynid.studies import draw_seed
 
-    return int(np.random.SeedSequence([int(base), int(k)]).generate_state(1)[0] % 2**31)
+    return draw_seed(base, draw())
 
 
 def sdp_norm_slack(norm: float, status: str = "optimal", safety: float = 10.0) -> float:

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import REPO, draw
 
 sys.path.insert(0, str(REPO / "bench"))
 import physical_study as study  # noqa: E402
@@ -52,9 +52,10 @@ def _check_common(run: dict) -> None:
 
 @pytest.fixture(scope="module")
 def serial():
-    return study.serial_study(quick=True)
+    return study.serial_study(quick=True, draw=draw())
 
 
+@pytest.mark.numerics
 def test_serial_twin(serial, capsys):
     study.print_part(serial, "A")
     run = serial["runs"][0]
@@ -84,8 +85,9 @@ def test_serial_twin(serial, capsys):
         assert head in out, head
 
 
+@pytest.mark.numerics
 def test_parallel_twin(capsys):
-    res = study.parallel_study(quick=True)
+    res = study.parallel_study(quick=True, draw=draw())
     study.print_part(res, "B")
     run = res["runs"][0]
     _check_common(run)
@@ -97,12 +99,12 @@ def test_parallel_twin(capsys):
     lim = run["limits"]
     rows, cad = lim["rows"], lim["cad"]
     # with exact states the Stribeck fit recovers the truth's hump (72 N) and predicts at the
-    # noise floor, far below half of the CAD model's error on the same states; the linear
-    # constrained fit beats the CAD model there too
+    # noise floor, far below half of the CAD model's error on the same states. (Not asserted: the
+    # linear constrained fit against the CAD model there, 0.8 x on the recorded draw, 0.98 x on
+    # another: a property of the draw, printed in the table.)
     x = rows["Nonlinear (Opt.), exact states"]
     assert x["total"] < 1.3 * lim["noise"] and x["ratio"] < 0.5, x
     assert all(abs(f["Fs"] - f["Fc"] - 72.0) < 10.0 for f in x["stribeck"].values()), x["stribeck"]
-    assert rows["WLS+LMI, exact states"]["ratio"] < 0.85, rows["WLS+LMI, exact states"]
     # on the processed held-out states that same true model predicts worse than the CAD model:
     # the held-out Sum is decided by the slow samples (reversals), not by the friction model
     assert rows["exact-state Nonlinear, processed held-out"]["ratio"] > 1.0
@@ -134,7 +136,9 @@ def test_parallel_twin(capsys):
     # on the rows of every selection fixed in advance even the truth is above 0.5 x CAD (the noise,
     # or with the guard alone the stops that no reversal marks), so (b) is not met either
     assert acc["b_min_truth_ratio"] > 0.55 and not acc["b_nonlinear_ok"], acc
-    assert 0.55 < acc["b_best_nonlinear_ratio"] < 0.9 and acc["b_best_linear_ratio"] < 0.85, acc
+    # (the best nonlinear row: 0.63-0.9 x CAD on the recorded draw, 0.96 x on another: only its
+    # distance from the target is asserted)
+    assert acc["b_best_nonlinear_ratio"] > 0.55 and acc["b_best_linear_ratio"] < 0.85, acc
     # guard auto alone keeps enough slow rows for the hump (at least half the truth's on a leg)
     auto = rows["Nonlinear (Opt.), guard auto"]["stribeck"]
     assert max(f["Fs"] - f["Fc"] for f in auto.values()) > 36.0, auto

@@ -121,7 +121,7 @@ def _simulate(doc: dict[str, Any], folder: Path) -> dict[str, float]:
 
 
 def paper000_study(*, quick: bool = False, folder: str | Path | None = None,
-                   progress: Callable[[str], None] | None = None) -> Paper000Study:
+                   progress: Callable[[str], None] | None = None, draw: int = 0) -> Paper000Study:
     """Simulate the training and the six test experiments, run the identifiability procedure.
 
     Parameters
@@ -133,22 +133,28 @@ def paper000_study(*, quick: bool = False, folder: str | Path | None = None,
         Where the logs are written (kept); default a temporary folder.
     progress : callable(str), optional
         Told what is being done (the bench script prints it).
+    draw : int
+        0: the recorded study; another: the same experiments with other trajectory and noise
+        seeds (:func:`dynid.studies.draw_seed`), the same true robot.
     """
+    from dynid.studies import draw_seed
+
     say = progress or (lambda msg: None)
     if folder is None:
         with tempfile.TemporaryDirectory() as tmp:
-            return paper000_study(quick=quick, folder=tmp, progress=progress)
+            return paper000_study(quick=quick, folder=tmp, progress=progress, draw=draw)
     d = Path(folder)
     rate = 200 if quick else None
-    train_traj = {**TRAIN, **({"base_frequency_hz": 0.25, "periods": 1} if quick else {})}
+    train_traj = {**TRAIN, **({"base_frequency_hz": 0.25, "periods": 1} if quick else {}),
+                  "seed": draw_seed(TRAIN["seed"], draw)}
     say("simulating the training experiment")
-    info = {"training": _simulate(simulate_config(train_traj, 1, rate_hz=rate), d / "train")}
+    info = {"training": _simulate(simulate_config(train_traj, draw_seed(1, draw), rate_hz=rate), d / "train")}
     truth = info["training"].pop("truth")
-    docs = {"training": simulate_config(train_traj, 1, rate_hz=rate)}
+    docs = {"training": simulate_config(train_traj, draw_seed(1, draw), rate_hz=rate)}
     for k, (name, f0, seed, speed) in enumerate(TESTS):
-        traj = {**TRAIN, "base_frequency_hz": 0.5 if quick else f0, "seed": seed, "periods": 1,
+        traj = {**TRAIN, "base_frequency_hz": 0.5 if quick else f0, "seed": draw_seed(seed, draw), "periods": 1,
                 "max_velocity": MAX_VELOCITY * speed}
-        doc = simulate_config(traj, 100 + k, rate_hz=rate)
+        doc = simulate_config(traj, draw_seed(100 + k, draw), rate_hz=rate)
         say(f"simulating {name}")
         info[name] = _simulate(doc, d / f"test{k + 1}")
         info[name].pop("truth")

@@ -128,9 +128,17 @@ def _design_friction(folder: Path) -> Path:
     return folder / "design.json"
 
 
-def twin_documents(quick: bool = False) -> dict[str, dict[str, Any]]:
-    """The ``dynid simulate`` documents of the four experiments (quick: shorter, see module doc)."""
+def twin_documents(quick: bool = False, draw: int = 0) -> dict[str, dict[str, Any]]:
+    """The ``dynid simulate`` documents of the four experiments (quick: shorter, see module doc);
+    ``draw`` > 0: every trajectory and noise seed of another draw (:func:`dynid.studies.draw_seed`),
+    the same true robot."""
+    from dynid.studies import draw_seed
+
     docs = {k: _doc(k) for k in FILES}
+    for doc in docs.values():
+        for table in ("trajectory", "sensors"):
+            if "seed" in doc.get(table, {}):
+                doc[table]["seed"] = draw_seed(doc[table]["seed"], draw)
     if quick:  # the friction experiment stays whole: shorter windows bias its low-speed points (see README)
         docs["VT1"]["simulation"] = {"duration": 6.0}
     return docs
@@ -396,7 +404,7 @@ def _lag_state(fss: np.ndarray, t: np.ndarray, tau_m: float) -> np.ndarray:
 
 
 def paper003_study(*, quick: bool = False, folder: str | Path | None = None,
-                   progress: Callable[[str], None] | None = None) -> Paper003Study:
+                   progress: Callable[[str], None] | None = None, draw: int = 0) -> Paper003Study:
     """Simulate the four experiments, run ``dynid friction`` and every row's ``dynid identify``,
     validate on VT1 and VT2; see the module docstring.
 
@@ -408,16 +416,19 @@ def paper003_study(*, quick: bool = False, folder: str | Path | None = None,
         Where logs and results go (kept); default a temporary folder.
     progress : callable(str), optional
         Told what is being done (the bench script prints it with the elapsed time).
+    draw : int
+        0: the recorded study; another: the same experiments with other trajectory and noise
+        seeds (:func:`twin_documents`).
     """
     if folder is None:
         with tempfile.TemporaryDirectory() as tmp:
-            return paper003_study(quick=quick, folder=tmp, progress=progress)
+            return paper003_study(quick=quick, folder=tmp, progress=progress, draw=draw)
     from dynid.pipeline.friction import run_friction, write_friction
     from dynid.pipeline.identification import _model_rows, identify
 
     say = progress or (lambda msg: None)
     d = Path(folder)
-    docs = twin_documents(quick)
+    docs = twin_documents(quick, draw)
     timings: dict[str, float] = {}
     truths = {}
     say("dynid design: the friction experiment (kind constant_velocity)")
