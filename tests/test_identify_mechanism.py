@@ -8,7 +8,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import REPO
+from conftest import REPO, seed
 
 IDENTIFY = """
 [robot]
@@ -49,14 +49,18 @@ def _z_scores(folder):
 def shang_logs(tmp_path_factory):
     d = tmp_path_factory.mktemp("shang")
     twins = REPO / "examples" / "twins"
-    (d / "circle.toml").write_text((twins / "shang2dof_circle.toml").read_text().replace("turns = 15", "turns = 2"))
-    (d / "rect.toml").write_text((twins / "shang2dof_rectangle.toml").read_text())
+    # the twins' sensor noise seeds (1: circle, 2: rectangle) through conftest.seed; the true robot keeps its
+    # perturbation_seed
+    (d / "circle.toml").write_text((twins / "shang2dof_circle.toml").read_text().replace("turns = 15", "turns = 2")
+                                   .replace("\nseed = 1\n", f"\nseed = {seed(1)}\n"))
+    (d / "rect.toml").write_text((twins / "shang2dof_rectangle.toml").read_text().replace("\nseed = 2\n", f"\nseed = {seed(2)}\n"))
     for cfg, out in (("circle.toml", "train"), ("rect.toml", "valid")):
         r = _dynid("simulate", cfg, "--out", out, "-q", cwd=d)
         assert r.returncode == 0, r.stderr
     return d
 
 
+@pytest.mark.numerics
 def test_shang2dof_identified_from_its_twin(shang_logs):
     """Paper 001's experiment: identify on the circle, validate on the rectangle path."""
     d = shang_logs
@@ -66,13 +70,18 @@ def test_shang2dof_identified_from_its_twin(shang_logs):
     assert r.returncode == 0, r.stderr
     z, rel, est, res = _z_scores(d)
     assert len(z) == 25
-    assert max(abs(v) for v in z.values()) < 3.0, z  # every true base parameter inside 3 reported std
+    # every true base parameter inside 4.5 reported std: 25 parameters, a false alarm of 2e-4 (3 std, 7 %
+    # for 25, was what one draw gave: 2.55 seen)
+    assert max(abs(v) for v in z.values()) < 4.5, z
     assert any("projected equations" in n for n in res["notes"])
     v = res["validation"]
+    # 1 - R^2 is the 0.02 N*m noise and the model's error against the motion's force variance: 0.008-0.01
+    # here, at half the bound
     assert v["joints"] == ["u_x", "u_y"] and min(v["r2_per_joint"]) > 0.98
-    # the actuator viscous friction, the best-determined terms of a constant-speed circle
+    # the actuator viscous friction, the best-determined terms of a constant-speed circle (10-15 % relative
+    # std; their recovery is in the z check: rel < 0.3 was 2-3 of those std)
     for n in ("fv+_qa1", "fv-_qa1", "fv+_qa2", "fv-_qa2"):
-        assert est[n]["rel_std_pct"] < 20 and rel[n] < 0.3, (n, est[n], rel[n])
+        assert est[n]["rel_std_pct"] < 20, (n, est[n], rel[n])
 
 
 def test_shang2dof_with_an_assumed_distribution(shang_logs):
@@ -87,8 +96,13 @@ def test_shang2dof_with_an_assumed_distribution(shang_logs):
     assert any("assumption about the controller" in n for n in res["notes"])
 
 
+@pytest.mark.numerics
 def test_fivebar_mjcf_identified(tmp_path):
-    """A non-redundant mechanism from MJCF: actuator torques directly."""
+    """A non-redundant mechanism from MJCF: actuator torques directly, with the row selection the
+    README recommends for parallel robots with Coulomb friction (min_velocity, reversal_guard):
+    without it the simulator's reversals bias the Coulomb terms by 2-11 % (4-16 reported std) and
+    some inertial terms by up to 11 %, depending on the draw of the trajectory (dynid.simulation.control,
+    bench/README §7-8); with it the reported intervals are honest (max |z| 1.3-3.7 over 9 draws)."""
     sim = """
 [robot]
 model = "builtin:fivebar"
@@ -112,23 +126,26 @@ encoder_resolution = 1e-5
 force_noise_std = 0.01
 seed = {seed}
 """
-    for name, seed in (("train", 2), ("valid", 5)):
-        (tmp_path / f"{name}.toml").write_text(sim.format(seed=seed))
+    for name, k in (("train", 2), ("valid", 5)):
+        (tmp_path / f"{name}.toml").write_text(sim.format(seed=seed(k)))
         r = _dynid("simulate", f"{name}.toml", "--out", name, "-q", cwd=tmp_path)
         assert r.returncode == 0, r.stderr
-    (tmp_path / "identify.toml").write_text(IDENTIFY.format(
+    selection = 'filter_effort = false }}\nmin_velocity = 0.01\nreversal_guard = "auto"'
+    (tmp_path / "identify.toml").write_text(IDENTIFY.replace("filter_effort = false }}", selection).format(
         robot="fivebar", q='["q_qa1", "q_qa2"]', tau='["tau_qa1", "tau_qa2"]', extra=""))
     r = _dynid("identify", "identify.toml", "--out", "id", "-q", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     z, rel, est, res = _z_scores(tmp_path)
-    assert min(res["validation"]["r2_per_joint"]) > 0.99
-    # inertial parameters with a small reported std are recovered within 5 % or 2.5 reported
-    # standard deviations; Coulomb friction within 6 % (the simulator's reversals bias it, see
-    # dynid.simulation.control)
-    for n, p in est.items():
-        if p["rel_std_pct"] < 5.0:
-            tol = 0.06 if n.startswith("fc_") else max(0.05, 2.5 * p["rel_std_pct"] / 100)
-            assert rel[n] < tol, (n, rel[n], p["rel_std_pct"])
+    # every true base parameter within 4.5 reported std (17 parameters: a false alarm of 1e-4)
+    assert len(z) == 17 and max(abs(v) for v in z.values()) < 4.5, z
+    # on the held-out rows the selection keeps, the residual is the 0.01 N*m force noise (a relative std of
+    # 1 / sqrt(2 n) over n rows: 1.7 % for the ~1800 kept here; 4.5 of them), plus the estimation error
+    # (p / n_train: 0.5 %) and what the processing of the 1e-5 rad encoder leaves on those rows (3-5 % seen
+    # over 9 draws: 10 % allowed)
+    sel = res["validation_selected_rows"]["identified"]
+    n = min(sel["rows_per_joint"])
+    assert n > 0.3 * res["validation"]["n_samples"], sel["rows_per_joint"]
+    assert max(sel["rmse_per_joint"]) < 0.01 * (1.1 + 4.5 / (2 * n) ** 0.5), sel
 
 
 @pytest.mark.parametrize(
