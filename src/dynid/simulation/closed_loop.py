@@ -400,8 +400,9 @@ def _simulate_mechanism_control(sim, controller, reference, duration, dt, subste
     Q, V, A, T = np.empty((n, nv)), np.empty((n, nv)), np.empty((n, nv)), np.empty((n, na))
     h = dt / substeps
     data = mech.pin_model.createData()  # the projection's working memory, reused every period
+    rows = list(zip(*refs))  # the reference rows handed over period by period (row k of each signal)
     for k in range(n):
-        tau = np.asarray(controller(dt, q, v, tuple(r[k] for r in refs)), dtype=float)
+        tau = np.asarray(controller(dt, q, v, rows[k]), dtype=float)
         Q[k], V[k], T[k] = q, v, tau
         acc = sim.held(tau)
         A[k] = first = acc(q, v)
