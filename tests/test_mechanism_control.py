@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import seed
 from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.estimation.results import IdentificationResult
@@ -72,22 +73,26 @@ def test_decentralized_pid_is_kp_e_plus_kd_de_per_actuator(tmp_path):
     assert out.metadata["control"]["model_used"] == {"kind": "nominal"}
 
 
+@pytest.mark.numerics
 def test_true_feedforward_leaves_only_the_hold_error(tmp_path):
     """Hexapod, task-space reference, PID + the true model's forces, perfect initial state, no
     noise: the only departure is the zero-order hold (forces held for a period instead of
-    following the inverse dynamics), an O(dt) effect. Halving the period halves the error
-    (ratio 2; the margin [1.6, 2.6] covers the O(dt^2) terms and the Coulomb reversals, where
-    the held friction force is the wrong sign for part of a period); without feedforward the
-    same PID is off by millimetres."""
+    following the inverse dynamics), an O(dt) effect. Halving the period halves the error: the
+    order of the error in dt, log2 of the ratio, is 1 (within 0.5: 2 for O(dt^2), 0 for none),
+    for the drives together. One drive's ratio is not: the Coulomb reversals of that strut (the
+    held friction force is the wrong sign for part of a period, and the plant chatters) give
+    1.3-3.6 per strut over 16 trajectory draws, 1.7-2.5 for all six (a band of [1.6, 2.6] per
+    strut held for one draw). Without feedforward the same PID is off by millimetres."""
     doc = {"robot": {"model": "builtin:hexapod", "perturbation": 0.25, "perturbation_seed": 7},
            "trajectory": {"coordinates": "task", "kind": "fourier", "base_frequency_hz": 0.5, "harmonics": 3,
-                          "fill": 0.1, "max_velocity": 0.3, "max_acceleration": 3.0, "seed": 11},
+                          "fill": 0.1, "max_velocity": 0.3, "max_acceleration": 3.0, "seed": seed(11)},
            "simulation": {"duration": 1.0}}
     ctrl = {"kind": "feedforward_pid", "kp": 2e4, "kd": 400.0, "model": "true", "substeps": 2}
     rms = {rate: np.array(_sim({**doc, "control": {**ctrl, "rate_hz": rate}}, tmp_path).metadata["tracking_actuators"]["rms_per_axis"])
            for rate in (250, 500)}
-    ratio = rms[250] / rms[500]
-    assert np.all((1.6 < ratio) & (ratio < 2.6)), ratio
+    order = np.log2(np.linalg.norm(rms[250]) / np.linalg.norm(rms[500]))
+    assert abs(order - 1) < 0.5, (order, rms[250] / rms[500])
+    # the feedforward removes 98-99.6 % of the PID's error per strut (16 draws): 5 % left is a sanity bound
     pid = _sim({**doc, "control": {**ctrl, "kind": "pid", "rate_hz": 250}}, tmp_path)
     assert np.all(rms[250] < 0.05 * np.array(pid.metadata["tracking_actuators"]["rms_per_axis"]))
 
@@ -204,22 +209,25 @@ IDENTIFY = {
 }
 
 TRACK = {"coordinates": "task", "kind": "fourier", "base_frequency_hz": 0.5, "harmonics": 3, "fill": 0.1,
-         "max_velocity": 0.3, "max_acceleration": 3.0, "seed": 11}
+         "max_velocity": 0.3, "max_acceleration": 3.0, "seed": seed(11)}
 """The tracking motion: another Fourier series than the excitation (0.5 Hz, 2 s)."""
 
 
+@pytest.mark.numerics
 def test_identified_feedforward_tracks_better_than_the_nominal(tmp_path):
     """Papers 002 (Section 5.4, Figs. 10-12) and 004 (Fig. 6): PID per drive with the identified
     model as feedforward tracks better than with the nominal one, close to the true model."""
     t0 = time.perf_counter()
-    for name, seed, duration in (("train", 4, 4.0), ("valid", 5, 2.0)):
-        write_simulation(_sim({**_excitation(seed), "simulation": {"duration": duration}}, tmp_path), tmp_path / name)
+    for name, k, duration in (("train", 4, 4.0), ("valid", 5, 2.0)):  # the true robot keeps its perturbation_seed
+        write_simulation(_sim({**_excitation(seed(k)), "simulation": {"duration": duration}}, tmp_path), tmp_path / name)
     ident = identify(parse_config(IDENTIFY, tmp_path))
     write_outputs(ident, tmp_path / "id")
-    # a sanity check of the identification, with room for the machine: the simulated Coulomb
-    # switching at velocity reversals amplifies rounding, so the twin's motion (and R^2, 0.896-0.97
-    # per strut seen) differs between BLAS kernels (bench/README §7)
-    assert np.all(ident.validation.r2 > 0.8)
+    # a sanity check of the identification: it predicts the held-out motion better than the nominal model
+    # (25 % off) on average over the struts. Not R^2 per strut (0.8 was the bound): the held-out error is
+    # dominated by the Coulomb reversals the processing smears (bench/README §7), whose share of a strut's
+    # force variance depends on the draw of the motion (R^2 0.57-0.98 per strut over 6 draws; the simulated
+    # switching also amplifies rounding, so the motion differs between BLAS kernels)
+    assert ident.prior["beats_nominal"], ident.prior["verdict"]
     runs = {}
     for label, model in (("nominal", "nominal"), ("identified", "id/result.json"), ("true", "true")):
         out = _sim({"robot": HEXAPOD, "trajectory": TRACK,
@@ -257,6 +265,8 @@ def test_identified_feedforward_tracks_better_than_the_nominal(tmp_path):
               f"pose {np.round(np.array(r['tracking']['rms_per_axis']) * 1e6, 1)} um / urad")
     print(f"({time.perf_counter() - t0:.1f} s)")
     # the identified model is much closer to the truth than the nominal one (25 % off) along this motion
+    # (0.18-0.37 over 7 draws of the excitation's noise and motions: its error is the processing's bias at
+    # the reversals more than the 2 N of noise)
     assert rho < 0.5, force_error
     for key in ("drives", "position", "orientation"):
         excess_nominal = m["nominal"][key] - m["true"][key]
