@@ -36,7 +36,7 @@ import pinocchio as pin
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError
-from dynid.model.friction import CoulombViscous, FrictionMemory, FrictionModel
+from dynid.model.friction import CoulombViscous, FrictionMemory, FrictionModel, force_function
 from dynid.model.serial_dynamics import check_states, extras_torque
 from dynid.model.robot import ASYMMETRIC_EXTRAS, RobotModel
 from dynid.simulation._integrate import rk4_step
@@ -92,9 +92,13 @@ class SerialPlant:
         object.__setattr__(self, "friction", friction)
         object.__setattr__(self, "model", model)
         object.__setattr__(self, "data", model.createData())
+        object.__setattr__(self, "_friction_at", force_function(friction))
 
     model: pin.Model = dataclasses.field(init=False, repr=False)
     data: pin.Data = dataclasses.field(init=False, repr=False)
+    _friction_at: Callable[[FloatArray], FloatArray] = dataclasses.field(init=False, repr=False)
+    """The friction at one sample, ``(n_v,) -> (n_v,)``: the operations of ``friction.force(dq)[0]``
+    without its conversions (:func:`~dynid.model.friction.force_function`)."""
 
     @property
     def nv(self) -> int:
@@ -104,7 +108,11 @@ class SerialPlant:
         """Joint accelerations under joint torques ``tau`` (friction subtracted), by ABA.
         ``friction``: the friction torque now (a friction state with memory); default the
         friction model's force at ``dq``."""
-        f = self.friction.force(dq)[0] if friction is None else np.asarray(friction, dtype=float)
+        if friction is None:
+            dq = np.asarray(dq, dtype=float)
+            f = self._friction_at(dq) if dq.ndim == 1 else self.friction.force(dq)[0]
+        else:
+            f = np.asarray(friction, dtype=float)
         net = np.asarray(tau, dtype=float) - f
         return pin.aba(self.model, self.data, q, dq, net).copy()
 
@@ -254,46 +262,66 @@ def simulate_control(
         raise InputError(f"the reference has {qr.shape[1]} coordinates, the plant {nv} joints")
     q = np.array(qr[0] if q0 is None else q0, dtype=float)
     v = np.array(dqr[0] if dq0 is None else dq0, dtype=float)
-    Q, V, A, T = (np.empty((n, nv)) for _ in range(4))
-    h = dt / substeps
     if isinstance(plant.friction, FrictionMemory):
         return _simulate_memory(plant, controller, (t, qr, dqr, ddqr), q, v, dt, substeps, measure)
+    Q, V, A, T = (np.empty((n, nv)) for _ in range(4))
+    h = dt / substeps
+    model, data, friction_at, aba = plant.model, plant.data, plant._friction_at, pin.aba
     for k in range(n):
         qm, vm = (q, v) if measure is None else measure(q, v)
         tau = np.asarray(controller(dt, qm, vm, (qr[k], dqr[k], ddqr[k])), dtype=float)
+
+        def acc(a: FloatArray, b: FloatArray, tau: FloatArray = tau) -> FloatArray:  # plant.acceleration(a, b, tau)
+            return aba(model, data, a, b, tau - friction_at(b)).copy()
+
         Q[k], V[k], T[k] = q, v, tau
-        A[k] = plant.acceleration(q, v, tau)
+        A[k] = first = acc(q, v)
         if k == n - 1:
             break
         for _ in range(substeps):
-            q, v = rk4_step(lambda a, b: plant.acceleration(a, b, tau), q, v, h)
+            q, v = rk4_step(acc, q, v, h, k1=first)
+            first = None
     return ControlledMotion(t=t, q=Q, dq=V, ddq=A, tau=T, q_ref=qr, dq_ref=dqr, ddq_ref=ddqr)
 
 
 def _simulate_memory(plant: SerialPlant, controller, ref, q: FloatArray, v: FloatArray, dt: float, substeps: int,
                      measure) -> ControlledMotion:
-    """:func:`simulate_control` for a plant whose friction has memory: RK4 on (q, v, z)."""
+    """:func:`simulate_control` for a plant whose friction has memory: RK4 on (q, v, z).
+
+    The state is one vector ``y = (q, v, z)`` (3 n_v), so each stage's update is one array
+    operation: elementwise the same operations as on the three parts (the same result to the last
+    bit). Per stage, :math:`\\dot y = (v,\\ \\mathrm{ABA}(q, v, \\tau - z),\\ (F_{ss}(v) - z)/T_m)`
+    (:meth:`SerialPlant.acceleration` with the friction state, :meth:`FrictionMemory.rate` through
+    :func:`~dynid.model.friction.force_function`); the acceleration logged at a control instant is
+    the first stage of the hold's first step. Nothing handed to the controller, ``measure`` or the
+    log is modified afterwards (``y`` is replaced, never written in place)."""
     t, qr, dqr, ddqr = ref
     fm: FrictionMemory = plant.friction  # type: ignore[assignment]
     n, nv = t.size, plant.nv
-    z = fm.force(v)[0].copy()  # the steady state of the initial velocity
+    steady, tm = force_function(fm.steady), fm.time_constant
+    model, data, aba, concatenate = plant.model, plant.data, pin.aba, np.concatenate
+    iq, iv, iz = slice(0, nv), slice(nv, 2 * nv), slice(2 * nv, 3 * nv)
+    y = np.concatenate([q, v, steady(v)])  # z: the steady state of the initial velocity
 
-    def f(qq, vv, zz, tau):
-        return vv, plant.acceleration(qq, vv, tau, zz), fm.rate(vv, zz)
+    def f(yy: FloatArray, tau: FloatArray, a: FloatArray | None = None) -> FloatArray:
+        vv, zz = yy[iv], yy[iz]
+        return concatenate((vv, aba(model, data, yy[iq], vv, tau - zz) if a is None else a, (steady(vv) - zz) / tm))
 
     Q, V, A, T = (np.empty((n, nv)) for _ in range(4))
     h = dt / substeps
+    h2, h6 = h / 2, h / 6
     for k in range(n):
+        q, v, z = y[iq], y[iv], y[iz]
         qm, vm = (q, v) if measure is None else measure(q, v)
         tau = np.asarray(controller(dt, qm, vm, (qr[k], dqr[k], ddqr[k])), dtype=float)
         Q[k], V[k], T[k] = q, v, tau
-        A[k] = plant.acceleration(q, v, tau, z)
+        A[k] = aba(model, data, q, v, tau - z)
         if k == n - 1:
             break
-        for _ in range(substeps):
-            k1 = f(q, v, z, tau)
-            k2 = f(q + h / 2 * k1[0], v + h / 2 * k1[1], z + h / 2 * k1[2], tau)
-            k3 = f(q + h / 2 * k2[0], v + h / 2 * k2[1], z + h / 2 * k2[2], tau)
-            k4 = f(q + h * k3[0], v + h * k3[1], z + h * k3[2], tau)
-            q, v, z = (x + h / 6 * (a + 2 * b + 2 * c + d) for x, a, b, c, d in zip((q, v, z), k1, k2, k3, k4))
+        for i in range(substeps):
+            k1 = f(y, tau, A[k] if i == 0 else None)
+            k2 = f(y + h2 * k1, tau)
+            k3 = f(y + h2 * k2, tau)
+            k4 = f(y + h * k3, tau)
+            y = y + h6 * (k1 + 2 * k2 + 2 * k3 + k4)
     return ControlledMotion(t=t, q=Q, dq=V, ddq=A, tau=T, q_ref=qr, dq_ref=dqr, ddq_ref=ddqr)
