@@ -14,9 +14,10 @@ and, on request, ``arctan_stribeck``: Eq. 15 with :math:`\\alpha = 1` (the third
 :math:`B` of Eq. 13 is even in the velocity: it cancels in the extraction and is not fitted.
 
 Fits (:func:`fit_curve`) are bounded weighted nonlinear least squares
-(``scipy.optimize.least_squares``, trust-region reflective) of
-:math:`r_k = (F(v_k; \\theta) - F_k)/\\sigma_k`, with the paper's positivity constraints as
-bounds (paper 003 solves the same problem by an interior-point method): :math:`F_c, F_s, F_v \\ge 0`,
+(``scipy.optimize.least_squares``, trust-region reflective, with the analytic Jacobian of
+:func:`curve_jacobian`) of :math:`r_k = (F(v_k; \\theta) - F_k)/\\sigma_k`, with the paper's
+positivity constraints as bounds (paper 003 solves the same problem by an interior-point method):
+:math:`F_c, F_s, F_v \\ge 0`,
 :math:`v_s \\in [v_{min}/100, 100\\,v_{max}]`, :math:`K_v \\in [10^{-3}/v_{max}, 10^4/v_{min}]`,
 :math:`\\alpha \\in [0.05, 3]` (:math:`v_{min}, v_{max}`: the smallest and largest speed of the
 points). Starting values: for each point of a grid of the nonlinear parameters
@@ -40,10 +41,11 @@ from scipy.optimize import least_squares, nnls
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError
-from dynid.model.friction import CoulombViscous, PowerLawViscous, SmoothStribeck, Stribeck
+from dynid.model.friction import coulomb_viscous_force, power_law_force, smooth_stribeck_force, stribeck_force
 from dynid.tolerances import scaled
 
-__all__ = ["MODELS", "CurveFit", "curve_force", "fit_curve", "fit_statistics", "held_out_split"]
+__all__ = ["MODELS", "CurveFit", "curve_force", "curve_jacobian", "fit_curve", "fit_statistics", "held_out_split",
+           "projected_jacobian"]
 
 MODELS: dict[str, tuple[str, ...]] = {
     "coulomb_viscous": ("fc", "fv"),
@@ -60,20 +62,68 @@ _LINEAR = ("fc", "fs", "fv")
 
 def curve_force(model: str, params: dict[str, float] | Sequence[float], v: FloatArray) -> FloatArray:
     """Friction of ``model`` with ``params`` (a dict, or values in :data:`MODELS` order) at
-    velocities ``v`` (m,), through the classes of :mod:`dynid.model.friction`."""
+    velocities ``v`` (m,).
+
+    The validation-free functions of :mod:`dynid.model.friction` that its classes evaluate
+    (:func:`~dynid.model.friction.smooth_stribeck_force`, ...): the same operations, the same
+    result to the last bit, without constructing (and checking) a model per call, which cost
+    a least-squares fit most of its time. The coefficients are not checked (a fit keeps them
+    within :func:`_bounds`)."""
     p = params if isinstance(params, dict) else dict(zip(MODELS[model], params))
-    v = np.asarray(v, dtype=float).reshape(-1, 1)
+    v = np.asarray(v, dtype=float).reshape(-1)
     if model == "coulomb_viscous":
-        m = CoulombViscous(fc=p["fc"], fv=p["fv"])
-    elif model == "stribeck":
-        m = Stribeck(fc=p["fc"], fs=p["fs"], fv=p["fv"], vs=p["vs"], delta=2.0)
-    elif model == "power_law":
-        m = PowerLawViscous(fc=p["fc"], fv=p["fv"], alpha=p["alpha"])
-    elif model in ("smooth_stribeck", "arctan_stribeck"):
-        m = SmoothStribeck(fc=p["fc"], fs=p["fs"], fv=p["fv"], vs=p["vs"], kv=p["kv"], alpha=p.get("alpha", 1.0))
-    else:
-        raise InputError(f"unknown friction model {model!r}; one of {list(MODELS)}")
-    return m.force(v)[:, 0]
+        return coulomb_viscous_force(v, p["fc"], p["fv"])
+    if model == "stribeck":
+        return stribeck_force(v, p["fc"], p["fs"], p["fv"], p["vs"], 2.0)
+    if model == "power_law":
+        return power_law_force(v, p["fc"], p["fv"], p["alpha"])
+    if model in ("smooth_stribeck", "arctan_stribeck"):
+        return smooth_stribeck_force(v, p["fc"], p["fs"], p["fv"], p["vs"], p["kv"], p.get("alpha", 1.0))
+    raise InputError(f"unknown friction model {model!r}; one of {list(MODELS)}")
+
+
+def curve_jacobian(model: str, params: dict[str, float] | Sequence[float], v: FloatArray) -> FloatArray:
+    """Derivatives of :func:`curve_force` with respect to the coefficients, (m, p) in
+    :data:`MODELS` order, at velocities ``v`` (m,): analytic, from the module docstring's
+    equations (paper 003, Eq. 2, 13, 14, 15). With :math:`s = \\mathrm{sign}(v)`,
+    :math:`e = e^{-(v/v_s)^2}`, :math:`a = \\tfrac{2}{\\pi}\\arctan(K_v v)` (``s`` for the models
+    without the arctangent) and :math:`g = F_c + (F_s - F_c)e`:
+
+    * :math:`\\partial F/\\partial F_c = (1 - e)a`, :math:`\\partial F/\\partial F_s = e a`
+      (:math:`e = 0` without a Stribeck term);
+    * :math:`\\partial F/\\partial F_v = |v|^{\\alpha}s` (:math:`v` for :math:`\\alpha = 1`);
+    * :math:`\\partial F/\\partial v_s = 2 (F_s - F_c)\\, e\\, v^2 / v_s^3\\, a`;
+    * :math:`\\partial F/\\partial K_v = g\\,\\tfrac{2}{\\pi} v / (1 + (K_v v)^2)`;
+    * :math:`\\partial F/\\partial \\alpha = F_v |v|^{\\alpha}\\ln|v|\\, s` (0 at :math:`v = 0`).
+    """
+    names = MODELS[model]
+    p = params if isinstance(params, dict) else dict(zip(names, params))
+    v = np.asarray(v, dtype=float).reshape(-1)
+    s, av = np.sign(v), np.abs(v)
+    fc, fs, fv = p["fc"], p.get("fs", 0.0), p["fv"]
+    a = 2.0 / np.pi * np.arctan(p["kv"] * v) if "kv" in p else s
+    e = np.exp(-np.square(v / p["vs"])) if "vs" in p else np.zeros_like(v)
+    pw = np.power(av, p["alpha"]) if "alpha" in p else av
+    cols = {"fc": (1.0 - e) * a, "fs": e * a, "fv": pw * s}
+    if "vs" in p:
+        cols["vs"] = 2.0 * (fs - fc) * e * np.square(v / p["vs"]) / p["vs"] * a
+    if "kv" in p:
+        cols["kv"] = (fc + (fs - fc) * e) * (2.0 / np.pi) * v / (1.0 + np.square(p["kv"] * v))
+    if "alpha" in p:
+        cols["alpha"] = fv * pw * np.log(np.where(av > 0, av, 1.0)) * s
+    return np.column_stack([cols[n] for n in names])
+
+
+def projected_jacobian(model: str, x: FloatArray, v: FloatArray, P: FloatArray, w: FloatArray,
+                       mask: np.ndarray) -> FloatArray:
+    """Jacobian of the residual :math:`w_c (r_{kc} - \\sum_j P_{kcj} F(v_{kj}; \\theta_j))` of the
+    curves of several joints reaching several channels (the hierarchical fit of a mechanism,
+    :mod:`dynid.pipeline.hierarchical`), on its entries ``mask`` (n, n_c), columns
+    :math:`\\theta_1, \\theta_2, \\dots` (``x``, n_j p): :math:`-w_c P_{kcj}\\,\\partial F/\\partial
+    \\theta_j` (:func:`curve_jacobian`). ``v`` (n, n_j), ``P`` (n, n_c, n_j), ``w`` (n, n_c)."""
+    p = len(MODELS[model])
+    return np.concatenate([(-(P[:, :, j, None] * curve_jacobian(model, x[j * p:(j + 1) * p], v[:, j])[:, None, :])
+                            * w[:, :, None])[mask] for j in range(v.shape[1])], axis=1)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -217,13 +267,16 @@ def fit_curve(model: str, v: FloatArray, f: FloatArray, sigma: FloatArray | None
     def resid(x):
         return (curve_force(model, x, v) - f) * w
 
+    def jac(x):
+        return curve_jacobian(model, x, v) * w[:, None]
+
     best = None
     starts = ([np.asarray(start, dtype=float)] if start is not None
               else _starts(model, v, f, w, lo, hi, speed_range=speed_range))
     for x0 in starts:
         x0 = np.minimum(np.maximum(x0, lo), hi)  # trf moves a start on a bound strictly inside
         res = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=scaled(1e-12), ftol=scaled(1e-12), gtol=scaled(1e-12),
-                            max_nfev=2000 * p)
+                            max_nfev=2000 * p, jac=jac)
         if best is None or res.cost < best.cost:
             best = res
     x = best.x

@@ -375,10 +375,11 @@ def _fit_projected(model: str, dq: FloatArray, r: FloatArray, keep: np.ndarray, 
     """The curves of all joints at once on all channels (module docstring, mechanisms): bounded
     nonlinear least squares of :math:`w_c (r_{kc} - \\sum_j P_{kcj} f_j(\\dot q_{kj}))` on the kept
     rows, with the positivity bounds of :func:`~dynid.estimation.friction_curves.fit_curve` per
-    joint; warm-started from ``start`` (n_joints, p) or from :func:`_grid_starts`."""
+    joint and the analytic Jacobian (:func:`~dynid.estimation.friction_curves.projected_jacobian`);
+    warm-started from ``start`` (n_joints, p) or from :func:`_grid_starts`."""
     from scipy.optimize import least_squares
 
-    from dynid.estimation.friction_curves import _bounds, curve_force, fit_statistics
+    from dynid.estimation.friction_curves import _bounds, curve_force, fit_statistics, projected_jacobian
 
     names = MODELS[model]
     p, nj = len(names), dq.shape[1]
@@ -392,13 +393,16 @@ def _fit_projected(model: str, dq: FloatArray, r: FloatArray, keep: np.ndarray, 
         F = np.column_stack([curve_force(model, x[j * p:(j + 1) * p], dq[:, j]) for j in range(nj)])
         return ((r - np.einsum("ncj,nj->nc", P, F)) * w)[mask]
 
+    def jac(x):
+        return projected_jacobian(model, x, dq, P, w, mask)
+
     starts = ([np.asarray(start, dtype=float).reshape(-1)] if start is not None
               else _grid_starts(model, dq, r, P, w, mask, ranges, lo, hi))
     best = None
     for x0 in starts:
         x0 = np.minimum(np.maximum(x0, lo), hi)
         res = least_squares(resid, x0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=scaled(1e-12), ftol=scaled(1e-12),
-                            gtol=scaled(1e-12), max_nfev=500 * p * nj)
+                            gtol=scaled(1e-12), max_nfev=500 * p * nj, jac=jac)
         if best is None or res.cost < best.cost:
             best = res
     x = best.x
