@@ -17,6 +17,7 @@ import json
 import numpy as np
 import pytest
 
+from conftest import seed
 from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.estimation.validation import ValidationMetrics
@@ -55,8 +56,8 @@ def _config(d, actuators, **processing):
 @pytest.fixture(scope="module")
 def twin(tmp_path_factory):
     d = tmp_path_factory.mktemp("selected")
-    train = _simulate(d / "train", 11)
-    valid = _simulate(d / "valid", 32)
+    train = _simulate(d / "train", seed(11))
+    valid = _simulate(d / "valid", seed(32))
     return d, tuple(train.dataset.names), valid
 
 
@@ -67,6 +68,7 @@ def _noise_free(valid, t):
     return np.asarray(valid.signals.effort)[i]
 
 
+@pytest.mark.numerics
 def test_the_truth_is_at_the_noise_floor_on_the_selected_rows_and_far_from_it_on_all(twin, tmp_path):
     d, actuators, valid = twin
     out = identify(_config(d, actuators, min_velocity=0.002, reversal_guard="auto"))
@@ -81,16 +83,23 @@ def test_the_truth_is_at_the_noise_floor_on_the_selected_rows_and_far_from_it_on
     assert np.all(expected.sum(axis=0) > 0.3 * v.n_samples) and np.all(expected.sum(axis=0) < v.n_samples)
     floor_all = np.sqrt(np.mean((v.measured - clean) ** 2, axis=0))
     floor_sel = np.sqrt(np.sum(np.where(expected, v.measured - clean, 0.0) ** 2, axis=0) / expected.sum(axis=0))
-    # both floors are the configured noise (5 N; at least 600 rows a channel: within 10 %)
-    np.testing.assert_allclose(floor_all, NOISE, rtol=0.1)
-    np.testing.assert_allclose(floor_sel, NOISE, rtol=0.1)
+    # both floors are the configured noise (5 N): the rms of n white samples has a relative std of
+    # 1 / sqrt(2 n); within 4.5 of them (a false alarm of 7e-6 per channel; 2181 rows, 900-1600 kept)
+    n_all, n_sel = v.n_samples, expected.sum(axis=0)
+    assert np.all(np.abs(floor_all / NOISE - 1) < 4.5 / np.sqrt(2 * n_all)), floor_all
+    assert np.all(np.abs(floor_sel / NOISE - 1) < 4.5 / np.sqrt(2 * n_sel)), (floor_sel, n_sel)
     # on every held-out row the truth is off by many times the noise: the reversals (chatter of
     # the plant's friction, the filter's smear of the friction step) decide the all-row error
+    # (9.5-13 times the noise over 5 draws of the two motions)
     assert np.all(truth.rmse > 5 * floor_all), (truth.rmse, floor_all)
-    # on the rows the selection keeps it is the noise: nothing but the noise is left there
-    np.testing.assert_allclose(sel.nominal.rmse, floor_sel, rtol=0.1)
+    # on the rows the selection keeps it is the noise: nothing but the noise is left there. Not a
+    # statistic (the same noise on the same rows): what the processing leaves on the kept rows (the
+    # filter's smear beyond the guard, the 1 um encoder through the derivatives) adds in quadrature, up
+    # to 0.41 of the noise over 5 draws (ratio 1.08; 10 % held for the first draw only): 15 % allows 0.57
+    np.testing.assert_allclose(sel.nominal.rmse, floor_sel, rtol=0.15)
     # the identified model, fitted on the same selection of another log, comes close to it there
-    # (a few tens of base parameters from thousands of equations: a few per cent above the noise)
+    # (a few tens of base parameters from thousands of equations: a few per cent above the noise;
+    # 1.00-1.09 over 5 draws, the processing's share included)
     assert np.all(sel.metrics.rmse < 1.25 * floor_sel), (sel.metrics.rmse, floor_sel)
     assert np.all(v.rmse > 5 * floor_all)
     # the same predictions: only the rows differ
