@@ -7,6 +7,8 @@ margin from the step)."""
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
@@ -104,6 +106,8 @@ def test_force_function_is_force_at_one_sample():
         one = force_function(m)
         for row in v:
             _close(one(row), m.force(row)[0])
+        if name != "custom":  # the evaluators are picklable (a plant may travel to a worker process)
+            _close(pickle.loads(pickle.dumps(one))(v[1]), m.force(v[1])[0])
 
 
 def test_curve_force_is_the_classes_force():
