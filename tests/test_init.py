@@ -10,6 +10,7 @@ import tomllib
 import numpy as np
 import pytest
 
+from conftest import seed
 from dynid.cli import main
 from dynid.model import load_robot
 from dynid.simulation import FourierTrajectory, simulate_serial
@@ -27,10 +28,10 @@ def run():
     truth = robot.nominal_parameters()
     truth[robot.layout.extra_index["fv"]] = 0.5
     lo, hi = robot.position_limits()
-    traj = FourierTrajectory.random(6, 5, 0.1, np.random.default_rng(1), lo, hi, max_velocity=1.5,
+    traj = FourierTrajectory.random(6, 5, 0.1, np.random.default_rng(seed(1)), lo, hi, max_velocity=1.5,
                                     max_acceleration=4.0, fill=0.6)
     ds = simulate_serial(robot, truth, traj, fs=FS, duration=40.0, torque_noise_std=np.full(6, SIGMA),
-                         rng=np.random.default_rng(0))
+                         rng=np.random.default_rng(seed(0)))
     return ds, robot.joint_names
 
 
@@ -44,6 +45,7 @@ def _error(capsys) -> str:
     return err
 
 
+@pytest.mark.numerics
 def test_init_then_identify_round_trip_recovers_the_robot(run, tmp_path, capsys):
     ds, joints = run
     _csv(tmp_path / "log.csv", ["time"] + [f"q_{j}" for j in joints] + [f"{j}_effort" for j in joints] + ["temperature"],
@@ -70,7 +72,8 @@ def test_init_then_identify_round_trip_recovers_the_robot(run, tmp_path, capsys)
 
     res = json.loads((out / "result.json").read_text())
     # the model is right: the errors on the last quarter are the torque noise (1758 rows per
-    # joint: the RMSE's relative standard error 1.7 %) and the viscous friction is the truth
+    # joint: the RMSE's relative standard error 1.7 %, 0.1 is 6 of them) and the viscous friction is the
+    # truth (4.5 std, 6 joints: a false alarm of 4e-5)
     np.testing.assert_allclose(res["validation"]["rmse_per_joint"], SIGMA, rtol=0.1)
     params = {p["name"]: p for p in res["params"]}
     for j in range(1, 7):
@@ -187,7 +190,7 @@ fill = 0.5
 max_velocity = 1.5
 max_acceleration = 8.0
 periods = 3
-seed = 2
+seed = {seed}
 [control]
 rate_hz = 500
 kp = 400
@@ -196,10 +199,11 @@ substeps = 2
 [sensors]
 encoder_resolution = 1e-5
 force_noise_std = 0.01
-seed = 2
+seed = {seed}
 """
 
 
+@pytest.mark.numerics
 def test_parallel_robot_init_identify_and_the_array_api_agree(tmp_path):
     """The five-bar under control (dynid simulate): init matches its actuators' columns, identify
     accepts the config as is, and identify_arrays on the same columns gives the same estimates."""
@@ -209,7 +213,7 @@ def test_parallel_robot_init_identify_and_the_array_api_agree(tmp_path):
 
     import dynid
 
-    (tmp_path / "sim.toml").write_text(FIVEBAR_SIM)
+    (tmp_path / "sim.toml").write_text(FIVEBAR_SIM.format(seed=seed(2)))
     assert main(["simulate", str(tmp_path / "sim.toml"), "--out", str(tmp_path / "run"), "-q"]) == 0
     cfg = tmp_path / "id.toml"
     assert main(["init", "builtin:fivebar", str(tmp_path / "run" / "log.csv"), "--out", str(cfg)]) == 0
@@ -218,7 +222,10 @@ def test_parallel_robot_init_identify_and_the_array_api_agree(tmp_path):
     cfg.write_text(cfg.read_text().replace("plots = true", "plots = false"))  # (time: the round trip above draws them)
     assert main(["identify", str(cfg), "--out", str(tmp_path / "id"), "-q"]) == 0
     res = json.loads((tmp_path / "id" / "result.json").read_text())
-    assert min(res["validation"]["r2_per_joint"]) > 0.99
+    # a sanity check of the fit: 1 - R^2 is the 0.01 N*m noise and the processing's error at the Coulomb
+    # reversals against the motion's force variance, 0.001-0.008 over 6 draws of the motion (the rms error
+    # 1.0-1.55 times the noise, depending on the reversals): 0.99 held for one draw, 0.98 for any
+    assert min(res["validation"]["r2_per_joint"]) > 0.98
     log = pd.read_csv(tmp_path / "run" / "log.csv")
     out = dynid.identify_arrays("builtin:fivebar", log["t"], log[["q_qa1", "q_qa2"]], log[["tau_qa1", "tau_qa2"]],
                                 processing=doc["processing"])
