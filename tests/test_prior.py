@@ -14,6 +14,7 @@ import json
 import numpy as np
 import pytest
 
+from conftest import seed
 from dynid._files import save_npz
 from dynid.config import parse_config
 from dynid.config.simulate import parse_simulate_config
@@ -23,10 +24,10 @@ from dynid.pipeline import identify, write_outputs
 from dynid.pipeline.simulate import run_simulation
 
 
-def _log(d, name: str, perturbation: float, seed: int, noise: float, periods: int) -> list[str]:
+def _log(d, name: str, perturbation: float, seed: int, noise: float, periods: int, base_hz: float = 0.5) -> list[str]:
     sim = run_simulation(parse_simulate_config({
         "robot": {"model": "builtin:cobot6r", "perturbation": perturbation, "perturbation_seed": 5},
-        "trajectory": {"kind": "fourier", "base_frequency_hz": 0.5, "harmonics": 4, "fill": 0.6, "max_velocity": 1.5,
+        "trajectory": {"kind": "fourier", "base_frequency_hz": base_hz, "harmonics": 4, "fill": 0.6, "max_velocity": 1.5,
                        "max_acceleration": 6.0, "periods": periods, "seed": seed},
         "control": {"rate_hz": 500, "kp": 400, "kd": 40, "model": "true", "substeps": 2},
     }, d))
@@ -58,11 +59,12 @@ def _doc(d, joints, **identification) -> dict:
 @pytest.fixture(scope="module")
 def off_nominal(tmp_path_factory):
     d = tmp_path_factory.mktemp("prior")
-    joints = _log(d, "train", 0.2, 1, 0.05, 2)
-    _log(d, "valid", 0.2, 2, 0.05, 1)
+    joints = _log(d, "train", 0.2, seed(1), 0.05, 2)  # the true robot keeps its perturbation_seed
+    _log(d, "valid", 0.2, seed(2), 0.05, 1)
     return d, joints
 
 
+@pytest.mark.numerics
 def test_the_nominal_model_is_scored_on_the_same_rows(off_nominal, tmp_path):
     d, joints = off_nominal
     out = identify(parse_config(_doc(d, joints), d))
@@ -74,7 +76,8 @@ def test_the_nominal_model_is_scored_on_the_same_rows(off_nominal, tmp_path):
     ds = out.held_out
     np.testing.assert_allclose(nom.predicted, inverse_dynamics(robot, robot.nominal_parameters(), ds.q, ds.dq, ds.ddq),
                                atol=1e-8 * np.abs(nom.predicted).max())
-    # 20 % off nominal against 0.05 N*m of noise: the identified model wins on every joint
+    # 20 % off nominal against 0.05 N*m of noise: the identified model wins on every joint (its mean
+    # relative error is 6 % of the nominal model's over 5 draws, against the bound's 50 %)
     prior = out.prior
     assert prior["comparable"] and prior["beats_nominal"] and prior["channels_better"] == 6
     assert prior["identified_mean_rel_rmse_pct"] < 0.5 * prior["nominal_mean_rel_rmse_pct"]
@@ -87,15 +90,23 @@ def test_the_nominal_model_is_scored_on_the_same_rows(off_nominal, tmp_path):
     assert "Against the prior" in (tmp_path / "id" / "report.html").read_text()
 
 
+@pytest.mark.numerics
 def test_an_identification_that_does_not_beat_the_prior_says_so(tmp_path):
-    """The truth is the nominal model (no perturbation) and the training log is short and noisy:
-    the nominal model's held-out error is the noise alone, the identified model's adds its
-    estimation error (the base parameters from 1.2 s), so the identification cannot win."""
-    joints = _log(tmp_path, "train", 0.0, 1, 2.0, 1)
-    _log(tmp_path, "valid", 0.0, 2, 2.0, 1)
-    doc = _doc(tmp_path, joints)
-    doc["data"]["rows"] = [0, 600]
-    out = identify(parse_config(doc, tmp_path))
+    """The truth is the nominal model (no perturbation), the training log is noisy (2 N*m) and the
+    held-out one quiet (0.5 N*m): the nominal model's held-out error is the noise alone, the
+    identified model's adds its estimation error (58 base parameters from one 2 s period), so the
+    identification cannot win.
+
+    Margin: with d = W_val (beta_hat - beta) the identified MSE exceeds the nominal one by
+    |d|^2 / N + 2 e . d / N (e the held-out noise, N its 6006 equations); the cross term has the
+    std 2 sigma |d| / N, so the excess is sqrt(N a / 2) of its std, a = |d|^2 / (2 N sigma^2) the
+    relative excess of the RMSE: over 30 draws a was 0.07 at least (mean 0.26, a weighted
+    chi-square of about 5 dof), 15 std and more. The training is one whole period, so that every joint reverses
+    (its Coulomb and offset columns are independent); rows [0, 600] of a log as noisy as the
+    held-out one left some draws unidentifiable and others at 1.3 % excess."""
+    joints = _log(tmp_path, "train", 0.0, seed(1), 2.0, 1)
+    _log(tmp_path, "valid", 0.0, seed(2), 0.5, 1)
+    out = identify(parse_config(_doc(tmp_path, joints), tmp_path))
     prior = out.prior
     assert not prior["beats_nominal"] and prior["verdict"].startswith("WARNING: the identified model does NOT beat")
     assert prior["nominal_mean_rel_rmse_pct"] < prior["identified_mean_rel_rmse_pct"]
