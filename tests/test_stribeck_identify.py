@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import seed
 from dynid.config import parse_config
 from dynid.config.montecarlo import parse_montecarlo_config
 from dynid.errors import ConfigError
@@ -93,14 +94,15 @@ def _cobot_log(seed: int, n: int):
 @pytest.fixture(scope="module")
 def cobot(tmp_path_factory):
     d = tmp_path_factory.mktemp("cobot")
-    for name, seed, n in (("train", 1, 2000), ("valid", 2, 1000)):
-        _write_log(d / f"{name}.npz", *_cobot_log(seed, n), COBOT.joint_names)
+    for name, k, n in (("train", 1, 2000), ("valid", 2, 1000)):
+        _write_log(d / f"{name}.npz", *_cobot_log(seed(k), n), COBOT.joint_names)
     outcome = identify(_config(d, "builtin:cobot6r", COBOT.joint_names, STRIBECK, SLOW))
     linear = identify(_config(d, "builtin:cobot6r", COBOT.joint_names, {"method": "wls", "physical_consistency": True},
                               SLOW))
     return d, outcome, linear
 
 
+@pytest.mark.numerics
 def test_serial_stribeck_fit_recovers_the_friction_curve_within_its_uncertainty(cobot):
     _, o, _ = cobot
     res, base = o.result, o.base
@@ -112,20 +114,28 @@ def test_serial_stribeck_fit_recovers_the_friction_curve_within_its_uncertainty(
     truth = np.r_[base.from_standard(COBOT_TRUTH), COBOT_FRICTION.fs - COBOT_FRICTION.fc, COBOT_FRICTION.vs,
                   COBOT_FRICTION.delta]
     z = (res.params - truth) / res.bse
+    # 7e-6 per parameter, 5e-4 over the 76
     assert np.all(np.abs(z) < 4.5), {n: round(float(v), 2) for n, v in zip(res.names, z) if abs(v) >= 4.5}
-    # the friction parameters themselves are well determined here
+    # the friction parameters are determined by this experiment: each one's 4.5-std interval excludes 0 (the
+    # least determined, delta of joint 4, to 6.5-9 % (1 std) over 3 draws: the 15 % once asserted for all of
+    # them was exceeded on another draw, 16 %)
     p = base.n_base
-    np.testing.assert_allclose(res.params[p:], truth[p:], rtol=0.15)
+    assert np.all(4.5 * res.bse[p:] < np.abs(truth[p:])), dict(zip(res.names[p:], res.bse[p:]))
+    # ~2000 rows a channel: the sample std within 1.6 % (1 std) of the truth; 15 % is 9 std
     np.testing.assert_allclose(res.noise_std, COBOT_SIGMA, rtol=0.15)
-    # physically consistent standard parameters with the margin
+    # physically consistent standard parameters with the margin (the polish checks its constraints as stated:
+    # eigvalsh's rounding only)
     assert min(res.solver["min_pseudo_inertia_eigenvalue"]) >= 1e-4 * (1 - 1e-9)
 
 
+@pytest.mark.numerics
 def test_serial_stribeck_fit_predicts_held_out_motion_to_the_noise_level(cobot):
     _, o, linear = cobot
     rmse, lin = o.validation.rmse, linear.validation.rmse
-    # the noise is the floor; the linear Coulomb + viscous model misses the Stribeck hump
+    # the noise is the floor: ~1000 held-out rows a channel, the sample rms within 2.2 % (1 std) of sigma, plus
+    # the estimate's share (p / n = 76 / 12000: +0.3 %); 15 % is 6.6 std
     assert np.all(rmse < 1.15 * COBOT_SIGMA), (rmse, COBOT_SIGMA)
+    # the linear Coulomb + viscous model misses the Stribeck hump: a systematic misfit, 2.60-2.73 x over 3 draws
     assert np.sum(lin) > 2.0 * np.sum(rmse), (lin, rmse)
     # an independent route for the prediction: the regressor of the processed held-out log with
     # the identified base parameters, plus the identified friction curve evaluated by the
@@ -159,6 +169,7 @@ def test_serial_stribeck_outputs(cobot, tmp_path):
     assert doc["method"] == "WLS+LMI+Stribeck"
 
 
+@pytest.mark.numerics
 def test_min_velocity_leaves_slow_rows_out_of_the_stribeck_fit(cobot):
     d, o, _ = cobot
     dq = np.abs(o.train.dq)
@@ -166,21 +177,30 @@ def test_min_velocity_leaves_slow_rows_out_of_the_stribeck_fit(cobot):
     assert o.result.n_obs.sum() < dq.size
     assert any("processing.min_velocity = [0.005]" in n for n in o.result.notes)
     assert o.result.provenance["row_selection"]["rows_kept_per_joint"] == o.result.n_obs.tolist()
-    # a higher threshold: fewer rows, the same curve within the uncertainty
+    # a higher threshold: fewer rows, the same curve within the uncertainty. The two fits share most rows: for
+    # efficient estimates on nested data the difference has variance var_m - var_o (Hausman), here 0.32-1.19
+    # var_o over 3 draws (the rows between 0.005 and 0.01 rad/s carry the Stribeck hump); 4.5 of its std
+    # (7e-6 each). 3 bse_o, once asserted, was as little as 2.7 std of the difference.
     m = identify(_config(d, "builtin:cobot6r", COBOT.joint_names, STRIBECK, {"min_velocity": [0.01]}))
     assert m.result.n_obs.tolist() == np.sum(dq >= 0.01, axis=0).tolist()
     for name in ("vs_joint_1", "dFs_joint_2", "delta_joint_3"):
         k = m.result.names.index(name)
-        assert abs(m.result.params[k] - o.result.params[k]) < 3 * o.result.bse[k], name
+        bm, bo = m.result.bse[k], o.result.bse[k]
+        assert bm > bo, (name, bm, bo)  # fewer rows, less precise
+        assert abs(m.result.params[k] - o.result.params[k]) < 4.5 * np.sqrt(bm**2 - bo**2), name
 
 
+@pytest.mark.numerics
 def test_max_samples_spreads_the_rows_over_the_log(cobot):
     d, o, _ = cobot
     ident = {**STRIBECK, "max_samples": 500}
     m = identify(_config(d, "builtin:cobot6r", COBOT.joint_names, ident))  # no min_velocity: every row of 500
     assert m.result.n_obs.tolist() == [500] * 6
     assert any("used 500 of the" in n for n in m.result.notes)
-    assert np.all(m.validation.rmse < 1.5 * COBOT_SIGMA)
+    # a sanity bound, not a statistical one: the estimate's share is small (p / n = 76 / 3000: +1 %), but
+    # without min_velocity the reversal rows' coin-toss signs (SLOW above) bend the curves by what the draw
+    # puts there: 0.98-1.24 sigma over 11 draws
+    assert np.all(m.validation.rmse < 1.5 * COBOT_SIGMA), m.validation.rmse / COBOT_SIGMA
 
 
 def test_reversal_guard_is_decided_on_the_whole_log_before_max_samples_thins_it(cobot):
@@ -223,16 +243,23 @@ def _rps3_log(seed: int, n: int, friction: Stribeck):
     return t, qa, f + np.random.default_rng(seed + 100).standard_normal(f.shape) * RPS3_SIGMA
 
 
+@pytest.mark.numerics
 def test_rps3_stribeck_fit_through_the_loops(tmp_path):
+    """The platform's pseudo-inertia is singular (a flat plate), below the margin: the LMI binds and
+    no covariance is reported, so the friction is held to sanity bounds (over 3 draws at most 9 %,
+    8 % and 18 % off). Rows slower than a tenth of the smallest Stribeck velocity are left out, as
+    on the serial arm (SLOW): with them one draw's held-out error was 1.36 sigma."""
     nom = RPS3.nominal_parameters()
     fc = nom[[RPS3.parameter_names.index(f"fc_P{i}") for i in (1, 2, 3)]]
     fv = nom[[RPS3.parameter_names.index(f"fv_P{i}") for i in (1, 2, 3)]]
     friction = Stribeck(fc=fc, fs=1.5 * fc, fv=fv, vs=[0.01, 0.015, 0.012], delta=2.0)
-    for name, seed, n in (("train", 3, 3000), ("valid", 4, 1000)):
-        _write_log(tmp_path / f"{name}.npz", *_rps3_log(seed, n, friction), RPS3.actuated_names)
-    o = identify(_config(tmp_path, "builtin:rps3", RPS3.actuated_names, STRIBECK, unit="m", effort_unit="N"))
+    for name, k, n in (("train", 3, 3000), ("valid", 4, 1000)):
+        _write_log(tmp_path / f"{name}.npz", *_rps3_log(seed(k), n, friction), RPS3.actuated_names)
+    o = identify(_config(tmp_path, "builtin:rps3", RPS3.actuated_names, STRIBECK, {"min_velocity": [0.001]}, unit="m",
+                         effort_unit="N"))
     res = o.result
     assert res.solver["friction_names"] == ["P1", "P2", "P3"]
+    assert res.solver["status"] == "converged", res.solver["passes"]
     st = res.solver["stribeck"]
     for k, leg in enumerate(("P1", "P2", "P3")):
         assert st[leg]["Fs"] - st[leg]["Fc"] == pytest.approx(friction.fs[k] - friction.fc[k], rel=0.15), st[leg]
@@ -242,6 +269,7 @@ def test_rps3_stribeck_fit_through_the_loops(tmp_path):
     smap_eigs = [np.linalg.eigvalsh(pseudo_inertia(np.array(list(res.solver["standard_params"].values()))[b]))[0]
                  for b in RPS3.body_blocks()]
     assert min(smap_eigs) >= 1e-4 * (1 - 1e-9)
+    # 1000 held-out rows a leg: the sample rms within 2.2 % (1 std) of sigma; the rest is the fit's error
     assert np.all(o.validation.rmse < 1.2 * RPS3_SIGMA), o.validation.rmse
     assert "m/s" in o.summary_text()
 
@@ -324,6 +352,7 @@ def test_summary_warns_when_exported_masses_are_far_from_nominal(cobot, tmp_path
     assert line in files["summary.txt"].read_text()
 
 
+@pytest.mark.numerics
 def test_serial_stribeck_result_predicts_as_identify_validated(cobot, tmp_path, capsys):
     """``dynid predict`` (issue 20 item 3) on a saved Stribeck fit (paper 000 Eq. 32, nonlinear
     friction parameters in the result) with its own validation log: the per-joint RMSE and R² that
