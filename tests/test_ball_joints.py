@@ -224,11 +224,18 @@ def test_dynid_info_on_the_stewart_file(stewart, capsys):
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "own_robot" / "stewart"
 
 
+@pytest.mark.numerics
 def test_stewart_from_its_mjcf_is_simulated_and_identified_from_configs(tmp_path):
     """simulate (training and held-out motion) -> identify from the configs alone; the identified
     model beats the file's (15 % off) on the held-out motion; the simulated truth inside the 95 %
-    intervals: at most 11 of the 118 base parameters outside (binomial, P(more) < 2 %), none
-    beyond 4.5 std."""
+    intervals: at most 11 of the 118 base parameters outside (8 in this draw), none beyond 4.5 std.
+
+    The seeds stay the example's (not conftest.seed): the test checks the walk-through as shipped,
+    whose figures README.md records (the ball's 27, 5.7 and 20 deg; 3.0 % against 9.0 %; 8 outside).
+    They are properties of this draw, not of every one: over 10 other draws of the two motions the
+    identified model's held-out error was 0.23-0.92 of the nominal one's and worse on one or two
+    struts in two of them (the held-out motion leaves the training motion's excitation), and for
+    a fresh draw the count's bound of 11 would be a 1.5 % false alarm (binomial(118, 0.05))."""
     from dynid.config import load_config
     from dynid.pipeline.identification import identify
 
