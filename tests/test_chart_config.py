@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import seed
 from dynid.cli import main
 from dynid.config import load_config, parse_config
 from dynid.config.montecarlo import parse_montecarlo_config
@@ -132,7 +133,10 @@ VALIDATE = _example_body("validate.toml")
 IDENTIFY = _example_body("identify.toml").replace("{", "{{").replace("}", "}}") + "\n[output]\nplots = false\n"
 
 
+@pytest.mark.numerics
 def test_a_redundant_robot_from_its_own_files_is_simulated_and_identified_from_configs(fivebar3, capsys):
+    """The walk-through as shipped: its seeds stay the example's (not conftest.seed), as README.md
+    records its figures (2.6 % against 33.7 %, 0 of 19 outside): those are this draw's."""
     d = fivebar3.parent
     (d / "sim.toml").write_text(ROBOT.format(model=fivebar3.name) + SIMULATE)
     assert main(["simulate", str(d / "sim.toml"), "--out", str(d / "sim")]) == 0
@@ -197,6 +201,7 @@ def _nominal_actuator_rmse(folder: Path, fivebar3: Path, distribution: str) -> n
     shutil.copy(fivebar3, folder / fivebar3.name)
     for name, text in (("sim", SIMULATE), ("val", VALIDATE)):  # the truth is the nominal model here (no perturbation)
         text = re.sub(r"perturbation(_seed)? = \S+\n", "", text).replace("kd = 40", f'kd = 40\ndistribution = "{distribution}"')
+        text = re.sub(r"(?m)^seed = (\d+)$", lambda m: f"seed = {seed(int(m.group(1)))}", text)  # the motions' and noise's
         assert "perturbation" not in text and "distribution" in text
         (folder / f"{name}.toml").write_text(ROBOT.format(model=fivebar3.name) + text)
         assert main(["simulate", str(folder / f"{name}.toml"), "--out", str(folder / name), "-q"]) == 0
@@ -208,6 +213,7 @@ def _nominal_actuator_rmse(folder: Path, fivebar3: Path, distribution: str) -> n
     return np.asarray(view.nominal.rmse)
 
 
+@pytest.mark.numerics
 def test_per_actuator_errors_of_a_redundant_robot_under_the_min_norm_assumption(fivebar3, tmp_path):
     """Issue 18 item 5: the projected identification also reports per-actuator errors under the
     minimum-norm distribution. When the controller shares the forces that way, the true model
@@ -217,8 +223,13 @@ def test_per_actuator_errors_of_a_redundant_robot_under_the_min_norm_assumption(
     worse: the assumption, not the model, is then wrong, and the label says it is one."""
     matched = _nominal_actuator_rmse(tmp_path / "min_norm", fivebar3, "min_norm")
     other = _nominal_actuator_rmse(tmp_path / "local", fivebar3, "min_norm_local_friction")
-    assert np.all(matched < 2.5 * NOISE), matched  # observed 0.013-0.018
-    assert other.max() > 2 * matched.max(), (other, matched)  # observed 0.050 against 0.018
+    # the noise and the processing error at the motion's reversals (in quadrature: up to twice the noise
+    # on one actuator): 1.1-2.3 times the noise over 5 draws of the motions (2.5 held to 1.1x on one)
+    assert np.all(matched < 3 * NOISE), matched
+    # the wrong assumption, actuator by actuator: 3.6-4.4 times the matched error on its worst actuator over
+    # 5 draws (the largest of one against the largest of the other, 2x, fell to 1.8 on one draw, when the
+    # processing error and the assumption's hit different actuators)
+    assert np.max(other / matched) > 2, (other, matched)
 
 
 def test_the_other_view_is_the_minimum_norm_distribution_and_projects_back():
