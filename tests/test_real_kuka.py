@@ -23,13 +23,16 @@ def _rigid_body_rmse(urdf, ds):
     return np.sqrt(np.mean((ds.tau - pred) ** 2, axis=0))
 
 
+@pytest.mark.numerics
 def test_kuka_run3_better_than_flobaroid_on_every_joint(capsys):
     for f in ("measurements_1.npz", "measurements_3.npz", "kuka_lwr4.urdf", "kuka_lwr4_identified.urdf"):
         shared_file("kuka_lwr4", f)
     outcome = identify(example_config("kuka_lwr4", output={"plots": False}))
     assert outcome.result.method == "WLS+LMI"
     assert outcome.result.solver["status"] == "optimal"
-    # physical consistency: every body's pseudo-inertia is positive semidefinite
+    # physical consistency: every body's pseudo-inertia is positive semidefinite (PhysicalLS checks its
+    # solution's constraints after the solve and widens its buffer until they hold, whatever Clarabel's
+    # tolerances: -1e-7 is eigvalsh's rounding on these bodies' scale, not the solver's)
     assert min(outcome.result.solver["min_pseudo_inertia_eigenvalue"]) > -1e-7
     ours = outcome.validation.rmse
     theirs = _rigid_body_rmse(shared_file("kuka_lwr4", "kuka_lwr4_identified.urdf"), outcome.held_out)
@@ -40,6 +43,8 @@ def test_kuka_run3_better_than_flobaroid_on_every_joint(capsys):
     rows = [[outcome.robot.joint_names[j], f"{cad[j]:.3f}", f"{theirs[j]:.3f}", f"{plain[j]:.3f}", f"{ours[j]:.3f}"] for j in range(7)]
     show(capsys, table("KUKA LWR4+ run 3 torque RMSE [N*m] (identified on run 1)",
                        ["joint", "CAD URDF", "FloBaRoID URDF", "dynid WLS", "dynid WLS+LMI"], rows))
+    # real data, no draw: the closest joint is lwr_1 (0.533 against 0.545, 2 %); the SDP's optimum moves
+    # by its gap (conftest.sdp_chi2_slack: a fraction of a std at 10x loosened tolerances), far less
     assert np.all(ours < theirs), f"dynid {np.round(ours, 3)} vs FloBaRoID {np.round(theirs, 3)}"
 
 
@@ -62,6 +67,7 @@ def _pd_share(outcome, n=1000, seed=0):
     return ok / n
 
 
+@pytest.mark.numerics
 def test_kuka_constrained_validates_and_has_positive_definite_mass_matrices(capsys):
     """Issue 8 acceptance: on run 3, the constrained model is within 5 % of the unconstrained RMSE,
     and its mass matrix is positive definite at 1000 random configurations (OLS's share reported)."""
