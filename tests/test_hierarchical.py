@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import run_dynid
+from conftest import run_dynid, seed
 from dynid.config import parse_config
 from dynid.errors import ConfigError, InputError
 from dynid.estimation.friction_curves import curve_force
@@ -84,8 +84,8 @@ HIER = {"method": "wls", "hierarchical": True, "friction_model": "arctan"}
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     d = tmp_path_factory.mktemp("hier")
-    _log(d / "train.npz", 1, 2000)
-    _log(d / "valid.npz", 2, 1000)
+    _log(d / "train.npz", seed(1), 2000)
+    _log(d / "valid.npz", seed(2), 1000)
     out = {"dir": d}
     for key, ident in (("linear", {"method": "wls"}), ("arctan", HIER),
                        ("hier_linear", {**HIER, "friction_model": "linear"})):
@@ -97,6 +97,7 @@ def _held_out(o) -> np.ndarray:
     return np.array(o.validation.to_dict()["rmse_per_joint"])
 
 
+@pytest.mark.numerics
 def test_loop_converges_by_the_papers_rules_before_50_iterations(runs):
     h = runs["arctan"].result.solver["hierarchical"]
     assert h["stop"] == "converged" and h["converged"] and h["iterations"] < MAX_ITER, h["stop"]
@@ -107,18 +108,26 @@ def test_loop_converges_by_the_papers_rules_before_50_iterations(runs):
     change = np.abs(np.array(last["rmse_per_joint"]) - before["rmse_per_joint"])
     assert np.all(change <= EPS_RMSE) and change.sum() <= EPS_TOTAL and last["param_change"] <= EPS_PARAM
     assert before["param_change"] > EPS_PARAM  # it stopped at the first iteration that met the rules
-    # block-coordinate descent on one objective: the training RMSE never rises
+    # block-coordinate descent on one objective: the training RMSE never rises by more than the loop's own
+    # stopping rule lets it (RISE_TOL = 1e-4: it keeps the previous iterate and stops)
     totals = [x["rmse_total"] for x in hist]
     assert all(b <= a * (1 + 1e-4) for a, b in zip(totals, totals[1:]))
-    # the model is complete: what remains of the training torques is the noise (2000 samples a joint:
-    # the sample std of white noise is within ~1.6 % (1 sigma) of the truth; 6 % is ~4 sigma)
-    np.testing.assert_allclose(last["rmse_per_joint"], SIGMA, rtol=0.06)
+    # the model is complete: what remains of the training torques is the noise (2000 samples a joint: the
+    # sample std of white noise within 1.6 % (1 std) of the truth, ~0.4 % low for the fitted parameters;
+    # 7 % is 4.2 std: 3e-5 per joint)
+    np.testing.assert_allclose(last["rmse_per_joint"], SIGMA, rtol=0.07)
 
 
+@pytest.mark.numerics
 def test_the_true_family_is_recovered_within_its_reported_uncertainty(runs):
-    """Every coefficient of Eq. 15 within 4 of its reported standard deviations (the residuals are
-    white here and the rigid-body part is well determined, so the Jacobian std, conditional on it,
-    is honest), and the friction curve within 3 % of the truth over the speeds the motion covers."""
+    """Every coefficient of Eq. 15 within 4.5 of its reported standard deviations (7e-6 each, 2.5e-4
+    over the 36; the residuals are white here and the rigid-body part is well determined, so the
+    Jacobian std, conditional on it, is honest: at most 3.1 over 3 draws), and the friction curve
+    within 3 % of the truth over the speeds the motion covers: a fit of p = 6 coefficients to n =
+    2000 rows predicts to sigma sqrt(p / n) on average over its rows, 0.4-0.5 % of the curve here,
+    so 3 % is 6 of that or more (measured at most 1.5 % over 3 draws; the coefficients' errors are
+    strongly correlated and cancel in the curve: their std alone, added up, would allow 15 %, and
+    their covariance is not reported)."""
     fr = runs["arctan"].result.solver["hierarchical"]["friction"]
     v = np.linspace(0.1, 1.2, 50)
     for k, j in enumerate(NAMES):
@@ -126,22 +135,25 @@ def test_the_true_family_is_recovered_within_its_reported_uncertainty(runs):
         for name in ("fc", "fs", "fv", "vs", "kv", "alpha"):
             est, std = c[name]["value"], c[name]["std"]
             assert std is not None and not c[name]["at_bound"], (j, name)
-            assert abs(est - FRICTION[name][k]) < 4 * std, (j, name, est, FRICTION[name][k], std)
+            assert abs(est - FRICTION[name][k]) < 4.5 * std, (j, name, est, FRICTION[name][k], std)
         fit = curve_force("smooth_stribeck", {n: c[n]["value"] for n in c}, v)
         true = curve_force("smooth_stribeck", {n: FRICTION[n][k] for n in FRICTION}, v)
         np.testing.assert_allclose(fit, true, rtol=0.03, err_msg=j)
 
 
+@pytest.mark.numerics
 def test_held_out_prediction_at_the_noise_level_and_better_than_one_shot_linear_wls(runs):
     hier, lin = _held_out(runs["arctan"]), _held_out(runs["linear"])
-    # the rigid-body part plus the fitted friction curves predict the held-out motion to the noise
+    # the rigid-body part plus the fitted friction curves predict the held-out motion to the noise: 1000 rows a
+    # joint, the sample rms within 2.2 % (1 std) of sigma, plus the estimate's share (p / n ~ 1 %); 10 % is 4 std
     np.testing.assert_allclose(hier, SIGMA, rtol=0.1)
+    # on the same rows and noise, the linear model's systematic misfit: hier / lin 0.50-0.82 per joint over 3 draws
     assert np.all(hier <= lin)
-    # the linear Coulomb + viscous model misses the Stribeck hump and the power law: measured here 1.49 N*m
-    # against 1.01 N*m in total
+    # the linear Coulomb + viscous model misses the Stribeck hump and the power law: 0.67-0.71 in total over 3 draws
     assert hier.sum() < 0.8 * lin.sum()
 
 
+@pytest.mark.numerics
 def test_the_nominal_baseline_keeps_the_descriptions_friction(runs):
     """The prior every model must beat is the robot description *with* its friction terms, as in a
     one-shot run on the same held-out rows, not the friction-free regressor the hierarchical fit
@@ -151,24 +163,53 @@ def test_the_nominal_baseline_keeps_the_descriptions_friction(runs):
     assert hier.prior is not None and hier.prior["beats_nominal"]
 
 
+@pytest.mark.numerics
 def test_linear_family_lands_on_the_one_shot_least_squares(runs):
     """Alternating two least-squares fits of one objective converges to its joint minimizer: with the
-    linear family (Eq. 2) the hierarchical loop predicts what one WLS with Coulomb + viscous columns does."""
+    linear family (Eq. 2) the hierarchical loop lands on the estimate of one WLS with Coulomb + viscous
+    columns. Up to their weights: the one-shot WLS weights each joint by the noise of its OLS
+    residual, the loop by its own residual's, which differ by a relative delta (7-10 % over 3 draws);
+    a WLS estimate moves under that by about delta of its std (to first order the move's covariance
+    is at most delta^2 times the estimate's), so every parameter within 4.5 delta of its std (the
+    one-shot model's misfit of the Stribeck hump is not noise, so a first-order guide: at most
+    0.07 std measured). Its held-out errors differed from the one-shot's by up to 1.8e-3, against
+    the 2e-3 once asserted."""
     o = runs["hier_linear"]
     h = o.result.solver["hierarchical"]
     assert h["stop"] == "converged" and h["iterations"] <= 5
-    np.testing.assert_allclose(_held_out(o), _held_out(runs["linear"]), rtol=2e-3)
     base = runs["linear"].result
+    delta = float(np.max(np.abs(np.array(h["history"][-1]["rmse_per_joint"]) / base.noise_std - 1)))
+    loop = dict(zip(o.result.names, o.result.params))
     for k, j in enumerate(NAMES):
-        for coef, name in (("fc", f"fc{k + 1}"), ("fv", f"fv{k + 1}")):
-            one_shot = float(base.params[base.names.index(name)])
-            assert abs(h["friction"][j][coef]["value"] - one_shot) < 0.01 * abs(one_shot) + 1e-3, (j, coef)
+        loop[f"fc{k + 1}"], loop[f"fv{k + 1}"] = h["friction"][j]["fc"]["value"], h["friction"][j]["fv"]["value"]
+    assert set(loop) == set(base.names)
+    z = {n: (loop[n] - v) / s for n, v, s in zip(base.names, base.params, base.bse)}
+    assert all(abs(x) < 4.5 * delta for x in z.values()), (delta, max(z.items(), key=lambda t: abs(t[1])))
 
 
+def _tail(h) -> float:
+    """How far the loop's last curves can be from its fixed point, in its own measure of a change
+    (the relative change of each joint's curve on the training rows, its norm over the joints): the
+    loop converges linearly (each change 0.6-0.7 of the one before), so the rest of the way is at
+    most c_last rho / (1 - rho), rho the largest of its last three ratios."""
+    c = [x["param_change"] for x in h["history"] if x["param_change"] is not None]
+    rho = max(b / a for a, b in zip(c[-4:-1], c[-3:]))
+    assert rho < 1, c
+    return c[-1] * rho / (1 - rho)
+
+
+def _curve_change(a: dict, b: dict, v: np.ndarray) -> float:
+    """The loop's measure of the change between two curves on the speeds ``v``."""
+    fa, fb = (curve_force("smooth_stribeck", {n: c[n]["value"] for n in FRICTION}, v) for c in (a, b))
+    return float(np.linalg.norm(fa - fb) / max(np.linalg.norm(fa), np.linalg.norm(fb)))
+
+
+@pytest.mark.numerics
 def test_with_lmi_constraints_and_a_friction_prior(runs, tmp_path):
     """physical_consistency = true: each rigid-body fit is the WLS + LMI of dynid.estimation.physical;
     friction_prior: the loop starts from a dynid friction result (here the truth 30 % off) and ends on
-    the same friction as without one."""
+    the same friction as without one: no constraint binds (the truth is well inside), so both loops
+    have the same fixed point, and each stops within its convergence tail (_tail) of it."""
     d = runs["dir"]
     models = {j: {"models": {"smooth_stribeck": {"coefficients": {
         n: {"value": 1.3 * FRICTION[n][k], "std": None, "at_bound": False} for n in FRICTION}}}}
@@ -182,10 +223,12 @@ def test_with_lmi_constraints_and_a_friction_prior(runs, tmp_path):
     assert o.result.method.startswith("WLS+LMI") and h["stop"] == "converged" and h["iterations"] < MAX_ITER
     assert h["start"].startswith("friction_prior")
     assert np.all(_held_out(o) <= _held_out(lin)) and _held_out(o).sum() < 0.8 * _held_out(lin).sum()
-    ref = runs["arctan"].result.solver["hierarchical"]["friction"]
-    for j in NAMES:
-        for n in ("fc", "fs", "fv", "alpha"):
-            assert abs(h["friction"][j][n]["value"] - ref[j][n]["value"]) < ref[j][n]["std"], (j, n)
+    assert o.result.solver["active_constraints"] == []
+    ref = runs["arctan"]
+    bound = _tail(h) + _tail(ref.result.solver["hierarchical"])
+    for k, j in enumerate(NAMES):  # on the training rows' speeds, as the loop measures (the curves are odd)
+        d = _curve_change(h["friction"][j], ref.result.solver["hierarchical"]["friction"][j], np.abs(ref.train.dq[:, k]))
+        assert d <= bound, (j, d, bound)
 
 
 def test_outputs_carry_friction_history_and_plot(runs, tmp_path):
