@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import seed
 from scipy import signal as ss
 
 from dynid.errors import InputError
@@ -50,9 +51,14 @@ def test_spec_based_design_meets_paper003_spec():
         butter_spec_sos(50.0, 5.0, 1.0, 1.0, 15.0)
 
 
+@pytest.mark.numerics
 def test_noise_covariance_from_20_periods_within_10_percent():
-    """A known cross-correlated noise covariance (6 channels) recovered by period averaging."""
-    rng = np.random.default_rng(0)
+    """A known cross-correlated noise covariance (6 channels) recovered by period averaging.
+
+    Margins: each element from 19 x 400 = 7600 degrees of freedom, a std of at most
+    sqrt(2 / 7600) = 1.6 % of sqrt(S_ii S_jj): 10 % is 6 of them (21 elements: 4e-8); the period
+    mean of 20 draws within 6 of its std, over 2400 values: 5e-6."""
+    rng = np.random.default_rng(seed(0))
     n, n_m = 400, 20
     L = rng.normal(size=(6, 6))
     cov = L @ L.T + 6 * np.eye(6)
@@ -78,14 +84,17 @@ def _periodic(t, f0, harmonics=5):
     return x, dx, ddx
 
 
+@pytest.mark.numerics
 def test_frequency_domain_filter_and_derivatives_are_exact_on_band_limited_data():
     fs, f0 = 100.0, 0.5
     t = np.arange(400) / fs  # two whole periods of the real motion
     x, dx, ddx = _periodic(t, f0)
-    rng = np.random.default_rng(1)
+    rng = np.random.default_rng(seed(1))
     xn = x + 1e-3 * rng.standard_normal(t.size)
     xf, dxf, ddxf = fourier_filter(xn, fs, cutoff_hz=5 * f0 + 1e-9)
-    # noise above the cut-off removed; what remains is the noise inside the band
+    # noise above the cut-off removed; what remains is the noise inside the band: 2.5 of the 50 Hz,
+    # a std of 1e-3 sqrt(0.05) = 2.2e-4 over about 20 independent values (4 s x 2 x 2.5 Hz): 1e-3 is 4.5 of
+    # them (a false alarm of 1e-4); its derivatives (2e-3 and 0.02 std) are far below 5 % of the signal's
     assert np.abs(xf - x).max() < 1e-3
     assert np.abs(dxf - dx).max() < 0.05 * np.abs(dx).max()
     assert np.abs(ddxf - ddx).max() < 0.05 * np.abs(ddx).max()
@@ -113,12 +122,16 @@ def test_period_mismatch_frequency_domain_beats_implicit_fit():
     assert np.abs(ddx_exact - ddx).max() < 1e-8 * np.abs(ddx).max()
 
 
+@pytest.mark.numerics
 def test_time_domain_differentiators_on_noisy_sinusoids():
     """Error bounds: Savitzky-Golay and filtered central differences on a 1 Hz sine sampled
-    at 500 Hz with 1e-4 noise."""
+    at 500 Hz with 1e-4 noise. Each bound is the method's bias plus at least 50 std of the noise it
+    passes (Savitzky-Golay's first derivative: 5e-4 std against 0.063; its second: 7e-3 against 2;
+    the raw second difference: 15 std against 10 x 0.02; moving average and LOWESS: 3e-5 and 2e-5 std
+    against the 1e-3 beyond their curvature bias)."""
     fs = 500.0
     t = np.arange(5000) / fs
-    rng = np.random.default_rng(2)
+    rng = np.random.default_rng(seed(2))
     w = 2 * np.pi
     x = np.sin(w * t) + 1e-4 * rng.standard_normal(t.size)
     dx, ddx = w * np.cos(w * t), -(w**2) * np.sin(w * t)
