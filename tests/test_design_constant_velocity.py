@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import seed
 from dynid.cli import main
 from dynid.config.design import parse_design_config
 from dynid.config.simulate import parse_simulate_config
@@ -209,13 +210,15 @@ def _gravity_slope(joint: int, lo: float, hi: float) -> float:
     return float(np.abs(np.diff(g) / np.diff(qs)).max())
 
 
+@pytest.mark.numerics
 def test_designed_experiment_recovers_the_truths_friction(tmp_path):
     """examples/friction's truth (paper 003's improved Stribeck model, Eq. 15) and drive PID on
     joint_2 (gravity along the stroke), six designed speeds 0.02 .. 0.8 rad/s: dynid design ->
-    dynid simulate -> dynid friction. Every friction point lies on the truth's curve within 4 of
-    its standard errors plus the zero-order-hold bias (each torque is held one control period
-    while gravity changes by up to v dt max|dG/dq|), and the extraction pairs the samples the
-    design counted (same skip, same rate)."""
+    dynid simulate -> dynid friction. Every friction point lies on the truth's curve within 4.5 of
+    its standard errors (its sigma, spread / sqrt(n), is up to 10 % small: / 0.9; 7e-6 per point)
+    plus the zero-order-hold bias (each torque is held one control period while gravity changes by
+    up to v dt max|dG/dq|), and the extraction pairs the samples the design counted (same skip,
+    same rate)."""
     sim = tomllib.loads((EXAMPLES / "simulate.toml").read_text())
     fr = tomllib.loads((EXAMPLES / "friction.toml").read_text())
     skip, rate = fr["friction"]["skip"], sim["control"]["rate_hz"]
@@ -225,6 +228,7 @@ def test_designed_experiment_recovers_the_truths_friction(tmp_path):
                    "window": 1.5, "max_window": 3.0, "skip": skip},
         "limits": {"velocity": 1.0, "acceleration": 5.0}, "output": {"rate_hz": rate, "plots": False}}))
     sim["trajectory"] = {"kind": "constant_velocity", "design": "design/design.json"}
+    sim["sensors"]["seed"] = seed(sim["sensors"]["seed"])
     (tmp_path / "s.toml").write_text(_toml(sim))
     fr["data"]["file"] = "sim/log.csv"
     fr["friction"]["held_out"] = "none"
@@ -243,8 +247,9 @@ def test_designed_experiment_recovers_the_truths_friction(tmp_path):
     for p, lv in zip(pts, levels):
         assert p["speed_cmd"] == pytest.approx(lv["speed"], rel=1e-12)
         expect = truth.force(np.array([[p["speed"]]]))[0, 0]
-        assert abs(p["force"] - expect) <= 4 * p["sigma"] + p["speed"] * slope / rate, (p, expect)
+        assert abs(p["force"] - expect) <= 4.5 * p["sigma"] / 0.9 + p["speed"] * slope / rate, (p, expect)
         assert abs(p["n_samples"] - lv["matched"]) <= 2
+    # the positions carry no noise here: the measured speed is the commanded one to the loop's steady error (~1e-4)
     assert abs(pts["speed"] / pts["speed_cmd"] - 1).max() < 1e-3
 
 
