@@ -71,24 +71,28 @@ def seed(base: int) -> int:
     return draw_seed(base, draw())
 
 
-def sdp_norm_slack(norm: float, status: str = "optimal", safety: float = 10.0) -> float:
+def sdp_norm_slack(norm: float, status: str = "optimal", safety: float = 10.0, factor: float = 1.0) -> float:
     """How far above its minimum Clarabel may stop on ``min ||A x - d|| (+ ...)`` (a second-order
     cone program, dynid.estimation.PhysicalLS), in the units of the norm: the duality gap
     ``tol_gap_abs + tol_gap_rel * max(1, norm)`` and the primal residual ``tol_feas * max(1, norm)``
     of the cone constraint on the norm, at which it stops (its ``reduced_`` tolerances for
     ``optimal_inaccurate``; dynid.tolerances, scaled by DYNID_SOLVER_TOL_SCALE). ``safety`` covers
-    Clarabel measuring both on its equilibrated (rescaled) problem (a factor of a few)."""
+    Clarabel measuring both on its equilibrated (rescaled) problem (a factor of a few); ``factor``
+    the stage's ``tolerance_factor`` (a solve retried at looser tolerances, PhysicalLS._solve);
+    ``status`` may be the stage's record itself (both read from it)."""
     from dynid.tolerances import clarabel_tolerances
 
-    t = clarabel_tolerances()
+    if isinstance(status, dict):  # a solver stage's record: its status and tolerance factor
+        status, factor = status["status"], factor * status.get("tolerance_factor", 1.0)
+    t = {k: v * factor for k, v in clarabel_tolerances().items()}
     pre = "reduced_" if status == "optimal_inaccurate" else ""
     return safety * (t[pre + "tol_gap_abs"] + (t[pre + "tol_gap_rel"] + t[pre + "tol_feas"]) * max(1.0, norm))
 
 
-def sdp_chi2_slack(norm: float, status: str = "optimal", safety: float = 10.0) -> float:
+def sdp_chi2_slack(norm: float, status: str = "optimal", safety: float = 10.0, factor: float = 1.0) -> float:
     """:func:`sdp_norm_slack` in the units of the squared norm (chi^2 for a whitened problem): a
     norm at most ``g`` above its minimum ``norm`` squares to at most ``(norm + g)^2 - norm^2`` above."""
-    g = sdp_norm_slack(norm, status, safety)
+    g = sdp_norm_slack(norm, status, safety, factor)
     return (norm + g) ** 2 - norm**2
 
 

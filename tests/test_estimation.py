@@ -194,7 +194,7 @@ def test_physical_ls_makes_an_infeasible_estimate_feasible():
     st, first = phys.solver["stages"]["standard"], phys.solver["stages"]["sdp"]
     tb, inc = st["tie_break"], phys.solver["residual_increase_chi2"]
     d_norm = float(np.sqrt(wls.params @ np.linalg.solve(wls.cov_params, wls.params)))
-    g = sdp_norm_slack(d_norm, first["status"]) + sdp_norm_slack(d_norm, st["status"])
+    g = sdp_norm_slack(d_norm, first) + sdp_norm_slack(d_norm, st)
     up = np.sqrt(max(inc + st["residual_increase_chi2"], 0.0)) - np.sqrt(max(inc, 0.0))
     gain = tb["weight"] * (tb["reference_distance_before"] - tb["reference_distance_after"])
     assert -g <= up <= gain + g, (up, gain, g)

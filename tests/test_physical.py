@@ -59,7 +59,7 @@ def _tie_break_bound(res) -> float:
     st, first = res.solver["stages"]["standard"], res.solver["stages"]["sdp"]
     tb = st["tie_break"]
     r = np.sqrt(max(res.solver["residual_increase_chi2"], 0.0))
-    g = sdp_norm_slack(r, first["status"]) + sdp_norm_slack(r + tb["weight"] * tb["reference_distance_before"], st["status"])
+    g = sdp_norm_slack(r, first) + sdp_norm_slack(r + tb["weight"] * tb["reference_distance_before"], st)
     up = np.sqrt(max(res.solver["residual_increase_chi2"] + st["residual_increase_chi2"], 0.0)) - r
     gain = tb["weight"] * (tb["reference_distance_before"] - tb["reference_distance_after"])
     assert -g <= up <= gain + g, (up, gain, g)
@@ -164,7 +164,7 @@ def test_an_infeasible_estimate_becomes_feasible_with_the_smallest_residual_incr
     best = _log_cholesky_fit(prob, ols, [ref_start, pi], seed=3)
     body_scale = min(np.linalg.eigvalsh(pseudo_inertia(TRUE_PI[b]))[-1] for b in SMAP.body_blocks)
     buffer = 10 * phys.solver["stages"]["sdp"]["buffer"] / body_scale * inc
-    assert inc <= best + sdp_chi2_slack(np.sqrt(inc), phys.solver["status"]) + buffer, (inc, best)
+    assert inc <= best + sdp_chi2_slack(np.sqrt(inc), phys.solver["stages"]["sdp"]) + buffer, (inc, best)
     # and other feasible candidates (the truth) cost more
     assert inc <= _chi2_increase(prob, TRUE_BETA, ols)
 
@@ -184,7 +184,7 @@ def test_projection_in_the_covariance_metric_is_the_constrained_fit_and_non_expa
     assert is_feasible(proj["params"], SMAP)
     # the same optimum by both routes: equal objective values up to where each solve stops
     inc = phys.solver["residual_increase_chi2"]
-    eps = sdp_chi2_slack(np.sqrt(inc), phys.solver["status"])
+    eps = sdp_chi2_slack(np.sqrt(inc), phys.solver["stages"]["sdp"])
     assert abs(proj["distance_chi2"] - inc) <= 2 * eps, (proj["distance_chi2"], inc, eps)
     # the projection's own objective by another route (the problem's RSS): rounding only
     np.testing.assert_allclose(_chi2_increase(prob, proj["params"], ols), proj["distance_chi2"], rtol=1e-6)
@@ -277,7 +277,7 @@ def test_regularized_covariance_is_the_least_squares_one_for_a_weak_pull():
     # objective's units), so within sqrt(g) ~ 5e-4 of the optimum, both in standard deviations
     e = res.params - ls.params
     pull = lam * np.linalg.norm(_std(res) - SMAP.reference) / np.sqrt(mu)
-    assert np.sqrt(e @ np.linalg.solve(ls.cov_params, e)) <= pull + np.sqrt(sdp_norm_slack(0.0, res.solver["status"]))
+    assert np.sqrt(e @ np.linalg.solve(ls.cov_params, e)) <= pull + np.sqrt(sdp_norm_slack(0.0, res.solver["stages"]["sdp"]))
 
 
 @pytest.mark.numerics

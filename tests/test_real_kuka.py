@@ -29,7 +29,9 @@ def test_kuka_run3_better_than_flobaroid_on_every_joint(capsys):
         shared_file("kuka_lwr4", f)
     outcome = identify(example_config("kuka_lwr4", output={"plots": False}))
     assert outcome.result.method == "WLS+LMI"
-    assert outcome.result.solver["status"] == "optimal"
+    # solved (with the tolerances tightened 100x Clarabel fails numerically on run 1 and PhysicalLS retries at
+    # looser ones, up to 1e-6: then optimal_inaccurate, with the factor recorded)
+    assert outcome.result.solver["status"] in ("optimal", "optimal_inaccurate")
     # physical consistency: every body's pseudo-inertia is positive semidefinite (PhysicalLS checks its
     # solution's constraints after the solve and widens its buffer until they hold, whatever Clarabel's
     # tolerances: -1e-7 is eigvalsh's rounding on these bodies' scale, not the solver's)

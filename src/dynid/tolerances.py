@@ -42,7 +42,7 @@ import os
 
 from dynid.errors import ConfigError
 
-__all__ = ["ENV", "clarabel_tolerances", "scale", "scaled", "solver_options"]
+__all__ = ["ENV", "RELAXED_LIMIT", "clarabel_tolerances", "scale", "scaled", "solver_options"]
 
 ENV = "DYNID_SOLVER_TOL_SCALE"
 
@@ -101,12 +101,22 @@ def clarabel_tolerances() -> dict[str, float]:
     return {k: v * s for k, v in _CLARABEL.items()}
 
 
-def solver_options(solver: str) -> dict:
+def solver_options(solver: str, factor: float = 1.0) -> dict:
     """Keyword arguments of cvxpy's ``Problem.solve`` for ``solver``: for Clarabel its scaled
     tolerances (:func:`clarabel_tolerances`) and ``accept_unknown``: when Clarabel stops making
     progress before its tolerances (``InsufficientProgress``, which happens on ill-conditioned
     problems, sooner with tighter tolerances), its last iterate is returned with cvxpy's status
     ``optimal_inaccurate`` instead of an error; the callers check that iterate's constraints
     themselves and report the status. Another cvxpy solver keeps its own defaults (its settings
-    have other names and meanings; dynid's default is Clarabel)."""
-    return {**clarabel_tolerances(), "accept_unknown": True} if solver.upper() == "CLARABEL" else {}
+    have other names and meanings; dynid's default is Clarabel). ``factor`` multiplies Clarabel's
+    tolerances once more (a solve retried after a numerical failure, :data:`RELAXED_LIMIT`)."""
+    if solver.upper() != "CLARABEL":
+        return {}
+    return {**{k: v * factor for k, v in clarabel_tolerances().items()}, "accept_unknown": True}
+
+
+RELAXED_LIMIT = 1e-6
+"""The loosest feasibility tolerance to which a Clarabel solve that failed numerically (``NumericalError``:
+its KKT system could not be solved to the requested accuracy, which happens on ill-conditioned data and
+sooner with tighter tolerances) is retried, by factors of 10 (100 x Clarabel's own 1e-8); the stage
+reports the factor and its status is ``optimal_inaccurate``."""

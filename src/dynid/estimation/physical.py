@@ -90,7 +90,7 @@ from dynid.estimation.linear import _channel_noise_std, _Solve, gautier_noise_st
 from dynid.estimation.problem import RegressionProblem
 from dynid.estimation.results import IdentificationResult
 from dynid.model.base_parameters import StandardMap, pseudo_inertia
-from dynid.tolerances import scaled, solver_options
+from dynid.tolerances import RELAXED_LIMIT, scaled, solver_options
 
 __all__ = ["BodyBounds", "PhysicalConstraints", "PhysicalLS", "REGULARIZATIONS", "WEIGHTINGS", "logdet_divergence"]
 
@@ -355,16 +355,30 @@ class PhysicalLS:
         return expr
 
     def _solve(self, cp, prob, what: str) -> dict:
+        """Solve ``prob``; a numerical failure of Clarabel is retried with its tolerances x10 at a
+        time up to a feasibility tolerance of :data:`dynid.tolerances.RELAXED_LIMIT` (the stage then
+        reports ``tolerance_factor`` and the status ``optimal_inaccurate``); the callers check the
+        solution's constraints themselves."""
         t0 = time.perf_counter()
-        try:
-            with warnings.catch_warnings():  # "solution may be inaccurate": the status says so
-                warnings.simplefilter("ignore", UserWarning)
-                prob.solve(solver=self.solver, **solver_options(self.solver))
-        except cp.error.SolverError as exc:
-            raise DynidError(f"{self.solver} failed on {what} ({str(exc).splitlines()[0]})") from None
+        factor = 1.0
+        while True:
+            try:
+                with warnings.catch_warnings():  # "solution may be inaccurate": the status says so
+                    warnings.simplefilter("ignore", UserWarning)
+                    prob.solve(solver=self.solver, **solver_options(self.solver, factor))
+                break
+            except cp.error.SolverError as exc:
+                opts = solver_options(self.solver, 10.0 * factor)
+                if not opts or opts["tol_feas"] > RELAXED_LIMIT * (1 + 1e-9):
+                    raise DynidError(f"{self.solver} failed on {what} ({str(exc).splitlines()[0]})") from None
+                factor *= 10.0
         st = prob.solver_stats
-        return {"status": str(prob.status), "iterations": getattr(st, "num_iters", None) if st else None,
-                "solve_time_s": getattr(st, "solve_time", None) if st else None, "wall_time_s": time.perf_counter() - t0}
+        status = str(prob.status)
+        if factor > 1.0 and status == "optimal":
+            status = "optimal_inaccurate"  # solved, at tolerances looser than asked for
+        return {"status": status, "iterations": getattr(st, "num_iters", None) if st else None,
+                "solve_time_s": getattr(st, "solve_time", None) if st else None, "wall_time_s": time.perf_counter() - t0,
+                "tolerance_factor": factor}
 
     def _sdp(self, cp, smap, A, d, extra, squared: bool = False):
         """min ||A pi - d|| (+ its square with ``squared``) + extra(pi) under the constraints,
@@ -584,6 +598,10 @@ class PhysicalLS:
                      + (" (the regularized optimum)" if lam > 0 else " that gives the estimate up to the tie-break's "
                         f"reported cost ({stages['standard']['residual_increase_chi2']:.2g} chi^2)")
                      + "; they have no standard error (not identifiable)")
+        relaxed = max(v.get("tolerance_factor", 1.0) for v in stages.values())
+        if relaxed > 1.0:
+            notes.append(f"the solver failed numerically at the requested tolerances and was solved at {relaxed:g} x them "
+                         "(status optimal_inaccurate; constraints checked as stated)")
         it = [v.get("iterations") for v in stages.values() if v.get("iterations") is not None]
         main = stages["sdp"]
         return IdentificationResult(
