@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import seed
 
 from dynid.cli import main
 from dynid.model.friction import SmoothStribeck
@@ -112,7 +113,7 @@ def closed_loop(tmp_path_factory):
     """friction.json of the fixed default skip (0.5 s, settle off: the default), of the rule on
     that floor and of the rule on a 1 s floor."""
     d = tmp_path_factory.mktemp("settle")
-    (d / "sim.toml").write_text(SIM)
+    (d / "sim.toml").write_text(SIM.replace("\nseed = 1\n", f"\nseed = {seed(1)}\n"))  # the sensor noise's
     assert main(["simulate", str(d / "sim.toml"), "--out", str(d / "sim"), "-q"]) == 0
     out = {}
     for name, extra in (("fixed", ""), ("settled", "settle = true\n"), ("settled_skip1", "settle = true\nskip = 1.0\n")):
@@ -128,20 +129,27 @@ def _errors(doc):
              p["dropped_fwd_s"], p["dropped_bwd_s"]) for p in doc["points"]]
 
 
+@pytest.mark.numerics
 def test_the_steady_state_rule_removes_the_transient_bias(closed_loop):
     """Fixed skip (the default 0.5 s): the means run over the ringing and miss the steady Eq. 15
     value at both speeds by many of their standard errors (and the notes say so). With the rule each window
     is cut where its measured speed has settled, 2-3 s after the reversal, and both points agree
-    with the truth within 3 of their reported standard errors (which ignore the noise's
-    correlation: if anything too small). The cut does not depend on the floor below it."""
+    with the truth within their reported standard errors (which ignore the noise's correlation: if
+    anything too small). The cut does not depend on the floor below it.
+
+    The line between the two: an unbiased point's |z| exceeds 3.5 with probability 5e-4. Over 8
+    draws of the sensor noise the fixed skip's z were 4.9-9.9 (at 0.008 rad/s 6.8 +- 0.9: 3.5 is 3.8
+    of that spread below) and the rule's -1.3-1.6 (std 0.9). The bounds 4 and 3 were 3.2 and 3.3
+    spreads away (5e-4 and 1e-3 per point)."""
     fixed, settled = _errors(closed_loop["fixed"]), _errors(closed_loop["settled"])
     assert [p[0] for p in fixed] == [p[0] for p in settled] == [0.005, 0.008]
     for speed, err, d_fwd, d_bwd in fixed:
-        assert abs(err) > 4, (speed, err)
+        assert abs(err) > 3.5, (speed, err)
         assert d_fwd == d_bwd == 0.5  # the fixed skip, reported as such
     for speed, err, d_fwd, d_bwd in settled:
-        assert abs(err) < 3, (speed, err)
-        assert min(d_fwd, d_bwd) > 1.0, (speed, d_fwd, d_bwd)  # the ringing outlasts a 1 s skip
+        assert abs(err) < 3.5, (speed, err)
+        # the ringing outlasts a 1 s skip (cut after 1.7-2.9 s, the same for the 8 draws)
+        assert min(d_fwd, d_bwd) > 1.0, (speed, d_fwd, d_bwd)
     forces = {k: [p["force"] for p in closed_loop[k]["points"]] for k in ("settled", "settled_skip1")}
     assert forces["settled"] == forces["settled_skip1"]
     assert closed_loop["settled"]["settings"]["settle"] is True and closed_loop["fixed"]["settings"]["settle"] is False
