@@ -158,7 +158,10 @@ def test_warm_start_is_the_physical_sdp_on_the_augmented_problem(noisy):
     direct = PhysicalLS(weighting="wls", constraints=PhysicalConstraints(margin=MARGIN)).fit(aug)
     assert list(direct.names) == warm["names"]
     np.testing.assert_array_equal(direct.params, warm["params"])
-    assert warm["status"] == direct.solver["status"] == "optimal"
+    # the same solve in this process, the same status; Clarabel may stop short of its tightened tolerances
+    # (x0.01) on this SDP and return its last iterate as optimal_inaccurate, its constraints checked as stated
+    # (dynid.tolerances.solver_options: seen with the tolerances x0.01 and the Haswell kernel together)
+    assert warm["status"] == direct.solver["status"] in ("optimal", "optimal_inaccurate")
     # the refinement improves on it, by more than chance would
     assert warm["rss_weighted"] - res.solver["rss_weighted"] > _improvement_floor(res), (warm["rss_weighted"],
                                                                                           res.solver["rss_weighted"])
