@@ -272,6 +272,40 @@ def test_rps3_stribeck_fit_through_the_loops(tmp_path):
     # 1000 held-out rows a leg: the sample rms within 2.2 % (1 std) of sigma; the rest is the fit's error
     assert np.all(o.validation.rmse < 1.2 * RPS3_SIGMA), o.validation.rmse
     assert "m/s" in o.summary_text()
+    # on the boundary the fit is a constrained optimum: it costs no more (weighted RSS of its own rows)
+    # than a feasible point next to the truth, the truth with every body thickened by 1.01e-4 (its
+    # platform is a flat plate, below the margin 1e-4); the log-Cholesky pass alone stopped above it
+    _fit_costs_no_more_than_the_thickened_truth(o, friction)
+
+
+def _fit_costs_no_more_than_the_thickened_truth(o, friction):
+    import dataclasses
+
+    from dynid.pipeline import stribeck as S
+    from dynid.pipeline.identification import _chunks, row_mask
+
+    res, base, system = o.result, o.base, o.system
+    chunks = list(_chunks(system, base, o.train, None))
+    W, y = np.concatenate([c.W for c in chunks]), np.concatenate([c.y for c in chunks])
+    dq = np.concatenate([c.dq for c in chunks])
+    jdq = np.concatenate([c.joint_dq for c in chunks]) if chunks[0].joint_dq is not None else None
+    keep = row_mask(system, None, dq, o.config.processing.min_velocity, joint_dq=jdq,
+                    min_velocity_passive=o.config.processing.min_velocity_passive, reversal=None)
+    keep = np.ones(y.shape, bool) if keep is None else np.broadcast_to(keep if keep.ndim == 2 else keep[:, None], y.shape)
+    fj = S.friction_joints(system, base)
+
+    def cost(params):
+        r = S.predict(dataclasses.replace(res, params=params), fj, W, dq) - y
+        return sum(np.sum(r[keep[:, j], j] ** 2) / res.noise_std[j] ** 2 for j in range(y.shape[1]))
+
+    thick = RPS3.nominal_parameters().copy()
+    for b in RPS3.body_blocks():
+        thick[b[0]] += 1.01e-4
+        thick[b[[4, 6, 9]]] += 2.02e-4
+    truth = np.r_[base.from_standard(thick), friction.fs - friction.fc, friction.vs, np.full(3, 2.0)]
+    # the fit's own cost by this route equals its reported one (rounding)
+    assert cost(res.params) == pytest.approx(float(np.sum(res.rss_per_channel / res.noise_std**2)), rel=1e-9)
+    assert cost(res.params) <= cost(truth), (cost(res.params), cost(truth))
 
 
 # ---------------------------------------------------------------------- refused combinations

@@ -40,7 +40,11 @@ per body (pseudo-inertia; Wensing, Kim & Slotine 2017), the standard map's sign 
    giving the consistent standard vector closest to the reference.
 4. **Interior optimum.** With no active constraint, ``least_squares`` over the identifiable
    :math:`(\\beta, \\Delta F, \\log v_S, \\delta)` (full rank: fast, exact), then the polish again (it
-   checks that the optimum is still feasible).
+   checks that the optimum is still feasible). **On the boundary** (a constraint active after the
+   polish), alternation: ``least_squares`` over :math:`(\\log v_S, \\delta)` at the polish's
+   :math:`(\\beta, \\Delta F)`, then the polish at the new :math:`(v_S, \\delta)`, until the weighted RSS
+   falls by less than ``ftol`` relative (each half-step minimizes over its block: the RSS never rises;
+   at most 50 rounds, else the status says so).
 
 Estimate: :math:`(\\beta, \\Delta F)` of the last polish, :math:`(v_S, \\delta)` of the last refinement.
 Covariance: Gauss–Newton in :math:`\\varphi = (\\beta, \\Delta F, v_S, \\delta)`, :math:`s^2 (J_\\varphi^T
@@ -168,6 +172,9 @@ class _Refiner:
         return lb, ub
 
 
+_MAX_ROUNDS = 50  # of step 4's alternation on the boundary (module docstring)
+
+
 def _refine_identifiable(sp: SampleProblem, sw, start, vs, delta, log_vs_lim, delta_lim, xtol: float, max_nfev: int):
     """Step 4: ``least_squares`` over :math:`(\\beta, \\Delta F, \\log v_S, \\delta)` (full rank)."""
     from scipy.optimize import least_squares
@@ -193,6 +200,39 @@ def _refine_identifiable(sp: SampleProblem, sw, start, vs, delta, log_vs_lim, de
     sol = least_squares(fun, z0, jac=jac, bounds=(lb, ub), method="trf", tr_solver="exact", x_scale="jac",
                         ftol=scaled(1e-12), xtol=scaled(xtol), gtol=scaled(xtol), max_nfev=max_nfev)
     return sol, np.exp(sol.x[p + f : p + 2 * f]), sol.x[p + 2 * f :]
+
+
+def _refine_shape(sp: SampleProblem, sw, beta_dF, vs, delta, log_vs_lim, delta_lim, xtol: float, max_nfev: int):
+    """Step 4 on the boundary: ``least_squares`` over :math:`(\\log v_S, \\delta)` alone at fixed
+    :math:`(\\beta, \\Delta F)` (the polish's constrained optimum). Returns the solution, ``vs``,
+    ``delta``."""
+    from scipy.optimize import least_squares
+
+    p, f = len(sp.names), sp.n_friction
+    rw = sp.row_weights(sw)
+    Pw = sp.projection_array() * rw[:, :, None]
+    fixed = (sp.W * rw[:, :, None]).reshape(-1, p) @ beta_dF[:p] - (sp.y * rw).reshape(-1)
+    dF = beta_dF[p:]
+
+    def fun(z):
+        return fixed + _friction_rows(sp, Pw, dF, np.exp(z[:f]), z[f:], jac=False)[0]
+
+    def jac(z):
+        return _friction_rows(sp, Pw, dF, np.exp(z[:f]), z[f:], jac=True)[1][:, f:]
+
+    lb, ub = np.r_[log_vs_lim[0], np.full(f, delta_lim[0])], np.r_[log_vs_lim[1], np.full(f, delta_lim[1])]
+    z0 = np.clip(np.r_[np.log(vs), delta], lb, ub)
+    sol = least_squares(fun, z0, jac=jac, bounds=(lb, ub), method="trf", tr_solver="exact", x_scale="jac",
+                        ftol=scaled(1e-12), xtol=scaled(xtol), gtol=scaled(xtol), max_nfev=max_nfev)
+    return sol, np.exp(sol.x[:f]), sol.x[f:]
+
+
+def _weighted_rss(sp: SampleProblem, sw, beta_dF, vs, delta) -> float:
+    """The weighted residual sum of squares of ``(beta, dF, vs, delta)`` over the kept rows."""
+    p = len(sp.names)
+    resid = sp.y - np.einsum("ncp,p->nc", sp.W, beta_dF[:p]) - np.einsum("nck,k->nc", sp.friction_columns(vs, delta),
+                                                                        beta_dF[p:])
+    return float(np.sum(np.sum((resid * sp.row_mask) ** 2, axis=0) * sw**2))
 
 
 def _profile_nll(rss: FloatArray, n_obs: FloatArray, pooled: bool) -> float:
@@ -342,6 +382,33 @@ class StribeckLS:
                                                   self.delta_bounds, self.xtol, self.max_nfev)
             passes.append(_pass_info("identifiable", sol))
             pol = polish.fit(sp.augmented(vs, delta, weights=1.0 / sigma**2))
+        else:
+            # 4'. on the boundary the log-Cholesky pass only approaches the optimum (its coordinates are
+            # ill-conditioned there) and (vs, delta) would keep its last values: alternate least_squares
+            # over (log vs, delta) at the polish's (beta, dF) with the polish at the new (vs, delta). Each
+            # half-step is a minimum over its block from the current point (the polish: the exact constrained
+            # optimum, up to the SDP's tolerance), so the weighted RSS falls monotonically; stop when it falls
+            # by less than ftol relative (block coordinate descent, a fixed point of both half-steps)
+            sw = 1.0 / sigma
+            rss = _weighted_rss(sp, sw, np.asarray(pol.params), vs, delta)
+            rounds, converged = 0, False
+            while rounds < _MAX_ROUNDS:
+                rounds += 1
+                sol, vs1, delta1 = _refine_shape(sp, sw, np.asarray(pol.params), vs, delta, log_vs_lim,
+                                                 self.delta_bounds, self.xtol, self.max_nfev)
+                pol1 = polish.fit(sp.augmented(vs1, delta1, weights=sw**2))
+                rss1 = _weighted_rss(sp, sw, np.asarray(pol1.params), vs1, delta1)
+                if rss1 < rss:
+                    pol, vs, delta = pol1, vs1, delta1
+                if not rss1 < rss * (1.0 - scaled(self.ftol)):
+                    converged = True
+                    break
+                rss = rss1
+            passes.append({"stage": "boundary alternation", "status": 1 if converged else 0,
+                           "message": f"{rounds} rounds of (vs, delta) least squares and the SDP polish"
+                                      + ("" if converged else f"; stopped at the limit of {_MAX_ROUNDS} rounds"),
+                           "nfev": rounds, "njev": rounds, "rss_weighted": _weighted_rss(sp, sw, np.asarray(pol.params),
+                                                                                       vs, delta)})
         return self._result(sp, sigma, np.asarray(pol.params), vs, delta, pol, warm, (c0, d0, cands), passes,
                             (log_vs_lim, self.delta_bounds), t0)
 
