@@ -71,7 +71,8 @@ def seed(base: int) -> int:
     return draw_seed(base, draw())
 
 
-def sdp_norm_slack(norm: float, status: str = "optimal", safety: float = 10.0, factor: float = 1.0) -> float:
+def sdp_norm_slack(norm: float, status: str = "optimal", safety: float = 10.0, factor: float = 1.0,
+                   data_norm: float | None = None) -> float:
     """How far above its minimum Clarabel may stop on ``min ||A x - d|| (+ ...)`` (a second-order
     cone program, dynid.estimation.PhysicalLS), in the units of the norm: the duality gap
     ``tol_gap_abs + tol_gap_rel * max(1, norm)`` and the primal residual ``tol_feas * max(1, norm)``
@@ -79,14 +80,19 @@ def sdp_norm_slack(norm: float, status: str = "optimal", safety: float = 10.0, f
     ``optimal_inaccurate``; dynid.tolerances, scaled by DYNID_SOLVER_TOL_SCALE). ``safety`` covers
     Clarabel measuring both on its equilibrated (rescaled) problem (a factor of a few); ``factor``
     the stage's ``tolerance_factor`` (a solve retried at looser tolerances, PhysicalLS._solve);
-    ``status`` may be the stage's record itself (both read from it)."""
+    ``status`` may be the stage's record itself (both read from it, and its ``data_norm``). The
+    primal residual is relative to the data (``data_norm``, the norm of the right-hand side: the
+    stage records it; default ``norm``), which can be far larger than the optimum's norm."""
     from dynid.tolerances import clarabel_tolerances
 
-    if isinstance(status, dict):  # a solver stage's record: its status and tolerance factor
+    if isinstance(status, dict):  # a solver stage's record: its status, tolerance factor and data norm
+        data_norm = status.get("data_norm", data_norm)
         status, factor = status["status"], factor * status.get("tolerance_factor", 1.0)
+    data_norm = norm if data_norm is None else max(norm, data_norm)
     t = {k: v * factor for k, v in clarabel_tolerances().items()}
     pre = "reduced_" if status == "optimal_inaccurate" else ""
-    return safety * (t[pre + "tol_gap_abs"] + (t[pre + "tol_gap_rel"] + t[pre + "tol_feas"]) * max(1.0, norm))
+    return safety * (t[pre + "tol_gap_abs"] + t[pre + "tol_gap_rel"] * max(1.0, norm)
+                     + t[pre + "tol_feas"] * max(1.0, data_norm))
 
 
 def sdp_chi2_slack(norm: float, status: str = "optimal", safety: float = 10.0, factor: float = 1.0) -> float:

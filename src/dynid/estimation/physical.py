@@ -392,6 +392,7 @@ class PhysicalLS:
             obj = (cp.square(resid) if squared else resid) + extra(pi)
             prob = cp.Problem(cp.Minimize(obj), self._constraints(cp, smap, pi, 2 * tau))
             info = self._solve(cp, prob, "the physically consistent problem")
+            info["data_norm"] = float(np.linalg.norm(d))  # the scale of Clarabel's residual tolerances
             status = info["status"]
             if status not in ("optimal", "optimal_inaccurate") or pi.value is None:
                 hint = " (do the bounds exclude every physically consistent body?)" if "infeasible" in status else ""

@@ -442,7 +442,7 @@ class ExcitationProblem:
         """Largest amplitude scale s in (0, 1] with the design feasible (bisection)."""
         K, n = self.harmonics, self.n_u
 
-        def scaled(s: float) -> FloatArray:
+        def shrunk(s: float) -> FloatArray:
             y = x.copy()
             y[: 2 * n * K] *= s
             return y
@@ -450,18 +450,18 @@ class ExcitationProblem:
         if feasible(x):
             return x
         lo, hi = 0.0, 1.0
-        if not feasible(scaled(1e-4)):
+        if not feasible(shrunk(1e-4)):
             return None
         lo = 1e-4
         for _ in range(30):
             mid = np.sqrt(lo * hi) if lo > 0 else hi / 2
-            if feasible(scaled(mid)):
+            if feasible(shrunk(mid)):
                 lo = mid
             else:
                 hi = mid
             if hi / lo < 1.02:
                 break
-        return scaled(lo)
+        return shrunk(lo)
 
     def _local_search(self, x0: FloatArray, criterion: str, max_iter: int, bounds) -> FloatArray | None:
         """SLSQP from the feasible ``x0`` on ``criterion``; returns the best of SLSQP's point and
