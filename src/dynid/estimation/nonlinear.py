@@ -391,24 +391,33 @@ class StribeckLS:
             # by less than ftol relative (block coordinate descent, a fixed point of both half-steps)
             sw = 1.0 / sigma
             rss = _weighted_rss(sp, sw, np.asarray(pol.params), vs, delta)
-            rounds, converged = 0, False
+            rounds, stop = 0, "limit"
             while rounds < _MAX_ROUNDS:
                 rounds += 1
                 sol, vs1, delta1 = _refine_shape(sp, sw, np.asarray(pol.params), vs, delta, log_vs_lim,
                                                  self.delta_bounds, self.xtol, self.max_nfev)
-                pol1 = polish.fit(sp.augmented(vs1, delta1, weights=sw**2))
+                try:
+                    pol1 = polish.fit(sp.augmented(vs1, delta1, weights=sw**2))
+                except IdentifiabilityError:  # the new shape leaves a dFs column ~0 (vs at its bound): not taken
+                    stop = "undetermined"
+                    break
                 rss1 = _weighted_rss(sp, sw, np.asarray(pol1.params), vs1, delta1)
                 if rss1 < rss:
                     pol, vs, delta = pol1, vs1, delta1
                 if not rss1 < rss * (1.0 - scaled(self.ftol)):
-                    converged = True
+                    stop = "tolerance"
                     break
                 rss = rss1
-            passes.append({"stage": "boundary alternation", "status": 1 if converged else 0,
-                           "message": f"{rounds} rounds of (vs, delta) least squares and the SDP polish"
-                                      + ("" if converged else f"; stopped at the limit of {_MAX_ROUNDS} rounds"),
-                           "nfev": rounds, "njev": rounds, "rss_weighted": _weighted_rss(sp, sw, np.asarray(pol.params),
-                                                                                       vs, delta)})
+            # converged: the RSS stopped falling; a shape step that would leave a Stribeck term undetermined
+            # is not taken, and then the status is the log-Cholesky pass's
+            status = 1 if stop == "tolerance" else (passes[-1]["status"] if stop == "undetermined" else 0)
+            message = {"tolerance": "the weighted RSS stopped falling",
+                       "undetermined": "the next (vs, delta) step would leave a dFs undetermined: not taken",
+                       "limit": f"stopped at the limit of {_MAX_ROUNDS} rounds"}[stop]
+            passes.append({"stage": "boundary alternation", "status": status,
+                           "message": f"{rounds} rounds of (vs, delta) least squares and the SDP polish; {message}",
+                           "nfev": rounds, "njev": rounds,
+                           "rss_weighted": _weighted_rss(sp, sw, np.asarray(pol.params), vs, delta)})
         return self._result(sp, sigma, np.asarray(pol.params), vs, delta, pol, warm, (c0, d0, cands), passes,
                             (log_vs_lim, self.delta_bounds), t0)
 
