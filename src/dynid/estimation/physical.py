@@ -76,7 +76,9 @@ The standard parameters themselves have no standard error (they are not identifi
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import threading
 import time
 import warnings
 from collections.abc import Mapping
@@ -207,6 +209,12 @@ class _Fit:
     weights_note: str
     noise_std: FloatArray
     label: str
+
+
+# compiled (DPP) problems of PhysicalLS._compiled, least recently used dropped first; one cache
+# per thread (a cached problem holds its parameter values and solution while it is solved)
+_COMPILED_LOCAL = threading.local()
+_COMPILED_SIZE = 8
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -380,24 +388,63 @@ class PhysicalLS:
                 "solve_time_s": getattr(st, "solve_time", None) if st else None, "wall_time_s": time.perf_counter() - t0,
                 "tolerance_factor": factor}
 
-    def _sdp(self, cp, smap, A, d, extra, squared: bool = False):
-        """min ||A pi - d|| (+ its square with ``squared``) + extra(pi) under the constraints,
+    def _compiled(self, cp, smap, shape: tuple, tau: float, tie: bool):
+        """The problem min ||A pi - d|| (+ ||eta pi - eta ref||, the tie-break, with ``tie``) under
+        the constraints tightened by ``tau``, with A, d (eta, eta ref) as cvxpy Parameters, from a
+        small per-thread cache: cvxpy compiles a parametrized (DPP) problem once and
+        solves it again with new data without canonicalizing it (on the 3-RPS Stribeck fits,
+        which alternate with this polish a few hundred times, canonicalization was 95 % of the
+        SDP time). Returns ``(prob, pi, params)``."""
+        key = (repr(self.constraints), smap.B.shape[1], tuple(smap.body_names),
+               tuple(tuple(int(i) for i in b) for b in smap.body_blocks), smap.zero.tobytes(),
+               smap.nonnegative.tobytes(), smap.nonpositive.tobytes(), tuple(shape), float(tau), bool(tie))
+        cache = getattr(_COMPILED_LOCAL, "problems", None)
+        if cache is None:
+            cache = _COMPILED_LOCAL.problems = collections.OrderedDict()
+        hit = cache.get(key)
+        if hit is not None:
+            cache.move_to_end(key)
+            return hit
+        n = smap.B.shape[1]
+        pi = cp.Variable(n)
+        A_p, d_p = cp.Parameter(tuple(shape)), cp.Parameter(shape[0])
+        # the residual as a second-order cone (its square as a quadratic form squares the
+        # condition number of R and costs the solver digits)
+        obj = cp.norm(A_p @ pi - d_p)
+        params = [A_p, d_p]
+        if tie:  # eta ||pi - ref|| = ||eta pi - eta ref|| (eta >= 0): parameter-affine inside the norm (DPP)
+            e_p, r_p = cp.Parameter(nonneg=True), cp.Parameter(n)
+            obj = obj + cp.norm(e_p * pi - r_p)
+            params += [e_p, r_p]
+        hit = (cp.Problem(cp.Minimize(obj), self._constraints(cp, smap, pi, tau)), pi, params)
+        cache[key] = hit
+        while len(cache) > _COMPILED_SIZE:
+            cache.popitem(last=False)
+        return hit
+
+    def _sdp(self, cp, smap, A, d, extra=None, squared: bool = False, tie: tuple | None = None):
+        """min ||A pi - d|| (+ its square with ``squared``) + extra(pi) (or, with ``tie`` =
+        (eta, ref), + eta ||pi - ref||, through the compiled-problem cache) under the constraints,
         tightened by a buffer that is widened until the solution satisfies them as stated."""
         tau = scaled(self.feasibility_tol)  # follows the solver's feasibility tolerance
         for _attempt in range(4):
-            pi = cp.Variable(smap.B.shape[1])
-            # the residual as a second-order cone (its square as a quadratic form squares the
-            # condition number of R and costs the solver digits)
-            resid = cp.norm(A @ pi - d)
-            obj = (cp.square(resid) if squared else resid) + extra(pi)
-            prob = cp.Problem(cp.Minimize(obj), self._constraints(cp, smap, pi, 2 * tau))
+            if extra is None:
+                prob, pi, params = self._compiled(cp, smap, A.shape, 2 * tau, tie is not None)
+                params[0].value, params[1].value = A, d
+                if tie is not None:
+                    params[2].value, params[3].value = float(tie[0]), float(tie[0]) * np.asarray(tie[1], dtype=float)
+            else:
+                pi = cp.Variable(smap.B.shape[1])
+                resid = cp.norm(A @ pi - d)
+                obj = (cp.square(resid) if squared else resid) + extra(pi)
+                prob = cp.Problem(cp.Minimize(obj), self._constraints(cp, smap, pi, 2 * tau))
             info = self._solve(cp, prob, "the physically consistent problem")
             info["data_norm"] = float(np.linalg.norm(d))  # the scale of Clarabel's residual tolerances
             status = info["status"]
             if status not in ("optimal", "optimal_inaccurate") or pi.value is None:
                 hint = " (do the bounds exclude every physically consistent body?)" if "infeasible" in status else ""
                 raise DynidError(f"physically consistent estimation failed: solver status {status!r}{hint}")
-            out = np.asarray(pi.value, dtype=float)
+            out = np.array(pi.value, dtype=float)  # a copy: a cached problem's variable is reused
             if min(slack for _, slack, _ in self._margins(smap, out)) >= 0:
                 info["buffer"] = 2 * tau
                 return out, info
@@ -484,13 +531,13 @@ class PhysicalLS:
         nearest one named when the optimum moved but none sits on the boundary within the
         tolerance). Returns ``(beta, pi_std, cost, unchanged, active, stages)``."""
         stages: dict = {}
-        pi_sdp, stages["sdp"] = self._sdp(cp, smap, A, d, lambda pi: 0)
+        pi_sdp, stages["sdp"] = self._sdp(cp, smap, A, d)
         cost = float(np.sum((A @ pi_sdp - d) ** 2))
         unchanged = cost <= _UNCHANGED  # a feasible unconstrained optimum is returned unchanged
         beta = beta0.copy() if unchanged else smap.B @ pi_sdp
         scale = float(np.linalg.norm(smap.B.T @ np.linalg.lstsq(smap.B @ smap.B.T, beta0 - smap.B @ ref0, rcond=None)[0]))
         eta = _TIE_BREAK / max(scale + float(np.linalg.norm(ref0)), 1e-12)
-        pi_std, stages["standard"] = self._sdp(cp, smap, A, d, lambda pi: eta * cp.norm(pi - ref0))
+        pi_std, stages["standard"] = self._sdp(cp, smap, A, d, tie=(eta, ref0))
         stages["standard"]["residual_increase_chi2"] = float(np.sum((A @ pi_std - d) ** 2)) - cost
         # what bounds that increase: pi_sdp is feasible for the tie-break problem, so at its optimum
         # ||A pi_std - d|| - ||A pi_sdp - d|| <= weight * (||pi_sdp - ref|| - ||pi_std - ref||)
