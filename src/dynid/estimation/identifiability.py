@@ -156,7 +156,11 @@ def is_feasible(
         pseudo-inertia is below ``-tol * S``, a non-negative parameter when it is below
         ``-tol * S``, with ``S`` the largest magnitude in the problem (of the base
         parameters, of the pseudo-inertia eigenvalues and of the non-negative parameters
-        found; at least 1). The solver's accuracy is about 1e-8 of that scale.
+        found; at least 1). The solver's accuracy is its tolerances (1e-8 by default) of that
+        scale for an interior point, but on the boundary of the consistent set (an estimate with
+        an active constraint) their product with the conditioning of the fibre
+        :math:`B\pi = \beta` (4.4e-7 of the scale on the cobot6r twin): a violation found is
+        therefore re-examined at tighter tolerances (below).
     solver : str
         ``"CLARABEL"`` (default): Clarabel called directly on the conic form below (no cvxpy:
         its import, ~1-2 s, was most of the check's time); ``"cvxpy:NAME"`` or any other name:
