@@ -182,12 +182,35 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from dynid.config import load_config
 
     _check_out(args.out)
-    cfg = load_config(args.config)  # config errors come before the heavy imports below
+    started = None
+    if len(args.config) == 1:
+        if args.validation is not None:
+            raise InputError("--validation: only with `dynid identify ROBOT LOG` (a config names its validation in "
+                             "[validation])")
+        cfg = load_config(args.config[0])  # config errors come before the heavy imports below
+    elif len(args.config) == 2:
+        # no config: what `dynid init ROBOT LOG` would write, saved beside the results (issue 34, item 9)
+        import tomllib
+
+        from dynid.config import parse_config
+        from dynid.pipeline.starter import starting_config
+
+        target = Path(args.out) / "identify.toml"
+        started = starting_config(args.config[0], args.config[1], target, validation=args.validation)
+        if started.unmatched:
+            raise InputError(f"{args.config[1]}: no column for {', '.join(started.unmatched)}; run `dynid init "
+                             f"{args.config[0]} {args.config[1]} --out identify.toml`, name them there, then identify it")
+        cfg = parse_config(tomllib.loads(started.text), target.resolve().parent)
+    else:
+        raise InputError(f"identify takes CONFIG.toml or ROBOT LOG, got {len(args.config)} arguments")
     from dynid.pipeline import identify, write_outputs
 
     with _progress_bar(not args.quiet) as progress:
         outcome = identify(cfg, progress, plot_worker=True)
     written = write_outputs(outcome, args.out)
+    if started is not None:
+        (Path(args.out) / "identify.toml").write_text(started.text)
+        written = [*written, "identify.toml"]
     if not args.quiet:
         print(outcome.summary_text())
         print()
@@ -384,7 +407,8 @@ def _cmd_init(args: argparse.Namespace) -> int:
     if args.rate is not None and not (0 < args.rate < float("inf")):
         raise InputError(f"--rate: must be a positive number of Hz, got {args.rate!r}")
     cfg = write_starting_config(args.robot, args.log, args.out, force=args.force, actuated=names(args.actuated, "--actuated"),
-                                independent=names(args.independent, "--independent"), sample_rate_hz=args.rate)
+                                independent=names(args.independent, "--independent"), sample_rate_hz=args.rate,
+                                validation=args.validation)
     print(f"wrote {args.out}: {len(cfg.joints)} actuators, sampling rate {cfg.sample_rate_hz:.6g} Hz, "
           f"low-pass {cfg.cutoff_hz:g} Hz, method wls")
     guessed = [f"{w} of {j} ({m.column})" for j, p, e in zip(cfg.joints, cfg.position, cfg.effort)
@@ -434,13 +458,19 @@ def build_parser() -> argparse.ArgumentParser:
     pn.add_argument("log", help="the log: .csv/.tsv, .npz or .parquet with a header (column names)")
     pn.add_argument("--out", required=True, help="the config file to write (refused when it exists, unless --force)")
     pn.add_argument("--force", action="store_true", help="replace an existing --out file")
+    pn.add_argument("--validation", default=None, metavar="OTHER_LOG",
+                    help="a second run of the robot (the same columns) to validate on: better than the last quarter of LOG")
     pn.add_argument("--rate", type=float, default=None, metavar="HZ", help="sampling rate of a log without a time column")
     pn.add_argument("--actuated", default=None, metavar="J1,J2,...", help="parallel robots: the actuated joints, as for info")
     pn.add_argument("--independent", default=None, metavar="J1,J2,...", help="parallel robots: the independent coordinates' joints")
     pn.set_defaults(func=_cmd_init)
 
     pid = sub.add_parser("identify", help="identify base parameters from logs as CONFIG.toml says")
-    pid.add_argument("config", help="TOML configuration (schema in the README)")
+    pid.add_argument("config", nargs="+", metavar="CONFIG | ROBOT LOG",
+                     help="TOML configuration (schema in the README), or a robot and a log: then the config `dynid init "
+                          "ROBOT LOG` would write is run and saved as OUT/identify.toml")
+    pid.add_argument("--validation", default=None, metavar="LOG",
+                     help="with ROBOT LOG: a second run to validate on (else the last quarter of LOG)")
     pid.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pid.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
     pid.set_defaults(func=_cmd_identify)

@@ -159,7 +159,7 @@ def is_feasible(
         found; at least 1). The solver's accuracy is its tolerances (1e-8 by default) of that
         scale for an interior point, but on the boundary of the consistent set (an estimate with
         an active constraint) their product with the conditioning of the fibre
-        :math:`B\pi = \beta` (4.4e-7 of the scale on the cobot6r twin): a violation found is
+        :math:`B\\pi = \\beta` (4.4e-7 of the scale on the cobot6r twin): a violation found is
         therefore re-examined at tighter tolerances (below).
     solver : str
         ``"CLARABEL"`` (default): Clarabel called directly on the conic form below (no cvxpy:
