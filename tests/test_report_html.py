@@ -99,7 +99,9 @@ def _log(d, name: str, seed: int, periods: int) -> list[str]:
 def _doc(d, joints, kind: str) -> dict:
     sig = lambda p, unit, **kw: {"columns": [f"{p}_{j}" for j in joints], "unit": unit, **kw}  # noqa: E731
     return {
-        "robot": {"model": "builtin:cobot6r"},
+        # currents with unit drive gains given: the parameters absorb the gains (without drive_gains
+        # identify would estimate them from the prior, tests/test_drive_gains.py)
+        "robot": {"model": "builtin:cobot6r", **({"drive_gains": [1.0] * 6} if kind == "current" else {})},
         "data": {"file": str(d / "train.npz"), "time": {"column": "t"}, "position": sig("q", "rad"),
                  "velocity": sig("dq", "rad"), "acceleration": sig("ddq", "rad"),
                  "effort": sig("tau", "N*m" if kind == "torque" else "A", kind=kind)},

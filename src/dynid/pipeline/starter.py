@@ -494,8 +494,10 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
         lines.append(f"# WARNING: {', '.join(degrees)} span more than two turns: degrees? then set unit = \"deg\"")
     if kind == "current":
         lines += [f"effort = {{ columns = {col_list(effort, 'effort')}, kind = \"current\", unit = \"A\" }}",
-                  "# motor currents: without robot.drive_gains (N*m/A) the parameters absorb the gains and the nominal",
-                  "# model cannot be compared"]
+                  "# motor currents: without robot.drive_gains (N*m/A) identify estimates them from the prior (the",
+                  "# nominal model's torques fitted to the currents, with intervals) and uses them when each is known to",
+                  "# 10 %: parameters, comparison with the prior and model.urdf then in N*m; otherwise the parameters",
+                  "# absorb the gains (said in the summary). A known-payload experiment measures the gains better."]
     else:
         lines += [f"effort = {{ columns = {col_list(effort, 'effort')} }}   # SI: "
                   + ", ".join(sorted({'revolute': 'N*m', 'prismatic': 'N'}[k] for k in set(kinds)))]
