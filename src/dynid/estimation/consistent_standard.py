@@ -48,7 +48,13 @@ Steps:
    rounding by the smallest :math:`S^{-1}`-norm correction :math:`S(BS)^+(\\hat\\beta - B\\pi)` (of
    the size of the solver's tolerance, inside the margin), so the exported model reproduces the
    estimate to rounding (``exact``). Otherwise the result says by how much the exported vector
-   misses the estimate (``mismatch``, in standard deviations), for the export's warnings.
+   misses the estimate (``mismatch``, in standard deviations), for the export's warnings: at most
+   :math:`r^\\star` + ``stages["slack"]`` + ``stages["slack_prior"]`` (the second SDP's residual on
+   the slab), and :math:`r^\\star` is the least mismatch of the vectors whose bodies keep the margin.
+
+A solver answer outside the consistent set (an interior-point method stalls at tolerances too
+tight for ill-conditioned data, then returns its last iterate) is solved again at tolerances x10
+(at most three times); nothing inconsistent is ever returned.
 """
 
 from __future__ import annotations
@@ -107,15 +113,16 @@ class ConsistentStandard:
     notes: tuple[str, ...] = ()
 
 
-def mismatch_slack(r_star: float, d_norm: float, tolerance_factor: float = 1.0) -> float:
+def mismatch_slack(r_star: float, d_norm: float, tolerance_factor: float = 1.0, status: str = "optimal") -> float:
     """How far above its true minimum Clarabel may stop on :math:`\\min\\lVert A\\pi - d\\rVert`
     (a second-order cone objective): the duality gap ``tol_gap_abs + tol_gap_rel * max(1, r)`` and
     the primal residual ``tol_feas * max(1, ||d||)`` of the cone constraint, ten times over
-    (:func:`dynid.tolerances.clarabel_tolerances`; ``tolerance_factor``: a solve retried at
-    looser tolerances)."""
+    (:func:`dynid.tolerances.clarabel_tolerances`; their ``reduced_`` values when the solve ended
+    ``optimal_inaccurate``; ``tolerance_factor``: a solve at looser tolerances)."""
     t = clarabel_tolerances()
-    return 10.0 * tolerance_factor * (t["tol_gap_abs"] + t["tol_gap_rel"] * max(1.0, r_star)
-                                      + t["tol_feas"] * max(1.0, d_norm))
+    pre = "reduced_" if status != "optimal" else ""
+    return 10.0 * tolerance_factor * (t[pre + "tol_gap_abs"] + t[pre + "tol_gap_rel"] * max(1.0, r_star)
+                                      + t[pre + "tol_feas"] * max(1.0, d_norm))
 
 
 def _consistent(pi: FloatArray, smap: StandardMap) -> bool:
@@ -167,10 +174,11 @@ class _Conic:
                 b[r] = -eps
         self._add(M, b, self.clarabel.PSDTriangleConeT(4))
 
-    def solve(self, what: str) -> tuple[FloatArray | None, dict]:
-        """:math:`\\pi` and the stage's record; a solve that stops short of its tolerances is retried
-        with them x10 at a time up to :data:`~dynid.tolerances.RELAXED_LIMIT` (as
-        :class:`~dynid.estimation.physical.PhysicalLS`); the status in cvxpy's words."""
+    def solve(self, what: str, factor: float = 1.0) -> tuple[FloatArray | None, dict]:
+        """:math:`\\pi` and the stage's record, at Clarabel's tolerances times ``factor``; a solve that
+        stops short of them is retried with them x10 at a time up to
+        :data:`~dynid.tolerances.RELAXED_LIMIT` (as :class:`~dynid.estimation.physical.PhysicalLS`);
+        the status in cvxpy's words."""
         from scipy import sparse
 
         from dynid.estimation.identifiability import _CLARABEL_STATUS
@@ -181,7 +189,7 @@ class _Conic:
         P = sparse.csc_matrix((self.p + 1, self.p + 1))
         A = sparse.csc_matrix(np.vstack(self.rows))
         b = np.concatenate(self.rhs)
-        t0, factor = time.perf_counter(), 1.0
+        t0, asked = time.perf_counter(), factor
         while True:
             settings = clarabel.DefaultSettings()
             settings.verbose = False
@@ -198,7 +206,7 @@ class _Conic:
                 continue
             return None, {"status": status, "what": what, "tolerance_factor": factor,
                           "wall_time_s": time.perf_counter() - t0}
-        if factor > 1.0 and status == "optimal":
+        if factor > asked and status == "optimal":
             status = "optimal_inaccurate"  # solved, at tolerances looser than asked for
         return (np.asarray(sol.x, dtype=float)[: self.p],
                 {"status": status, "iterations": int(sol.iterations), "tolerance_factor": factor,
@@ -280,16 +288,18 @@ def consistent_standard(beta: FloatArray, smap: StandardMap, prior: FloatArray, 
         return c
 
     notes: tuple[str, ...] = ()
+    factor = 1.0
     for _attempt in range(4):
         # step 2: the smallest mismatch over consistent vectors
         miss = problem(tau)
         miss.norm_bound(A, d, None)
-        pi2, stages["mismatch"] = miss.solve("the smallest base-parameter mismatch")
+        pi2, stages["mismatch"] = miss.solve("the smallest base-parameter mismatch", factor)
         if pi2 is None:
             raise DynidError(f"no physically consistent standard vector found: solver status "
                              f"{stages['mismatch']['status']!r} on the base-parameter mismatch")
         r_star = float(np.linalg.norm(A @ pi2 - d))
-        delta = mismatch_slack(r_star, float(np.linalg.norm(d)), stages["mismatch"]["tolerance_factor"])
+        delta = mismatch_slack(r_star, float(np.linalg.norm(d)), stages["mismatch"]["tolerance_factor"],
+                               stages["mismatch"]["status"])
         # step 3: the closest to the prior with B pi = beta (a consistent vector gives it) or within the mismatch
         near = problem(tau)
         exact_set = r_star <= delta
@@ -298,7 +308,7 @@ def consistent_standard(beta: FloatArray, smap: StandardMap, prior: FloatArray, 
         else:
             near.norm_bound(A, d, r_star + delta)
         near.norm_bound(np.diag(1.0 / s), prior / s, None)
-        pi3, stages["prior"] = near.solve("the closest consistent vector to the prior")
+        pi3, stages["prior"] = near.solve("the closest consistent vector to the prior", factor)
         stages["prior"]["constraint"] = "B pi = beta" if exact_set else "mismatch <= minimum + slack"
         notes = () if pi3 is not None else (
             f"the solver could not find the closest vector to the prior (status {stages['prior']['status']!r}): "
@@ -307,11 +317,18 @@ def consistent_standard(beta: FloatArray, smap: StandardMap, prior: FloatArray, 
             pi3 = pi2
         if _consistent(pi3, smap):
             break
-        tau *= 10.0  # the solver's accuracy did not cover the buffer: a wider one
+        # the solver's answer is outside the consistent set: it stopped short (too tight tolerances stall an
+        # interior-point method on ill-conditioned data) or its accuracy did not cover the buffer
+        factor *= 10.0
+        tau *= 10.0
     else:
         raise DynidError("no physically consistent standard vector found: the solver's answers violate the "
-                         f"pseudo-inertia constraints beyond a buffer of {2 * tau / 10:g}")
-    stages.update(buffer=2 * tau, margin_relative=MARGIN, mismatch_min=r_star, slack=delta)
+                         f"pseudo-inertia constraints at tolerances up to {factor / 10:g} x Clarabel's")
+    # how far the second SDP may leave the slab (its primal residual): the bound on the exported mismatch is
+    # mismatch_min + slack + slack_prior
+    slack_prior = mismatch_slack(r_star, float(np.linalg.norm(d)), stages["prior"]["tolerance_factor"],
+                                 stages["prior"]["status"])
+    stages.update(buffer=2 * tau, margin_relative=MARGIN, mismatch_min=r_star, slack=delta, slack_prior=slack_prior)
     if r_star <= delta:
         polished = onto(pi3)
         if _consistent(polished, smap):

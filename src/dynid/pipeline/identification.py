@@ -1517,8 +1517,9 @@ def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | 
                      "the constraints bind (a semidefinite program, Clarabel)")
     if not found.exact:
         notes.append(f"no physically consistent standard vector gives the estimated base parameters: this one "
-                     f"misses them by {found.mismatch:.3g} ({found.metric}), the least any consistent vector does, "
-                     "and its forces differ from the estimate's accordingly")
+                     f"misses them by {found.mismatch:.3g} ({found.metric}; the least any consistent vector misses "
+                     f"them by is {found.stages['mismatch_min']:.3g}), and its forces differ from the estimate's "
+                     "accordingly")
     notes += list(found.notes)
     if "hierarchical" in res.solver:
         notes.append("the hierarchical fit's friction curves are in result.json (solver.hierarchical), not in this file")
