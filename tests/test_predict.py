@@ -281,8 +281,8 @@ def rps3(tmp_path_factory):
     leaves the rigid-body base parameters with standard deviations of about 10x their values (the
     reflected screw inertia and the friction dominate the leg forces), and their closest standard
     vector is not physically consistent (origin-frame inertias at their nominal values around
-    moved centres of mass give negative inertias about the centre of mass), which MJCF cannot hold
-    (test_mjcf_refuses_an_inertia_pinocchio_would_misread)."""
+    moved centres of mass give negative inertias about the centre of mass): the export writes the
+    closest consistent one instead (issue 34, item 5; dynid.estimation.consistent_standard)."""
     from dynid._files import save_npz
     from dynid.config.simulate import parse_simulate_config
     from dynid.pipeline.simulate import run_simulation

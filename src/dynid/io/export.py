@@ -29,9 +29,10 @@ reader of the file sees it: rotor inertias and torque offsets (URDF), motor-side
 coupled transmissions, asymmetric friction and offsets (MJCF), independent coordinates
 and notes of a mechanism, and a flag on every body whose parameters are not physically
 consistent (negative mass, inertia about the centre of mass not positive semi-definite or
-violating the triangle inequality). Such bodies are still written (this is an export of
-estimates), except where the MJCF format itself forbids the value (see
-:func:`write_mjcf`).
+violating the triangle inequality). Such bodies are still written by :func:`write_urdf` and
+:func:`write_mjcf` (an export of estimates), except where the MJCF format itself forbids the
+value (see :func:`write_mjcf`); :func:`write_model`, which writes the ``model.urdf`` /
+``model.mjcf`` of ``dynid identify``, refuses them.
 
 Files are written whole: the text is built first, then written to a temporary file in the
 target folder and moved into place.
