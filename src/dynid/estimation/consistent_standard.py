@@ -251,10 +251,12 @@ def consistent_standard(beta: FloatArray, smap: StandardMap, prior: FloatArray, 
                          f"{r} x {p} base map")
     if not (np.all(np.isfinite(beta)) and np.all(np.isfinite(prior)) and np.all(np.isfinite(s) & (s > 0))):
         raise InputError("consistent_standard: base parameters, prior and scales must be finite (scales positive)")
-    BS_pinv = np.linalg.pinv(B * s)
+    s_move = s.copy()
+    s_move[smap.zero] = 0.0  # a structural zero does not move
+    BS_pinv = np.linalg.pinv(B * s_move)
 
     def onto(pi: FloatArray) -> FloatArray:  # the smallest S^-1-norm move onto B pi = beta
-        return pi + s * (BS_pinv @ (beta - B @ pi))
+        return pi + s_move * (BS_pinv @ (beta - B @ pi))
 
     pi1 = onto(prior)
     if _consistent(pi1, smap):
@@ -297,6 +299,7 @@ def consistent_standard(beta: FloatArray, smap: StandardMap, prior: FloatArray, 
         if pi2 is None:
             raise DynidError(f"no physically consistent standard vector found: solver status "
                              f"{stages['mismatch']['status']!r} on the base-parameter mismatch")
+        pi2[smap.zero] = 0.0  # equality-constrained: exactly, not to the solver's tolerance
         r_star = float(np.linalg.norm(A @ pi2 - d))
         delta = mismatch_slack(r_star, float(np.linalg.norm(d)), stages["mismatch"]["tolerance_factor"],
                                stages["mismatch"]["status"])
@@ -315,6 +318,7 @@ def consistent_standard(beta: FloatArray, smap: StandardMap, prior: FloatArray, 
             "the consistent vector of the smallest mismatch is exported, which the prior did not choose",)
         if pi3 is None:
             pi3 = pi2
+        pi3[smap.zero] = 0.0
         if _consistent(pi3, smap):
             break
         # the solver's answer is outside the consistent set: it stopped short (too tight tolerances stall an
