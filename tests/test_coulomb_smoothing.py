@@ -146,6 +146,20 @@ def test_velocity_noise_std_of_measured_velocities_is_their_white_noise_std(cuto
     assert np.all(velocity_noise_std(ds, ProcessingConfig(lowpass=lp)) < 1e-3 * sigma * gain)
 
 
+def test_velocity_noise_std_refuses_what_it_cannot_read():
+    """Measured derivatives without velocity columns, and period-averaged processing (whose noise is
+    the averaging's), are one-line errors that say to give the widths."""
+    from dynid.config import PeriodicConfig
+
+    t = np.arange(2000) / 1000.0
+    q = np.c_[np.sin(t), np.cos(t)]
+    ds = Dataset(t=t, q=q, tau=np.zeros_like(q), names=("a", "b"))
+    with pytest.raises(ConfigError, match="has no velocity columns"):
+        velocity_noise_std(ds, ProcessingConfig(derivatives="measured"))
+    with pytest.raises(ConfigError, match=r"\[processing.periodic\] give the widths"):
+        velocity_noise_std(ds, ProcessingConfig(periodic=PeriodicConfig(period_s=1.0, cutoff_hz=10.0)))
+
+
 DOC = PUMA_DOC
 
 
