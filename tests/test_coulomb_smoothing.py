@@ -89,7 +89,8 @@ def test_velocity_noise_std_is_the_noise_left_in_the_processed_velocity():
     Margin: the actual error is noise band-limited to the 20 Hz cut-off, so its std over the 19 s
     kept has about 2 x 20 Hz x 19 s = 760 degrees of freedom: a relative std of 1 / sqrt(2 x 760) =
     2.6 % (3.1 % over 40 draws); the estimate (the MAD of what the low-pass removes, over the whole
-    log) is the steadier one, and reads 2.8 % low on average (the filter's transition band). 3 % + 4.5
+    log) is the steadier one, and reads within 0.5 % of it on average over 40 draws (2.8 % low before
+    the correction for the share of the noise the low-pass keeps, ``_white_noise_std``). 3 % + 4.5
     of those std: a false alarm of 7e-6 per joint (10 % was 2.3 std beyond the mean: 8.4 % seen)."""
     fs, n = 1000.0, 20000
     t = np.arange(n) / fs
@@ -104,6 +105,59 @@ def test_velocity_noise_std_is_the_noise_left_in_the_processed_velocity():
     err = (central_difference(lowpass(q, 20.0, fs, 4), 1 / fs) - central_difference(lowpass(q0, 20.0, fs, 4), 1 / fs))[500:-500]
     dof = 2 * 20.0 * (t[-500] - t[500])
     np.testing.assert_allclose(est, err.std(axis=0), rtol=0.03 + 4.5 / np.sqrt(2 * dof))
+
+
+def _filtfilt_power_gain(cutoff_hz: float, fs: float, order: int) -> float:
+    """||h||_2 of the zero-phase Butterworth low-pass, from its frequency response instead of its
+    impulse response: the digital Butterworth (bilinear) has |H|^2 = 1 / (1 + (tan(w/2) / tan(wc/2))^(2N))
+    and filtfilt squares it, so ||h||^2 = (1/pi) int_0^pi |H|^4 dw (Parseval)."""
+    from scipy.integrate import quad
+
+    tc = np.tan(np.pi * cutoff_hz / fs)
+    val, _ = quad(lambda w: (1.0 + (np.tan(w / 2) / tc) ** (2 * order)) ** -2, 0.0, np.pi, limit=200,
+                  points=[2 * np.pi * cutoff_hz / fs])
+    return float(np.sqrt(val / np.pi))
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("cutoff", [None, 20.0], ids=["unfiltered", "lowpass20"])
+def test_velocity_noise_std_of_measured_velocities_is_their_white_noise_std(cutoff):
+    """Exact velocities plus white noise of known std: ``processing.derivatives = "measured"`` reads the
+    std of the velocity noise from the log alone; unfiltered it is the noise's std, low-passed it is the
+    std times the low-pass's ||h||_2 (from its frequency response here, its impulse response there).
+
+    Margin: the estimate is 1.4826 x MAD of about n = 20 000 residual samples: relative std
+    1.166 / sqrt(n) = 0.82 % for independent Gaussian samples; the high-pass residual is slightly
+    correlated (0.95 % seen over 40 draws, mean within 0.2 % of the truth), so 1.3 x 0.82 % = 1.07 %
+    per std, and 5 of them (5.4 %): a false alarm of 6e-7 per joint."""
+    fs, n = 1000.0, 20000
+    t = np.arange(n) / fs
+    w1, w2 = 2 * np.pi * 0.3, 2 * np.pi * 0.7
+    q0 = np.c_[np.sin(w1 * t), 0.5 * np.sin(w2 * t + 1)]
+    dq0 = np.c_[w1 * np.cos(w1 * t), 0.5 * w2 * np.cos(w2 * t + 1)]
+    sigma = np.array([2e-3, 1e-2])
+    dq = dq0 + sigma * np.random.default_rng(seed(31)).standard_normal(dq0.shape)
+    lp = None if cutoff is None else LowpassConfig(cutoff_hz=cutoff, order=4, filter_effort=False)
+    ds = Dataset(t=t, q=q0, dq=dq, tau=np.zeros_like(q0), names=("a", "b"))
+    est = velocity_noise_std(ds, ProcessingConfig(derivatives="measured", lowpass=lp))
+    gain = 1.0 if cutoff is None else _filtfilt_power_gain(cutoff, fs, 4)
+    np.testing.assert_allclose(est, sigma * gain, rtol=5 * 1.3 * 1.166 / np.sqrt(n))
+    # the central-difference route reads the positions instead: noise-free positions give (almost) no width
+    assert np.all(velocity_noise_std(ds, ProcessingConfig(lowpass=lp)) < 1e-3 * sigma * gain)
+
+
+def test_velocity_noise_std_refuses_what_it_cannot_read():
+    """Measured derivatives without velocity columns, and period-averaged processing (whose noise is
+    the averaging's), are one-line errors that say to give the widths."""
+    from dynid.config import PeriodicConfig
+
+    t = np.arange(2000) / 1000.0
+    q = np.c_[np.sin(t), np.cos(t)]
+    ds = Dataset(t=t, q=q, tau=np.zeros_like(q), names=("a", "b"))
+    with pytest.raises(ConfigError, match="has no velocity columns"):
+        velocity_noise_std(ds, ProcessingConfig(derivatives="measured"))
+    with pytest.raises(ConfigError, match=r"\[processing.periodic\] give the widths"):
+        velocity_noise_std(ds, ProcessingConfig(periodic=PeriodicConfig(period_s=1.0, cutoff_hz=10.0)))
 
 
 DOC = PUMA_DOC
@@ -204,16 +258,92 @@ def test_identify_with_auto_smoothing_fits_the_same_and_records_the_widths(cobot
     assert any("smooth sign erf" in n for n in auto.result.notes)
 
 
-def test_widths_of_the_wrong_length_and_auto_with_measured_velocities_are_one_line_errors(cobot_logs, capsys):
+def test_widths_of_the_wrong_length_are_a_one_line_error(cobot_logs, capsys):
     from dynid.cli import main
 
     d = cobot_logs
     (d / "bad1.toml").write_text(IDENTIFY.format(extra="coulomb_smoothing = [0.01, 0.01]", decimate=1))
-    (d / "bad2.toml").write_text(IDENTIFY.format(extra='coulomb_smoothing = "auto"', decimate=1).replace(
-        'decimate_method = "parallel"', 'decimate_method = "parallel"\nderivatives = "measured"').replace(
-        'unit = "rad" }', 'unit = "rad" }\nvelocity = { columns = ["q_joint_1", "q_joint_2", "q_joint_3", "q_joint_4", "q_joint_5", "q_joint_6"], unit = "rad" }'))
-    for name, msg in (("bad1", "2 widths for 6 actuators"), ("bad2", "give the widths per actuator")):
-        assert main(["identify", str(d / f"{name}.toml"), "--out", str(d / name), "-q"]) == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith("dynid: error:") and msg in err[0], err
-        assert not (d / name).exists()
+    assert main(["identify", str(d / "bad1.toml"), "--out", str(d / "bad1"), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("dynid: error:") and "2 widths for 6 actuators" in err[0], err
+    assert not (d / "bad1").exists()
+
+
+# ---------------------------------------------------------------- measured velocities (issue 34, item 4)
+SIGMA_V = {"cobot6r": 0.004, "rps3": 0.0008}  # white velocity noise added to the exact velocities [rad/s, m/s]
+
+
+def _measured_velocity_logs(d, model: str, traj: dict, rate_hz: float, legs: list[int] | None):
+    """Train and validation logs of ``model`` with exact positions and accelerations, the exact
+    velocities plus white noise of std ``SIGMA_V`` of the model, and the simulated efforts plus a little noise."""
+    from dynid._files import save_npz
+    from dynid.config.simulate import parse_simulate_config
+    from dynid.pipeline.simulate import run_simulation
+
+    rng = np.random.default_rng(seed(41))
+    names = None
+    for name, k in (("train", 42), ("valid", 43)):
+        sim = run_simulation(parse_simulate_config({
+            "robot": {"model": model, "perturbation": 0.1, "perturbation_seed": 3},
+            "trajectory": {**traj, "seed": seed(k)},
+            "control": {"rate_hz": rate_hz, "kp": 2500, "kd": 100, "model": "true"},
+        }, d))
+        m = sim.motion
+        q, dq, ddq = (x if legs is None else x[:, legs] for x in (m.q, m.dq, m.ddq))
+        tau = m.tau if legs is None else m.tau_a
+        names = [f"j{k}" for k in range(q.shape[1])]
+        cols = {"t": m.t}
+        for k, j in enumerate(names):
+            cols[f"q_{j}"], cols[f"ddq_{j}"] = q[:, k], ddq[:, k]
+            cols[f"dq_{j}"] = dq[:, k] + SIGMA_V[model.removeprefix("builtin:")] * rng.standard_normal(q.shape[0])
+            cols[f"tau_{j}"] = tau[:, k] + 0.01 * np.abs(tau[:, k]).max() * rng.standard_normal(q.shape[0])
+        save_npz(d / f"{name}.npz", cols)
+    return names
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("model", ["cobot6r", "rps3"])
+def test_auto_smoothing_with_measured_velocities_reads_their_noise_through_dynid_identify(tmp_path, model):
+    """``coulomb_smoothing = "auto"`` on a log with a velocity column (``processing.derivatives =
+    "measured"``), a serial arm (no low-pass: the width is the velocity noise's std) and a parallel
+    robot (the legs of the 3-RPS; a 25 Hz low-pass: the std times the low-pass's ||h||_2; the passive
+    joints' widths follow through the velocity map, ``ClosedLoopSystem.with_coulomb_width``):
+    ``dynid identify`` runs and records the widths the rule gives.
+
+    Margin: 1.4826 x MAD of n residual samples (n = 4 s x 500 Hz minus the trimmed ends for the
+    arm, 2 periods x 2 s x 500 Hz for the 3-RPS): relative std 1.3 x 1.166 / sqrt(n) (the residual's
+    slight correlation, see the unit test above), 5 of them; plus what the motion itself puts above
+    the reference cut-off (50 Hz without a low-pass: a 3-harmonic trajectory at <= 1.5 Hz puts
+    nothing there)."""
+    from dynid.cli import main
+    from dynid.estimation.results import IdentificationResult
+
+    if model == "cobot6r":
+        traj = {"kind": "fourier", "base_frequency_hz": 0.25, "harmonics": 3, "fill": 0.5, "max_velocity": 1.0,
+                "max_acceleration": 3.0, "quintic": True}
+        names, lowpass_hz = _measured_velocity_logs(tmp_path, "builtin:cobot6r", traj, 500.0, None), None
+    else:
+        traj = {"kind": "fourier", "base_frequency_hz": 0.5, "harmonics": 3, "fill": 0.4, "max_velocity": 0.1,
+                "max_acceleration": 1.0, "periods": 2}
+        names, lowpass_hz = _measured_velocity_logs(tmp_path, "builtin:rps3", traj, 500.0, [1, 3, 5]), 25.0
+    sig = lambda p, unit, **kw: {"columns": [f"{p}_{j}" for j in names], "unit": unit, **kw}  # noqa: E731
+    unit = "rad" if model == "cobot6r" else "m"
+    cfg = "\n".join([
+        f'[robot]\nmodel = "builtin:{model}"\n',
+        f'[data]\nfile = "train.npz"\ntime = {{ column = "t" }}',
+        f"position = {{ columns = {sig('q', unit)['columns']}, unit = '{unit}' }}",
+        f"velocity = {{ columns = {sig('dq', unit)['columns']}, unit = '{unit}' }}",
+        f"acceleration = {{ columns = {sig('ddq', unit)['columns']}, unit = '{unit}' }}",
+        f"effort = {{ columns = {sig('tau', unit)['columns']}, unit = '{'N*m' if unit == 'rad' else 'N'}', kind = 'torque' }}\n",
+        '[validation]\nfile = "valid.npz"\n',
+        '[processing]\nderivatives = "measured"',
+        "" if lowpass_hz is None else f"lowpass = {{ cutoff_hz = {lowpass_hz}, order = 4, filter_effort = false }}",
+        '\n[identification]\nmethod = "ols"\ncoulomb_smoothing = "auto"\n',
+        "[output]\nplots = false\n"])
+    (tmp_path / "id.toml").write_text(cfg)
+    assert main(["identify", str(tmp_path / "id.toml"), "--out", str(tmp_path / "out"), "-q"]) == 0
+    sm = IdentificationResult.load(tmp_path / "out" / "result.json").provenance["coulomb_smoothing"]
+    assert sm["source"].startswith("auto") and len(sm["width"]) == len(names)
+    n = np.load(tmp_path / "train.npz")["t"].size
+    gain = 1.0 if lowpass_hz is None else _filtfilt_power_gain(lowpass_hz, 500.0, 4)
+    np.testing.assert_allclose(sm["width"], SIGMA_V[model] * gain, rtol=5 * 1.3 * 1.166 / np.sqrt(0.95 * n))

@@ -29,9 +29,10 @@ reader of the file sees it: rotor inertias and torque offsets (URDF), motor-side
 coupled transmissions, asymmetric friction and offsets (MJCF), independent coordinates
 and notes of a mechanism, and a flag on every body whose parameters are not physically
 consistent (negative mass, inertia about the centre of mass not positive semi-definite or
-violating the triangle inequality). Such bodies are still written (this is an export of
-estimates), except where the MJCF format itself forbids the value (see
-:func:`write_mjcf`).
+violating the triangle inequality). Such bodies are still written by :func:`write_urdf` and
+:func:`write_mjcf` (an export of estimates), except where the MJCF format itself forbids the
+value (see :func:`write_mjcf`); :func:`write_model`, which writes the ``model.urdf`` /
+``model.mjcf`` of ``dynid identify``, refuses them.
 
 Files are written whole: the text is built first, then written to a temporary file in the
 target folder and moved into place.
@@ -50,6 +51,7 @@ import pinocchio as pin
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
+from dynid.model.base_parameters import body_violation, inertia_violation
 from dynid.model.closures import PointCoordinates
 from dynid.model.mechanism import Mechanism
 from dynid.model.robot import RobotModel
@@ -111,17 +113,9 @@ def inertia_about_com(block: FloatArray) -> tuple[float, FloatArray, FloatArray]
 
 
 def _nonphysical(m: float, I_c: FloatArray) -> str:
-    """Why a body's parameters are not physically consistent ('' when they are)."""
-    why = []
-    if m < 0.0:
-        why.append(f"negative mass {m:.6g} kg")
-    lam = np.linalg.eigvalsh(I_c)
-    tol = 1e-12 * max(1.0, float(np.abs(lam).max()))
-    if lam[0] < -tol:
-        why.append(f"inertia about the CoM has a negative eigenvalue {lam[0]:.6g} kg m^2")
-    elif lam[0] + lam[1] < lam[2] - tol:
-        why.append("principal inertias violate the triangle inequality")
-    return "; ".join(why)
+    """Why a body's parameters are not physically consistent ('' when they are):
+    :func:`dynid.model.base_parameters.inertia_violation`."""
+    return inertia_violation(m, I_c)
 
 
 # ---------------------------------------------------------------------------- joints and names
@@ -238,8 +232,22 @@ def write_model(robot: RobotModel | Mechanism, params: FloatArray, folder: str |
     """The robot with standard parameters ``params`` as a description a simulator loads:
     ``model.urdf`` for a serial robot, ``model.mjcf`` for a closed-loop mechanism (whose loop
     closures URDF cannot express), in ``folder``; ``notes``: lines for the file's header comment
-    (e.g. that the vector is one of many with the same base parameters). Returns the path."""
+    (e.g. that the vector is one of many with the same base parameters). Returns the path.
+
+    Unlike :func:`write_urdf` and :func:`write_mjcf` (an export of any estimate, flagged), this is
+    the file a simulator is told to trust: every body must be physically consistent (mass >= 0,
+    inertia about the centre of mass positive semidefinite and within the triangle inequalities,
+    :func:`~dynid.model.base_parameters.body_violation`), else :class:`~dynid.errors.InputError`
+    and nothing is written (:func:`dynid.estimation.consistent_standard.consistent_standard` gives
+    such a vector from base parameters)."""
     folder = Path(folder)
+    params = _check_params(params, robot.n_standard_params, f"{type(robot).__name__} {robot.name!r}")
+    bad = [(k, why) for k, blk in enumerate(robot.body_blocks()) if (why := body_violation(params[blk]))]
+    if bad:
+        k, why = bad[0]
+        raise InputError(f"refusing to write model.{'mjcf' if isinstance(robot, Mechanism) else 'urdf'}: "
+                         f"{len(bad)} bod{'y is' if len(bad) == 1 else 'ies are'} not physically consistent "
+                         f"(body {k + 1}: {why})")
     if isinstance(robot, Mechanism):
         return write_mjcf(robot, params, folder / "model.mjcf", name=name, notes=notes)
     return write_urdf(robot, params, folder / "model.urdf", name=name, notes=notes)

@@ -42,7 +42,9 @@ from dynid.errors import ModelError
 __all__ = [
     "BaseParameters",
     "StandardMap",
+    "body_violation",
     "compute_base_parameters",
+    "inertia_violation",
     "format_expression",
     "parameters_from_pseudo_inertia",
     "perturb_bodies",
@@ -391,6 +393,39 @@ def pseudo_inertia(block: FloatArray) -> FloatArray:
     out[:3, 3] = out[3, :3] = (mx, my, mz)
     out[3, 3] = m
     return out
+
+
+def inertia_violation(m: float, I_c: FloatArray, rtol: float = 1e-12) -> str:
+    """Why a body of mass ``m`` [kg] and inertia ``I_c`` about its centre of mass (3x3 [kg m^2])
+    is not physically consistent: negative mass, a negative principal inertia, or principal
+    inertias that violate the triangle inequality (each beyond ``rtol`` times the largest principal
+    inertia, the rounding of the parallel-axis shift); '' when it is. For a positive mass these
+    are :math:`J \\succeq 0` of the pseudo-inertia (Wensing, Kim & Slotine 2017)."""
+    why = []
+    if m < 0.0:
+        why.append(f"negative mass {m:.6g} kg")
+    lam = np.linalg.eigvalsh(np.asarray(I_c, dtype=float))
+    tol = rtol * max(1.0, float(np.abs(lam).max()))
+    if lam[0] < -tol:
+        why.append(f"inertia about the CoM has a negative eigenvalue {lam[0]:.6g} kg m^2")
+    elif lam[0] + lam[1] < lam[2] - tol:
+        why.append("principal inertias violate the triangle inequality")
+    return "; ".join(why)
+
+
+def body_violation(block: FloatArray) -> str:
+    """:func:`inertia_violation` of one body's ``[m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]``
+    about its joint-frame origin (inertia moved to the centre of mass, :math:`I_c = I_o -
+    m(c^Tc\\,\\mathbb 1 - cc^T)`, :math:`c = h/m`); a zero mass with nonzero first moments has
+    no centre of mass; '' when consistent."""
+    b = np.asarray(block, dtype=float)
+    m, h = float(b[0]), b[1:4]
+    ixx, ixy, iyy, ixz, iyz, izz = b[4:10]
+    I_o = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    if m == 0.0:
+        return "zero mass with nonzero first moments" if np.any(h != 0.0) else inertia_violation(0.0, I_o)
+    c = h / m
+    return inertia_violation(m, I_o - m * (float(c @ c) * np.eye(3) - np.outer(c, c)))
 
 
 def parameters_from_pseudo_inertia(J: FloatArray) -> FloatArray:

@@ -627,6 +627,30 @@ def physical_options(icfg) -> dict:
             "regularization_weight": icfg.regularization_weight, "solver": icfg.solver}
 
 
+def _white_noise_std(x: FloatArray, ref_hz: float, fs: float, order: int, n_trim: int) -> FloatArray:
+    r"""Per column, the std of white noise in ``x`` read from what a zero-phase low-pass at ``ref_hz``
+    removes: :math:`\hat\sigma = 1.4826\,\mathrm{MAD}(r) / \lVert \delta - h \rVert_2` with
+    :math:`r = x - h * x` over the samples ``n_trim`` clear of the ends and :math:`h` the low-pass's
+    impulse response.
+
+    Assumptions: the signal has no content above ``ref_hz`` (everything the low-pass removes is
+    noise) and the noise is white, Gaussian and independent of the signal. Then :math:`r` is the noise
+    through the high-pass :math:`\delta - h`, whose variance is :math:`\sigma^2\lVert\delta-h\rVert_2^2`
+    (about :math:`1 - 2 f_c / f_s`: the share of the band above the cut-off), which the division
+    removes, and 1.4826 MAD is consistent for the std of a Gaussian. Bias: signal above
+    ``ref_hz`` (a fast motion, the filter's transition band) reads as noise, upward; a coloured
+    noise with less power above the cut-off than below reads low. Sampling spread: the MAD's
+    asymptotic relative std for Gaussian data is :math:`\sqrt{1.3605/n} = 1.166/\sqrt n`
+    (efficiency 37 % of the sample std's :math:`1/\sqrt{2n}`), :math:`n` the samples kept (nearly
+    independent: the high-pass leaves white noise nearly white)."""
+    r = (x - lowpass(x, ref_hz, fs, order))[n_trim: x.shape[0] - n_trim]
+    n_h = padlen_for(order, ref_hz, fs)
+    delta = np.zeros(2 * n_h + 1)
+    delta[n_h] = 1.0
+    hp_gain = float(np.linalg.norm(delta - lowpass(delta, ref_hz, fs, order)))
+    return 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0) / hp_gain
+
+
 def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data",
                        cutoff_hz: float | None = None) -> FloatArray:
     r"""Per coordinate, the std [rad/s or m/s] of the noise that ``cfg``'s processing leaves in the
@@ -634,33 +658,41 @@ def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data",
     smooth sign for ``identification.coulomb_smoothing = "auto"``
     (:func:`~dynid.model.serial_dynamics.smooth_sign`).
 
-    The position noise :math:`\sigma_q` is the robust std (1.4826 x MAD) of what the low-pass
-    removes from the positions (``processing.lowpass``; without one, what a low-pass at a tenth of
-    the sampling rate removes), a white-noise reading that counts everything above the cut-off as
-    noise; the processing's noise gain :math:`g = \lVert h \rVert_2`, with :math:`h` the impulse
-    response of the configured zero-phase low-pass followed by central differences, gives
-    :math:`\sigma_{\dot q} = g\,\sigma_q` (white noise through a linear filter). Needs
-    ``processing.derivatives = "central"`` (measured velocities: give the widths).
+    One rule for both kinds of velocity: the white noise of the signal the velocities come from,
+    :math:`\sigma_s`, is read from what a low-pass removes from it (:func:`_white_noise_std`: the
+    robust std, 1.4826 x MAD, of the residual, corrected for the share of the noise the low-pass
+    keeps), at ``processing.lowpass``'s cut-off (without one, at a tenth of the sampling rate); it
+    goes through the processing's linear chain :math:`h` to the velocity,
+    :math:`\sigma_{\dot q} = \lVert h \rVert_2\,\sigma_s` (white noise through a linear filter).
+
+    - ``processing.derivatives = "central"``: :math:`s` is the position, :math:`h` the configured
+      zero-phase low-pass followed by central differences.
+    - ``processing.derivatives = "measured"``: :math:`s` is the measured velocity itself (the log's
+      velocity columns), :math:`h` the configured low-pass (the processing filters measured
+      velocities with it), or the identity without one (:math:`\sigma_{\dot q} = \sigma_s`).
 
     ``cutoff_hz``: the gain of the same low-pass at another cut-off (maximum likelihood's candidate
-    cut-offs, :func:`dynid.pipeline.identification._maximum_likelihood_time`); :math:`\sigma_q` is
-    still read at the configured one."""
-    if cfg.periodic is not None or cfg.derivatives != "central":
-        raise ConfigError("identification.coulomb_smoothing = 'auto' estimates the noise of velocities taken by central "
-                          "differences of (low-passed) positions; with processing.derivatives = 'measured' or "
-                          "[processing.periodic] give the widths per actuator instead")
+    cut-offs, :func:`dynid.pipeline.identification._maximum_likelihood_time`); :math:`\sigma_s` is
+    still read at the configured one. ``[processing.periodic]`` is refused: its noise is the period
+    averaging's (give the widths)."""
+    if cfg.periodic is not None:
+        raise ConfigError("identification.coulomb_smoothing = 'auto' reads the velocity noise of a processed time "
+                          "series; with [processing.periodic] give the widths per actuator instead")
+    measured = cfg.derivatives == "measured"
+    if measured and ds.dq is None:
+        raise ConfigError(f"identification.coulomb_smoothing = 'auto' with processing.derivatives = 'measured' reads "
+                          f"the noise of the measured velocities: {label} has no velocity columns")
     t = np.asarray(ds.t, dtype=float)
     fs = 1.0 / float(np.median(np.diff(t)))
     lp = cfg.lowpass
     ref_hz = lp.cutoff_hz if lp is not None else 0.1 * fs
     order = lp.order if lp is not None else 4
     n_trim = padlen_for(order, ref_hz, fs)
-    q = np.asarray(ds.q, dtype=float)
-    if q.shape[0] <= 2 * n_trim + 10:
-        raise InputError(f"{label}: {q.shape[0]} samples are too few to estimate the velocity noise "
+    s = np.asarray(ds.dq if measured else ds.q, dtype=float)
+    if s.shape[0] <= 2 * n_trim + 10:
+        raise InputError(f"{label}: {s.shape[0]} samples are too few to estimate the velocity noise "
                          "(identification.coulomb_smoothing = 'auto'); give the widths per actuator")
-    r = (q - lowpass(q, ref_hz, fs, order))[n_trim: q.shape[0] - n_trim]
-    sigma_q = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)
+    sigma_s = _white_noise_std(s, ref_hz, fs, order, n_trim)
     if cutoff_hz is not None and lp is None:
         raise ConfigError("velocity_noise_std: a candidate cut-off needs processing.lowpass")
     h_hz = ref_hz if cutoff_hz is None else float(cutoff_hz)
@@ -668,6 +700,7 @@ def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data",
     delta = np.zeros(2 * n_h + 1)
     delta[n_h] = 1.0
     h = lowpass(delta, h_hz, fs, lp.order) if lp is not None else delta
-    gain = float(np.sqrt(np.sum(central_difference(h, 1.0 / fs) ** 2)))
-    return sigma_q * gain
+    if not measured:
+        h = central_difference(h, 1.0 / fs)
+    return sigma_s * float(np.linalg.norm(h))
 

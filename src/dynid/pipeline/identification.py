@@ -1588,19 +1588,28 @@ def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Pa
     return {name: out / name for name in produced}
 
 
-ONE_OF_MANY = ("one of many: the data fix only the base parameters; these standard parameters are the vector closest "
-               "to the nominal one (min ||S^-1 (pi - pi_nom)||, S the RMS nominal magnitude of each kind of parameter: "
-               "mass, first moment, inertia, each joint term) that gives exactly the estimated base parameters; every "
-               "other vector with these base parameters predicts the same forces")
+ONE_OF_MANY = ("one of many: the data fix only the base parameters; these standard parameters are the physically "
+               "consistent vector (every body's pseudo-inertia positive semidefinite: positive mass, inertia within the "
+               "triangle inequalities) closest to the nominal one (min ||S^-1 (pi - pi_nom)||, S the RMS nominal "
+               "magnitude of each kind of parameter: mass, first moment, inertia, each joint term) that gives the "
+               "estimated base parameters; every other vector with these base parameters predicts the same forces")
 
 
 def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | None:
-    """The standard vector of a result (the system's parameters), and notes for the exported file:
-    a physically consistent fit's recovered vector, else, for every result whose parameters start
-    with the base parameters (OLS, WLS, Gauss-Markov, IV, DIDIM, maximum likelihood; the rigid-body
-    part of a Stribeck or hierarchical fit), the vector closest to the nominal one that reproduces
-    the base estimate (:meth:`~dynid.model.base_parameters.BaseParameters.to_standard` with
-    :func:`~dynid.model.base_parameters.parameter_scales`): one of many. None: no base parameters."""
+    """The standard vector of a result (the system's parameters), and notes for the exported file.
+
+    A physically consistent fit's recovered vector as it is (consistent by construction; with
+    regularization it is the estimate itself). For every other result whose parameters start with
+    the base parameters (OLS, WLS, Gauss-Markov, IV, DIDIM, maximum likelihood; the rigid-body part
+    of a Stribeck or hierarchical fit), the rule of
+    :func:`~dynid.estimation.consistent_standard.consistent_standard`: the physically consistent
+    vector closest to the nominal one, :math:`\\min\\lVert S^{-1}(\\pi - \\pi_{nom})\\rVert`
+    (:func:`~dynid.model.base_parameters.parameter_scales`) subject to :math:`B\\pi = \\hat\\beta`
+    and every body's pseudo-inertia :math:`\\succeq 0` (Wensing, Kim & Slotine 2017); when no
+    consistent vector gives :math:`\\hat\\beta`, the one that misses it least (in standard
+    deviations of the estimate), which a note says. Joint terms pass through. None: no base
+    parameters."""
+    from dynid.estimation.consistent_standard import consistent_standard
     from dynid.model.base_parameters import parameter_scales
 
     res = outcome.result
@@ -1624,17 +1633,32 @@ def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | 
         beta[list(fj.coulomb) + list(fj.viscous)] = 0.0
         notes.append("the Stribeck friction curves (result.json solver.stribeck) replace the linear Coulomb and "
                      "viscous terms, written here as 0")
-    pi = base.to_standard(beta, nominal, scale)
+    cov = None if res.cov_params is None else np.asarray(res.cov_params, dtype=float)[: base.n_base, : base.n_base]
+    found = consistent_standard(beta, system.standard_map(base), nominal, scale, cov)
+    pi = found.params
+    if found.projected:
+        notes.append("the closest vector without the consistency constraints was not physically consistent; "
+                     "the constraints bind (a semidefinite program, Clarabel)")
+    if not found.exact:
+        notes.append(f"no physically consistent standard vector gives the estimated base parameters: this one "
+                     f"misses them by {found.mismatch:.3g} ({found.metric}; the least any consistent vector misses "
+                     f"them by is {found.stages['mismatch_min']:.3g}), and its forces differ from the estimate's "
+                     "accordingly")
+    notes += list(found.notes)
     if "hierarchical" in res.solver:
         notes.append("the hierarchical fit's friction curves are in result.json (solver.hierarchical), not in this file")
     return pi, notes
 
 
-def export_model(outcome: IdentifyOutcome, folder: Path) -> Path | None:
-    """The result's standard parameters (:func:`standard_vector`) as a robot description:
-    ``model.urdf`` for a serial robot, ``model.mjcf`` for a closed-loop mechanism (None when the
-    result has no base parameters to reproduce)."""
-    found = standard_vector(outcome)
+def export_model(outcome: IdentifyOutcome, folder: Path,
+                 found: tuple[FloatArray, list[str]] | None | bool = False) -> Path | None:
+    """The result's standard parameters (:func:`standard_vector`, or ``found``, its value when the
+    caller has it) as a robot description: ``model.urdf`` for a serial robot, ``model.mjcf`` for a
+    closed-loop mechanism (None when the result has no base parameters to reproduce); a body that
+    is not physically consistent is an :class:`~dynid.errors.InputError` and no file is written
+    (:func:`dynid.io.export.write_model`)."""
+    if found is False:
+        found = standard_vector(outcome)
     if found is None:
         return None
     from dynid.io.export import write_model
@@ -1647,13 +1671,16 @@ def export_model(outcome: IdentifyOutcome, folder: Path) -> Path | None:
     return write_model(robot, params, folder, name=f"{robot.name}_identified", notes=notes)
 
 
-def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0) -> list[str]:
+def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0,
+                    found: tuple[FloatArray, list[str]] | None | bool = False) -> list[str]:
     """Lines for summary.txt when the exported standard parameters are far from the model's
     nominal ones: a body mass more than ``factor`` times above or below its nominal value. The
     base parameters fix only combinations of the standard ones; without regularization the rest
     comes from the tie-break, and a constrained fit on weak data can push it far (e.g. legs of
-    hundreds of tonnes that give the same actuator forces)."""
-    found = standard_vector(outcome)
+    hundreds of tonnes that give the same actuator forces). ``found``: :func:`standard_vector`'s
+    value when the caller has it."""
+    if found is False:
+        found = standard_vector(outcome)
     robot = outcome.system if outcome.system is not None else as_system(outcome.robot)
     if found is None:
         return []
@@ -1744,11 +1771,11 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             stats = [("", "", "", "")] * len(res.names)
         for i, n in enumerate(res.names):
             w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i], res.covariance_kind or ""])
-    warn = export_warnings(outcome)
-    found = standard_vector(outcome)
+    found = standard_vector(outcome)  # a consistency failure raises here: no output at all (exit 2)
+    warn = export_warnings(outcome, found=found)
     try:
-        exported = export_model(outcome, stage)
-    except ModelError as exc:  # MJCF forbids a negative mass: the estimate is kept, the file is not written
+        exported = export_model(outcome, stage, found)
+    except ModelError as exc:  # what a format cannot hold (a joint type): the estimate is kept, the file is not written
         exported = None
         warn = [f"no robot description exported: {exc}", *warn]
     if exported is not None and found is not None and found[1]:
