@@ -1476,8 +1476,11 @@ def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | 
     with the base parameters (OLS, WLS, Gauss-Markov, IV, DIDIM, maximum likelihood; the rigid-body
     part of a Stribeck or hierarchical fit), the vector closest to the nominal one that reproduces
     the base estimate (:meth:`~dynid.model.base_parameters.BaseParameters.to_standard` with
-    :func:`~dynid.model.base_parameters.parameter_scales`): one of many. None: no base parameters."""
-    from dynid.model.base_parameters import parameter_scales
+    :func:`~dynid.model.base_parameters.parameter_scales`): one of many. The nominal vector is the
+    description's projected onto the physically consistent set
+    (:func:`~dynid.model.base_parameters.consistent_parameters`; unchanged for a consistent
+    description). None: no base parameters."""
+    from dynid.model.base_parameters import consistent_parameters, parameter_scales
 
     res = outcome.result
     system = outcome.system if outcome.system is not None else as_system(outcome.robot)
@@ -1491,7 +1494,7 @@ def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | 
     base = outcome.base
     if tuple(res.names[: base.n_base]) != base.names or tuple(base.standard_names) != tuple(names):
         return None
-    nominal = system.nominal_parameters()
+    nominal = consistent_parameters(system.nominal_parameters(), system.body_blocks())
     scale = parameter_scales(names, system.body_blocks(), nominal)
     beta = np.array(res.params[: base.n_base], dtype=float)
     notes = [ONE_OF_MANY]
