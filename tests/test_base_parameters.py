@@ -75,3 +75,13 @@ def test_coupled_wrist_adds_three_independent_motor_terms():
     coupled = robot_base_parameters(load_robot("builtin:puma560", transmission=tr))
     assert coupled.n_base == plain.n_base + 3
     assert {"Iam6", "fvm6", "fcm6"} <= set(coupled.names)
+
+
+def test_too_small_a_sample_is_doubled_until_the_regrouping_holds_on_fresh_states():
+    """Two states of a 6R arm give 12 equations for 84 parameters: the regrouping found there fails
+    on fresh states, and the sample is doubled (2 -> 32 at most) until the base is the full one."""
+    robot = load_robot("builtin:puma560")
+    full = robot_base_parameters(robot)
+    small = robot_base_parameters(robot, n_samples=2)
+    assert small.n_samples > 2 and small.names == full.names
+    np.testing.assert_allclose(small.K, full.K, rtol=1e-6, atol=1e-9 * np.abs(full.K).max())

@@ -536,13 +536,37 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@contextmanager
+def _warnings_as_lines():
+    """dynid's own warnings (:class:`dynid.errors.DynidWarning`, e.g. a vendor URDF's impossible
+    inertia) as one line each on stderr, ``dynid: warning: ...``, once per distinct message;
+    other warnings as Python shows them."""
+    import warnings
+
+    from dynid.errors import DynidWarning
+
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if issubclass(category, DynidWarning):
+                print(f"dynid: warning: {' '.join(str(message).split())}", file=sys.stderr)
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.simplefilter("default", DynidWarning)
+        warnings.showwarning = show
+        yield
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, --version (0) or a usage error (2, one line already printed)
         return exc.code if isinstance(exc.code, int) else EXIT_INPUT
     try:
-        return args.func(args)
+        with _warnings_as_lines():
+            return args.func(args)
     except DynidError as exc:
         print(f"dynid: error: {exc}", file=sys.stderr)
         return EXIT_INPUT

@@ -17,6 +17,8 @@ __all__ = [
     "ModelError",
     "IdentifiabilityError",
     "MissingExtraError",
+    "DynidWarning",
+    "ModelWarning",
     "decode_text",
     "existing_file",
     "read_file_bytes",
@@ -53,6 +55,16 @@ class IdentifiabilityError(DynidError):
 
 class MissingExtraError(DynidError, ImportError):
     """An optional dependency is missing; the message names the extra to install."""
+
+
+class DynidWarning(UserWarning):
+    """Base class of dynid's warnings: something accepted that the user should know about, in one
+    line (the command line prints it as ``dynid: warning: ...`` on stderr)."""
+
+
+class ModelWarning(DynidWarning):
+    """A robot description accepted with a defect its user cannot fix (a vendor's file), e.g. a
+    link whose inertial data no rigid body can have."""
 
 
 def require(module: str, extra: str):

@@ -12,18 +12,23 @@ random states, the base parameters are
 with :math:`Y_{:,dep} = Y_{:,ind} K` (Gautier 1990; Khalil & Dombre, ch. 12;
 paper 003 §2.2).
 
-Algorithm (deterministic):
+Algorithm (deterministic, and independent of the seed where the structure decides it):
 
-1. stack the regressor at ``n_samples`` random states (seeded), scale columns to unit
-   norm and drop columns that are identically zero;
-2. QR **with column pivoting** gives the numerical rank ``r`` (``|R_ii|`` above a
-   relative tolerance);
+1. stack the regressor at ``n_samples`` random states (seeded; :func:`default_samples`),
+   compressed chunk by chunk into its R factor (:math:`R^TR = W^TW`: the same column norms,
+   QR diagonals and least-squares residuals, in p x p memory); scale columns to unit norm and
+   drop columns that are identically zero;
+2. QR **with column pivoting** gives the numerical rank ``r``: the levels ``|R_ii|`` above a
+   relative tolerance, moved into the widest gap where levels crowd it (:func:`rank_cut`);
 3. the independent columns are chosen in the natural parameter order: a column is
-   independent when it is not in the span of the columns before it (diagonal of an
-   unpivoted QR of the scaled stack). Distal parameters are thus regrouped into
-   proximal ones (``Izz1 + Ia1 + Iyy2 + ...``), as in the classical grouping rules.
-   The count must equal ``r`` from step 2;
-4. :math:`K` by least squares, entries below ``1e-10`` set to zero.
+   independent when it is not in the span of the columns chosen before it, by more than a
+   floor tied to the weakest identifiable direction (:func:`_independent_in_natural_order`).
+   Distal parameters are thus regrouped into proximal ones (``Izz1 + Ia1 + Iyy2 + ...``), as
+   in the classical grouping rules;
+4. :math:`K` by least squares, entries below ``1e-10`` set to zero;
+5. (:func:`compute_base_parameters`) the regrouping is checked on fresh random states; where
+   it fails there, or steps 2-3 are undecided, the sample is doubled and the base recomputed
+   (up to 16x) before an error.
 
 Grouping expressions are for display only; never parse them back.
 """
@@ -44,6 +49,7 @@ __all__ = [
     "StandardMap",
     "body_violation",
     "compute_base_parameters",
+    "consistent_parameters",
     "inertia_violation",
     "format_expression",
     "parameters_from_pseudo_inertia",
@@ -221,41 +227,101 @@ def rank_cut(levels: FloatArray, rank_tol: float, band: float = 100.0) -> float:
     return float(np.sqrt(a[k] * b[k]))
 
 
-def _base_from_stack(
-    W: FloatArray, names: Sequence[str], rank_tol: float, n_samples: int, seed: int
-) -> BaseParameters:
-    p = W.shape[1]
-    norms = np.linalg.norm(W, axis=0)
+NATURAL_FLOOR = 1e-3
+"""A column joins the base in natural order only when its residual against the columns already
+chosen is at least this fraction of the weakest identifiable direction (the last retained level
+of the pivoted QR); see :func:`_independent_in_natural_order`."""
+
+MAX_DOUBLINGS = 4
+"""How many times :func:`compute_base_parameters` doubles its sample before giving up (16x)."""
+
+
+class _Undecided(ModelError):
+    """The sample does not decide the base parameters (retried with more samples)."""
+
+
+def _r_factor(W: FloatArray, R: FloatArray | None = None) -> FloatArray:
+    """The R factor (min(rows, p) x p) of ``W`` stacked under ``R``: :math:`R^TR = W^TW`, so every
+    column norm, least-squares residual and (pivoted) QR diagonal of ``W`` is that of ``R``."""
+    A = W if R is None else np.vstack([R, W])
+    k = min(A.shape)
+    return sla.qr(A, mode="r", check_finite=False)[0][:k]
+
+
+def _orthogonal_residual(Q: FloatArray, V: FloatArray) -> FloatArray:
+    """``V`` minus its projection on the orthonormal columns ``Q`` (classical Gram-Schmidt done
+    twice, which is orthogonal to working precision)."""
+    for _ in range(2):
+        V = V - Q @ (Q.T @ V)
+    return V
+
+
+def _independent_in_natural_order(Rs: FloatArray, rank: int, cut: float, floor: float) -> IntArray:
+    """``rank`` independent columns of the unit-norm columns ``Rs``, chosen in the natural order.
+
+    A column joins when its residual against the columns already chosen exceeds
+    ``max(cut, floor)``; if fewer than ``rank`` join, the rest come from the others by column
+    pivoting (largest residual first), each above ``cut``.
+
+    Why the floor: the plain rule (residual above ``cut``) takes a column that is independent of
+    those before it only barely (romeo.urdf: 24 columns at 2e-8 to 7e-8, while the weakest
+    pivoted level is 2.3e-2); the basis is then conditioned like 1e8, the residuals of later
+    dependent columns are rounding errors amplified to the same 1e-8 (the plain rule counted 582
+    columns for a rank of 575), and which of them pass ``cut`` is luck. With the floor those
+    columns wait, and the base keeps the conditioning the pivoted QR found, up to
+    1/:data:`NATURAL_FLOOR`. Where no residual lies between ``cut`` and the floor (all 66
+    robots of example-robot-data but romeo.urdf, and every built-in), the choice is the plain
+    rule's.
+    """
+    m, n = Rs.shape
+    tau = max(cut, floor)
+    Q = np.zeros((m, rank))
+    chosen: list[int] = []
+    for j in range(n):
+        v = _orthogonal_residual(Q[:, : len(chosen)], Rs[:, j])
+        r = float(np.linalg.norm(v))
+        if r > tau:
+            if len(chosen) == rank:
+                raise _Undecided(f"more than {rank} columns are independent in natural order")
+            Q[:, len(chosen)] = v / r
+            chosen.append(j)
+    if len(chosen) < rank:
+        rest = np.setdiff1d(np.arange(n), chosen)
+        V = _orthogonal_residual(Q[:, : len(chosen)], Rs[:, rest])
+        r_piv, piv = sla.qr(V, mode="r", pivoting=True)
+        need = rank - len(chosen)
+        if r_piv.shape[0] < need or np.abs(r_piv[need - 1, need - 1]) <= cut:
+            raise _Undecided(f"only {len(chosen)} of {rank} independent columns found")
+        chosen.extend(int(rest[i]) for i in piv[:need])
+    return np.sort(np.array(chosen, dtype=int))
+
+
+def _base_from_r(R: FloatArray, names: Sequence[str], rank_tol: float, n_samples: int, seed: int) -> BaseParameters:
+    p = R.shape[1]
+    norms = np.linalg.norm(R, axis=0)
     scale = norms.max()
     if scale == 0:
         raise ModelError("the regressor is identically zero: no parameter affects the torques")
     nonzero = np.flatnonzero(norms > 1e-12 * scale)
-    Ws = W[:, nonzero] / norms[nonzero]
+    Rs = R[:, nonzero] / norms[nonzero]
     # (2) numerical rank from QR with column pivoting
-    r_piv = sla.qr(Ws, mode="r", pivoting=True)[0]
+    r_piv = sla.qr(Rs, mode="r", pivoting=True)[0]
     d_piv = np.abs(np.diag(r_piv))
     cut = rank_cut(d_piv / d_piv[0], rank_tol) * d_piv[0]
     rank = int(np.count_nonzero(d_piv > cut))
     # (3) natural-order choice of the independent columns
-    r_nat = sla.qr(Ws, mode="r")[0]
-    d_nat = np.abs(np.diag(r_nat))
-    indep_local = np.flatnonzero(d_nat > cut)
-    if indep_local.size != rank:
-        raise ModelError(
-            f"ambiguous base parameters: pivoted QR rank {rank} vs {indep_local.size} independent columns "
-            "in natural order; increase the number of random samples"
-        )
+    indep_local = _independent_in_natural_order(Rs, rank, cut, NATURAL_FLOOR * d_piv[rank - 1])
     independent = np.sort(nonzero[indep_local])
     dependent = np.setdiff1d(np.arange(p), independent)
-    Wi, Wd = W[:, independent], W[:, dependent]
+    Ri, Rd = R[:, independent], R[:, dependent]
     # K on unit-norm columns (K_s = D_i K D_d^-1), so that the threshold for numerical
     # zeros does not depend on the units of the parameters
     ni = np.where(norms[independent] > 0, norms[independent], 1.0)
     nd = np.where(norms[dependent] > 0, norms[dependent], 1.0)
-    K_s = np.linalg.lstsq(Wi / ni, Wd / nd, rcond=None)[0]
+    K_s = np.linalg.lstsq(Ri / ni, Rd / nd, rcond=None)[0]
     K = K_s / ni[:, None] * nd[None, :]
     K[(np.abs(K_s) < 1e-8) | (np.abs(K) < 1e-10)] = 0.0
-    resid = np.linalg.norm(Wd - Wi @ K) / max(np.linalg.norm(Wd), 1.0)
+    resid = np.linalg.norm(Rd - Ri @ K) / max(np.linalg.norm(Rd), 1.0)
     if resid > 1e-6:
         raise ModelError(f"base-parameter regrouping does not reproduce the regressor (relative residual {resid:.2e})")
     return BaseParameters(
@@ -267,6 +333,36 @@ def _base_from_stack(
         n_samples=n_samples,
         seed=seed,
     )
+
+
+def _base_from_stack(
+    W: FloatArray, names: Sequence[str], rank_tol: float, n_samples: int, seed: int
+) -> BaseParameters:
+    """Base parameters of a stacked regressor ``W`` (rows x p), steps 1-4 of the module docstring."""
+    try:
+        return _base_from_r(_r_factor(W), names, rank_tol, n_samples, seed)
+    except _Undecided as exc:
+        raise ModelError(f"ambiguous base parameters ({exc}); increase the number of random samples") from None
+
+
+def _holds_on(base: BaseParameters, W: FloatArray, tol: float = 1e-6) -> bool:
+    """Whether the regrouping found on one sample holds on another stack ``W``: every dependent
+    column equals its combination of the independent ones, to ``tol`` of its own norm (the
+    regrouping check's bound) plus the level below which :func:`_base_from_r` counts a column as
+    zero (1e-12 of the largest). A direction the first sample did not excite shows here as a
+    column that is not its combination."""
+    norms = np.linalg.norm(W, axis=0)
+    Wd, fit = W[:, base.dependent], W[:, base.independent] @ base.K
+    err = np.linalg.norm(Wd - fit, axis=0)
+    ref = np.maximum(norms[base.dependent], np.linalg.norm(fit, axis=0))
+    return bool(np.all(err <= tol * ref + 1e-12 * norms.max()))
+
+
+def default_samples(n_params: int, n_q: int) -> int:
+    """Random states for base parameters: at least 200 (every joint's range covered many times),
+    and at least :math:`8p/n_q`, so that the stack has 8 equations per parameter (a robot gives one
+    equation per joint and state). Romeo (770 parameters, 55 joints) gets 200."""
+    return max(200, -(-8 * int(n_params) // max(int(n_q), 1)))
 
 
 def compute_base_parameters(
@@ -281,6 +377,14 @@ def compute_base_parameters(
 ) -> BaseParameters:
     """Base parameters of a regressor evaluated at random states.
 
+    Deterministic, and the same for any seed where the structure decides it: the rank comes
+    from a gap of the pivoted QR levels (:func:`rank_cut`), the independent columns from the
+    natural order with a conditioning floor (:func:`_independent_in_natural_order`), and the
+    regrouping is then checked on fresh random states (a quarter of the sample, at least 50):
+    where it does not hold there, or the sample leaves the choice undecided, the sample is
+    doubled (fresh states added) and the base recomputed, up to :data:`MAX_DOUBLINGS` times,
+    before a :class:`ModelError`.
+
     Parameters
     ----------
     regressor_fn : callable
@@ -290,20 +394,43 @@ def compute_base_parameters(
     lower, upper : array, shape (n_q,)
         Position range to sample.
     n_samples : int, optional
-        Number of random states; default ``max(200, 4 p)``.
+        Number of random states; default :func:`default_samples`.
     seed : int
         Seed of the random generator (the result is deterministic).
     rank_tol : float
         Relative tolerance on the pivoted QR diagonal.
     """
     p = len(names)
-    n_samples = int(n_samples) if n_samples is not None else max(200, 4 * p)
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    n = int(n_samples) if n_samples is not None else default_samples(p, lower.shape[0])
     rng = np.random.default_rng(seed)
-    q, dq, ddq = random_states(np.asarray(lower, float), np.asarray(upper, float), n_samples, rng)
-    Y = regressor_fn(q, dq, ddq)
-    if Y.shape[-1] != p:
-        raise ModelError(f"regressor has {Y.shape[-1]} columns but {p} names were given")
-    return _base_from_stack(Y.reshape(-1, p), names, rank_tol, n_samples, seed)
+
+    def stack(n_new: int, R: FloatArray | None) -> FloatArray:
+        q, dq, ddq = random_states(lower, upper, n_new, rng)
+        per = max(1, -(-4 * p // max(lower.shape[0], 1)), 8192 // max(lower.shape[0], 1))  # ~4p rows a chunk
+        for a in range(0, n_new, per):
+            Y = regressor_fn(q[a : a + per], dq[a : a + per], ddq[a : a + per])
+            if Y.shape[-1] != p:
+                raise ModelError(f"regressor has {Y.shape[-1]} columns but {p} names were given")
+            R = _r_factor(Y.reshape(-1, p), R)
+        return R
+
+    R, total = stack(n, None), n
+    why = ""
+    for attempt in range(MAX_DOUBLINGS + 1):
+        try:
+            base = _base_from_r(R, names, rank_tol, total, seed)
+        except _Undecided as exc:
+            why = str(exc)
+        else:
+            n_check = max(50, total // 4)
+            q, dq, ddq = random_states(lower, upper, n_check, rng)
+            if _holds_on(base, regressor_fn(q, dq, ddq).reshape(-1, p)):
+                return base
+            why = "the regrouping found does not hold on fresh random states"
+        if attempt < MAX_DOUBLINGS:
+            R, total = stack(total, R), 2 * total
+    raise ModelError(f"base parameters undecided after {total} random states (seed {seed}): {why}")
 
 
 def robot_base_parameters(robot, *, n_samples: int | None = None, seed: int = 0, rank_tol: float = 1e-8) -> BaseParameters:
@@ -338,7 +465,9 @@ class StandardMap:
         Indices of parameters that are non-negative physically (rotor inertias,
         viscous and Coulomb friction coefficients, motor-side terms).
     reference : array, shape (p,), optional
-        Nominal (CAD) standard parameters.
+        Nominal (CAD) standard parameters, physically consistent (:meth:`of` projects the robot
+        description's onto the consistent set, :func:`consistent_parameters`): the prior of
+        physically consistent estimation.
     nonpositive : int array
         Indices of parameters that are non-positive physically: the Coulomb coefficient of
         the negative direction of an asymmetric friction model (Shang 2009, Eq. 2, where
@@ -373,7 +502,7 @@ class StandardMap:
             B=base.B,
             body_blocks=robot.body_blocks(),
             nonnegative=np.sort(np.concatenate(nonneg)).astype(int) if nonneg else np.zeros(0, dtype=int),
-            reference=robot.nominal_parameters(),
+            reference=consistent_parameters(robot.nominal_parameters(), robot.body_blocks()),
             nonpositive=np.asarray(nonpos, dtype=int),
         )
 
@@ -435,6 +564,48 @@ def parameters_from_pseudo_inertia(J: FloatArray) -> FloatArray:
     S = J[..., :3, :3]
     return np.stack([J[..., 3, 3], J[..., 0, 3], J[..., 1, 3], J[..., 2, 3], S[..., 1, 1] + S[..., 2, 2], -S[..., 0, 1],
                      S[..., 0, 0] + S[..., 2, 2], -S[..., 0, 2], -S[..., 1, 2], S[..., 0, 0] + S[..., 1, 1]], axis=-1)
+
+
+def consistent_parameters(params: FloatArray, body_blocks: Sequence[IntArray]) -> FloatArray:
+    """The nearest physically consistent standard parameters: each body projected onto the set
+    of pseudo-inertias :math:`J \\succeq 0` (Wensing, Kim & Slotine, RA-L 2017), other entries kept.
+
+    Rule, per body: a body with a positive mass keeps its mass :math:`m` and centre of mass
+    :math:`c`; the covariance of its mass distribution about the centre of mass,
+    :math:`\\Sigma_c = J_{3\\times3} - m c c^T` (:math:`= \\tfrac12\\mathrm{tr}(I_c)\\mathbf 1 - I_c`), has its
+    negative eigenvalues set to zero, :math:`\\Sigma_c \\leftarrow V\\max(\\Lambda, 0)V^T`: the nearest
+    positive semi-definite :math:`\\Sigma_c` in the Frobenius norm, hence the nearest consistent
+    pseudo-inertia of the same mass and centre of mass (:math:`J \\succeq 0 \\iff \\Sigma_c \\succeq 0`
+    when :math:`m > 0`, by the Schur complement). It changes :math:`\\Sigma_c` by exactly its
+    negative part, so a rounding-level defect changes only at rounding level. A body of zero or
+    negative mass gets the nearest positive semi-definite :math:`J` (its eigenvalues clipped at 0).
+    Consistent bodies are returned unchanged (bit for bit).
+
+    Parameters
+    ----------
+    params : array, shape (p,)
+        Standard parameters.
+    body_blocks : sequence of int arrays (10,)
+        Indices of each body's ``[m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]``.
+    """
+    pi = np.array(params, dtype=float)
+    for blk in body_blocks:
+        blk = np.asarray(blk, dtype=int)
+        J = pseudo_inertia(pi[blk])
+        m = J[3, 3]
+        if m > 0:
+            c = J[:3, 3] / m
+            lam, V = np.linalg.eigh(J[:3, :3] - m * np.outer(c, c))
+            if lam[0] >= 0:
+                continue
+            J[:3, :3] = (V * np.maximum(lam, 0.0)) @ V.T + m * np.outer(c, c)
+        else:
+            lam, V = np.linalg.eigh(J)
+            if lam[0] >= 0:
+                continue
+            J = (V * np.maximum(lam, 0.0)) @ V.T
+        pi[blk] = parameters_from_pseudo_inertia(0.5 * (J + J.T))  # m and m*c as they were (m > 0)
+    return pi
 
 
 def perturb_bodies(params: FloatArray, body_blocks: Sequence[IntArray], relative: float,

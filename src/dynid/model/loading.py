@@ -72,7 +72,7 @@ def _bounded_revolute(model: pin.Model) -> pin.Model:
 
 def _load_pin_model(path: Path, check: bool = True) -> tuple[pin.Model, dict[str, tuple[float, float]]]:
     """The pinocchio model and, for URDF, the ``<dynamics>`` values per joint name.
-    ``check``: refuse bodies with impossible inertial data."""
+    ``check``: check the bodies' inertial data (``check_inertia`` of :func:`load_robot`)."""
     path = existing_file(path, "robot file")
     suffix = path.suffix.lower()
     dynamics: dict[str, tuple[float, float]] = {}
@@ -130,9 +130,12 @@ def load_robot(
     nominal_extras : mapping, optional
         Nominal extras overriding those of the description.
     check_inertia : bool
-        Refuse a description file with a body no rigid body can be (negative mass, inertia not
-        positive semi-definite or breaking the triangle inequality), naming it. Off only to
-        reproduce others' computations with such values (e.g. Corke's PUMA 560 link 1).
+        Check the bodies' inertial data: a negative mass is refused, naming the body; an inertia
+        no rigid body can have (not positive semi-definite, or breaking the triangle inequality)
+        is refused in MJCF and DH files and accepted with one :class:`~dynid.errors.ModelWarning`
+        per link in URDF files, which vendors ship and users cannot fix
+        (:func:`~dynid.model._xml.check_urdf_inertials`). Off only to reproduce others'
+        computations with such values (e.g. Corke's PUMA 560 link 1).
     """
     extras = tuple(extras)
     if spec.startswith("builtin:"):

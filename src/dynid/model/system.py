@@ -43,7 +43,7 @@ import numpy as np
 
 from dynid._typing import FloatArray
 from dynid.errors import ConfigError, ModelError
-from dynid.model.base_parameters import BaseParameters, StandardMap, robot_base_parameters
+from dynid.model.base_parameters import BaseParameters, StandardMap, consistent_parameters, robot_base_parameters
 from dynid.model.closed_loop import DISTRIBUTIONS, actuator_regressor, mechanism_base_parameters
 from dynid.model.closures import JointCoordinates, JointTerm
 from dynid.model.loop_kinematics import actuator_states, platform_pose, pose_states
@@ -398,7 +398,8 @@ class ClosedLoopSystem:
         m, red = self.model, self.reduction
         shift = 0 if red is None else red.n_body_params - m.n_body_params  # joint terms close the vector in both
         return StandardMap(standard_names=self.parameter_names, B=base.B, body_blocks=self.body_blocks(),
-                           nonnegative=m.nonnegative_parameters() + shift, reference=self.nominal_parameters(),
+                           nonnegative=m.nonnegative_parameters() + shift,
+                           reference=consistent_parameters(self.nominal_parameters(), self.body_blocks()),
                            nonpositive=m.nonpositive_parameters() + shift,
                            zero=np.zeros(0, dtype=int) if red is None else red.zero)
 

@@ -1607,10 +1607,12 @@ def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | 
     (:func:`~dynid.model.base_parameters.parameter_scales`) subject to :math:`B\\pi = \\hat\\beta`
     and every body's pseudo-inertia :math:`\\succeq 0` (Wensing, Kim & Slotine 2017); when no
     consistent vector gives :math:`\\hat\\beta`, the one that misses it least (in standard
-    deviations of the estimate), which a note says. Joint terms pass through. None: no base
-    parameters."""
+    deviations of the estimate), which a note says. Joint terms pass through. The nominal vector is
+    the description's projected onto the physically consistent set
+    (:func:`~dynid.model.base_parameters.consistent_parameters`; unchanged for a consistent
+    description). None: no base parameters."""
     from dynid.estimation.consistent_standard import consistent_standard
-    from dynid.model.base_parameters import parameter_scales
+    from dynid.model.base_parameters import consistent_parameters, parameter_scales
 
     res = outcome.result
     system = outcome.system if outcome.system is not None else as_system(outcome.robot)
@@ -1624,7 +1626,7 @@ def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | 
     base = outcome.base
     if tuple(res.names[: base.n_base]) != base.names or tuple(base.standard_names) != tuple(names):
         return None
-    nominal = system.nominal_parameters()
+    nominal = consistent_parameters(system.nominal_parameters(), system.body_blocks())
     scale = parameter_scales(names, system.body_blocks(), nominal)
     beta = np.array(res.params[: base.n_base], dtype=float)
     notes = [ONE_OF_MANY]
