@@ -134,6 +134,7 @@ class PredictOutcome:
     other_view: Any = None
     learned: ValidationMetrics | None = None
     notes: tuple[str, ...] = ()
+    robot: str = ""  # the robot's name and its description's file
 
     def per_joint(self) -> list[dict[str, Any]]:
         rows = []
@@ -168,6 +169,7 @@ class PredictOutcome:
         files = self.source.get("source", {})
         src = ", ".join(sorted(set(map(str, files.values())))) if isinstance(files, dict) and files else "?"
         lines = [f"dynid predict: the {self.method} result of {self.result_dir} on a new log ({src})",
+                 *([f"robot: {self.robot}"] if self.robot else []),
                  f"{self.metrics.n_samples} processed samples, processed as at identification", "",
                  "Per joint: the identified model, and the nominal model (the robot description's parameters)",
                  self.table()]
@@ -296,7 +298,8 @@ def predict(result_path: str | Path, log_config: str | Path, progress: Progress 
     if not comparable:
         notes.append("the efforts are motor currents with unit drive gains: the nominal model is not comparable")
     return PredictOutcome(saved.folder, result.method, dict(raw.meta), metrics, prior, comparison, selected, full,
-                          other, learned, tuple(notes))
+                          other, learned, tuple(notes),
+                          robot=f"{system.model.name} ({getattr(system.model, 'source', '') or robot_cfg.model})")
 
 
 def plot_prediction(outcome: PredictOutcome, path: Path) -> Path:
