@@ -31,7 +31,7 @@ import numpy as np
 from dynid._typing import FloatArray
 
 __all__ = ["Alarm", "actuator_limits", "limit_alarms", "nominal_alarms", "friction_alarms",
-           "POSITION_MARGIN", "EFFORT_MARGIN", "SIGN_CORRELATION", "SWAP_MARGIN"]
+           "POSITION_MARGIN", "EFFORT_MARGIN", "SIGN_CORRELATION", "SWAP_FACTOR"]
 
 POSITION_MARGIN = 0.1
 """A position is beyond its limits when it passes them by more than this fraction of the joint's
@@ -53,12 +53,15 @@ measured variance (r^2 >= 0.25), with the wrong sign. An imprecise nominal model
 positively (the gravity and inertia terms dominate); a weak channel whose prediction is mostly
 noise stays near 0."""
 
-SWAP_MARGIN = 0.2
-"""Two effort columns i and j are taken as swapped when the nominal prediction of i correlates
-with the measured effort of j, and that of j with i, each at least 0.5 (-:data:`SIGN_CORRELATION`)
-and by more than this much better than with its own column (correlation coefficients). A correlation from a few hundred held-out rows
-scatters by about 1/sqrt(n) < 0.05; coupled joints whose efforts share a motion correlate across
-channels, but less than with their own prediction."""
+SWAP_FACTOR = 0.5
+"""Two effort columns i and j are taken as swapped when the nominal prediction of i fits the
+measured effort of j, and that of j the effort of i, with relative RMSEs each below 100 % (better
+than predicting zero) and together below this fraction of the two channels' own relative RMSEs
+(each own one the better of the prediction and its negative, so that a flipped sign is not taken
+for a swap). The errors, not correlations: coupled joints (two pitch joints carrying the same
+distal mass) have efforts correlated at 0.8 or more, so a swap barely changes the correlations;
+it changes the magnitudes. A nominal model 20 % off fits its own channels within a few tens of
+percent; a permutation that halves the error is no such imprecision."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,9 +137,13 @@ def limit_alarms(q: FloatArray, tau: FloatArray | None, names: Sequence[str], ki
                 fits.append(f"the log is in {was}, read as {read}: scaled by {f:.4g} every "
                             f"position of {', '.join(names[a] for a in sel)} lies within its limits (set "
                             f"{label}.position.unit = \"{unit}\")")
-        cause = ("; ".join(fits) if fits else
-                 f"the position unit ({label}.position.unit), a wrong column, or an encoder offset (robot.position_offset"
-                 " / the zero of the joint) - or limits in the description that are not the robot's")
+        other = (f"a wrong column, or an encoder offset (robot.position_offset / the zero of the joint) - or limits in "
+                 "the description that are not the robot's")
+        worst = float(np.max(np.maximum(qmax - hi, lo - qmin)[idx] / span[idx]))
+        if fits and worst < 1.0:  # less than a range beyond: a unit fits, but so may an offset
+            cause = "; ".join(fits) + f"; or, as the excess is less than a joint's range, {other}"
+        else:
+            cause = "; ".join(fits) if fits else f"the position unit ({label}.position.unit), {other}"
         out.append(Alarm("position_limits", f"{label}: positions far beyond the robot description's joint limits: {seen}",
                          cause))
     if tau is not None:
@@ -166,8 +173,9 @@ def nominal_alarms(nominal: Any, label: str = "held-out") -> list[Alarm]:
     ``measured`` and ``predicted`` (n, channels) are used when kept).
 
     The nominal model is the robot description's own parameters: imprecise, but it knows the
-    sign and the order of the joints. Swapped columns are looked for first (a swap also makes the
-    own-channel correlation low or negative), then a flipped sign on the remaining channels, then a
+    sign and the order of the joints. Swapped columns are looked for first (:data:`SWAP_FACTOR`; a
+    swap also spoils the own channels' fit), then a flipped sign on the remaining channels
+    (:data:`SIGN_CORRELATION`), then a
     fit worse than zero (relative RMSE > 100 %) or than the mean (R^2 < 0) on any channel."""
     names = list(nominal.channel_names)
     out: list[Alarm] = []
@@ -176,26 +184,29 @@ def nominal_alarms(nominal: Any, label: str = "held-out") -> list[Alarm]:
     if meas.ndim == 2 and meas.shape[0] > 2 and meas.shape == pred.shape:
         kept = nominal.kept
         rows = np.all(kept, axis=1) if kept is not None else np.ones(meas.shape[0], dtype=bool)
-        C = _corr(pred[rows], meas[rows])  # C[i, j]: prediction of i against the measurement of j
+        p, m = pred[rows], meas[rows]
+        C = _corr(p, m)  # C[i, j]: prediction of i against the measurement of j
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # R[i, j]: relative RMSE of prediction i against measurement j, mean((m_j - p_i)^2) expanded
+            # (no (n, channels, channels) array)
+            mm, pp, pm = np.mean(m**2, axis=0), np.mean(p**2, axis=0), (p.T @ m) / m.shape[0]
+            R = np.sqrt(np.maximum(mm[None, :] - 2 * pm + pp[:, None], 0.0) / mm[None, :])
+            own = np.minimum(np.diag(R), np.sqrt(np.maximum(mm + 2 * np.diag(pm) + pp, 0.0) / mm))  # either sign
         n = len(names)
         pairs = []
         for i in range(n):
             for j in range(i + 1, n):
-                # each cross correlation strong on its own (r >= 0.5: a quarter of the variance, as for the
-                # sign) and clearly better than the own one: a log whose signs are all flipped has weak
-                # cross correlations that beat its negative own ones, and is no swap
-                if (min(C[i, j], C[j, i]) >= -SIGN_CORRELATION and C[i, j] > C[i, i] + SWAP_MARGIN
-                        and C[j, i] > C[j, j] + SWAP_MARGIN):
-                    pairs.append((C[i, j] + C[j, i] - C[i, i] - C[j, j], i, j))
-        for _, i, j in sorted(pairs, reverse=True):
+                if max(R[i, j], R[j, i]) < 1.0 and R[i, j] + R[j, i] < SWAP_FACTOR * (own[i] + own[j]):
+                    pairs.append((R[i, j] + R[j, i] - own[i] - own[j], i, j))
+        for _, i, j in sorted(pairs):
             if i in swapped or j in swapped:
                 continue
             swapped |= {i, j}
             out.append(Alarm(
                 "swapped_columns",
-                f"the nominal model's prediction of {names[i]} correlates with the measured effort of {names[j]} "
-                f"(r = {C[i, j]:.2f}) better than with its own (r = {C[i, i]:.2f}), and that of {names[j]} with "
-                f"{names[i]} (r = {C[j, i]:.2f}, own {C[j, j]:.2f})",
+                f"the nominal model's prediction of {names[i]} fits the measured effort of {names[j]} (relative RMSE "
+                f"{100 * R[i, j]:.3g} %) far better than its own ({100 * R[i, i]:.3g} %), and that of {names[j]} "
+                f"fits {names[i]}'s ({100 * R[j, i]:.3g} %, own {100 * R[j, j]:.3g} %)",
                 f"the effort columns of {names[i]} and {names[j]} are swapped (check the order of data.effort.columns, "
                 "and of data.position.columns, against the robot's joints)"))
         flipped = [k for k in range(n) if k not in swapped and C[k, k] <= SIGN_CORRELATION]
