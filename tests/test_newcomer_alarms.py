@@ -97,6 +97,8 @@ def logs(tmp_path_factory) -> Path:
                            "max_velocity": 2.5, "max_acceleration": 6.0, "periods": periods, "seed": s},
             "control": {"rate_hz": 200, "kp": 400, "kd": 40, "model": "true", "substeps": 2},
         }, d))
+        if name == "train":  # what dynid simulate prints
+            (d / "simulate_summary.txt").write_text(sim.summary_text())
         m = sim.motion
         tau = m.tau + 0.05 * np.random.default_rng(s).standard_normal(m.tau.shape)
         table = np.column_stack([m.t, m.q, tau])
@@ -131,6 +133,9 @@ def test_the_correct_log_raises_no_alarm_and_names_the_robot(logs, capsys):
     line = f"Robot: newcomer4 ({logs / 'arm4.urdf'})"
     assert summary.startswith(line) and line in stdout
     assert doc["robot"] == {"name": "newcomer4", "source": str(logs / "arm4.urdf")}
+    # and the virtual experiment that made the log says which robot it simulated, from which file
+    assert (logs / "simulate_summary.txt").read_text().startswith(
+        f"robot            : newcomer4 (serial, 4 actuators; {logs / 'arm4.urdf'})")
 
 
 @pytest.mark.numerics
