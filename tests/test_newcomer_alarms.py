@@ -59,6 +59,7 @@ lowpass = {{ cutoff_hz = 10.0, order = 4 }}
 derivatives = "central"
 [identification]
 method = "wls"
+streaming = "{streaming}"
 [output]
 plots = {plots}
 """
@@ -108,11 +109,12 @@ def logs(tmp_path_factory) -> Path:
     return d
 
 
-def _identify(d: Path, capsys, prefix: str = "", *, effort: str = EFFORT, plots: bool = False) -> tuple[int, str, str, Path]:
-    name = prefix or "correct"
+def _identify(d: Path, capsys, prefix: str = "", *, effort: str = EFFORT, plots: bool = False,
+              streaming: str = "off") -> tuple[int, str, str, Path]:
+    name = f"{prefix or 'correct'}{'_plots' if plots else ''}_{streaming}"
     cfg = d / f"{name}.toml"
-    cfg.write_text(CONFIG.format(prefix=prefix, effort=effort, plots=str(plots).lower()))
-    out = d / f"out_{name}{'_plots' if plots else ''}"
+    cfg.write_text(CONFIG.format(prefix=prefix, effort=effort, plots=str(plots).lower(), streaming=streaming))
+    out = d / f"out_{name}"
     rc = main(["identify", str(cfg), "--out", str(out)])
     captured = capsys.readouterr()
     return rc, captured.out, captured.err, out
@@ -161,6 +163,22 @@ def test_each_mistake_is_named(logs, capsys, mistake):
         assert "effort_sign" not in kinds
     if mistake == "degrees":  # scaled by pi/180 every position fits: the unit to set is named
         assert 'data.position.unit = "deg"' in found["likely_cause"]
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("mistake, kinds", [("", set()), ("degrees", {"position_limits", "nominal_fit"}),
+                                            ("millinewton", {"effort_limits", "nominal_fit"}),
+                                            ("sign", {"nominal_fit", "friction_sign"})])
+def test_a_streamed_run_raises_the_alarms_its_data_allow(logs, capsys, mistake, kinds):
+    """Streamed (a long log read chunk by chunk: no arrays kept) the limits are checked on the
+    processed training log's extremes, the nominal fit on its error sums, the friction signs on the
+    estimate; the correlations and the per-pair fits need the arrays and are not computed."""
+    rc, stdout, _, out = _identify(logs, capsys, f"{mistake}_" if mistake else "", streaming="on")
+    assert rc == 0
+    doc = json.loads((out / "result.json").read_text())
+    assert doc["data_path"]["mode"] == "streamed"
+    assert {w["kind"] for w in doc["warnings"]} == kinds, doc["warnings"]
+    assert ("WARNING: " in stdout) == bool(kinds)
 
 
 @pytest.mark.numerics

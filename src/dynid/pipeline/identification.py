@@ -532,7 +532,7 @@ class IdentifyOutcome:
                      f"; the base parameters are physically INCONSISTENT ({len(phys.get('violated', ()))} constraint(s) "
                      "violated)")
         else:
-            head += f"; physical consistency not checked ({phys.get('reason', 'no check')})"
+            head += f"; physical consistency not checked: {phys.get('reason', 'no check')}"
         return head
 
     def summary_text(self) -> str:
