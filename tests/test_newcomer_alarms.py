@@ -267,3 +267,25 @@ def test_limits_come_from_the_description_and_absent_ones_are_not_checked(tmp_pa
     assert "degrees" not in alarm.cause and "data.position.unit" in alarm.cause and "encoder offset" in alarm.cause
     _, _, eff6 = actuator_limits(as_system(load_robot("builtin:generic6r")))
     assert np.all(np.isinf(eff6))  # a DH table has no effort column
+
+
+def test_mjcf_limits_of_a_mechanism_s_actuators(tmp_path):
+    """A closed-loop MJCF: the actuated joints' ``range``, the joint's own ``actuatorfrcrange``
+    (pinocchio reads it) and an actuator's ``forcerange`` times its gear (dynid reads it); the
+    passive joints are not actuators and are not checked."""
+    from dynid.model import load_model
+    from dynid.model.system import as_system
+    from dynid.pipeline.diagnostics import actuator_limits
+
+    import dynid.model.robots as robots
+
+    xml = (Path(robots.__file__).parent / "fivebar.xml").read_text()
+    xml = xml.replace('<joint name="qa1" type="hinge" axis="0 1 0" range="-2.5 2.5"',
+                      '<joint name="qa1" type="hinge" axis="0 1 0" range="-2.5 2.5" actuatorfrcrange="-7 7"')
+    xml = xml.replace('<motor name="m2" joint="qa2" gear="1"/>', '<motor name="m2" joint="qa2" gear="2" forcerange="-2.5 2"/>')
+    assert "actuatorfrcrange" in xml and "forcerange=" in xml
+    (tmp_path / "fivebar.xml").write_text(xml)
+    lo, hi, eff = actuator_limits(as_system(load_model(str(tmp_path / "fivebar.xml"))))
+    np.testing.assert_array_equal(lo, [-2.5, -2.5])
+    np.testing.assert_array_equal(hi, [2.5, 2.5])
+    np.testing.assert_array_equal(eff, [7.0, 5.0])  # qa2: 2.5 N*m of the motor through a gear of 2
