@@ -182,6 +182,23 @@ def test_a_streamed_run_raises_the_alarms_its_data_allow(logs, capsys, mistake, 
 
 
 @pytest.mark.numerics
+def test_predict_on_a_mistaken_log_says_so(logs, capsys):
+    """dynid predict runs a saved identification on a new log: the same alarms on that log (here the
+    validation log in degrees), and its summary names the robot."""
+    rc, _, _, out = _identify(logs, capsys)
+    assert rc == 0
+    (logs / "new.toml").write_text('[data]\nfile = "degrees_valid.csv"\ntime = { column = "t", unit = "s" }\n'
+                                   'position = { columns = ["q1", "q2", "q3", "q4"], unit = "rad" }\n'
+                                   f'effort = {{ columns = [{EFFORT}], kind = "torque", unit = "N*m" }}\n')
+    assert main(["predict", str(out), str(logs / "new.toml"), "--out", str(logs / "pred"), "--no-plots"]) == 0
+    stdout = capsys.readouterr().out
+    assert f"robot: newcomer4 ({logs / 'arm4.urdf'})" in stdout
+    assert "WARNING: data: positions far beyond" in stdout and "the log is in degrees, read as radians" in stdout
+    doc = json.loads((logs / "pred" / "predict.json").read_text())
+    assert {w["kind"] for w in doc["warnings"]} >= {"position_limits", "nominal_fit"}
+
+
+@pytest.mark.numerics
 def test_flagged_and_inconsistent_parameters_are_counted_in_the_summary(logs, capsys):
     """A flipped sign gives negative masses: with the report on (the physical-consistency check),
     the summary counts the flagged and the physically inconsistent parameters as result.json

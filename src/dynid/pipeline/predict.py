@@ -135,6 +135,8 @@ class PredictOutcome:
     learned: ValidationMetrics | None = None
     notes: tuple[str, ...] = ()
     robot: str = ""  # the robot's name and its description's file
+    # the new log against the description's limits and the nominal model (dynid.pipeline.diagnostics)
+    warnings: tuple[Any, ...] = ()
 
     def per_joint(self) -> list[dict[str, Any]]:
         rows = []
@@ -191,6 +193,9 @@ class PredictOutcome:
         if self.learned is not None:
             lines += ["", "The identified model plus its learned residual network", self.learned.table()]
         lines += [f"note: {n}" for n in self.notes]
+        if self.warnings:
+            lines += ["", f"{len(self.warnings)} warning{'s' if len(self.warnings) > 1 else ''} about the new log "
+                          "(dynid.pipeline.diagnostics):"] + [str(w) for w in self.warnings]
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -204,6 +209,7 @@ class PredictOutcome:
                 **({"selected_rows": _selected_dict(self.selected)} if self.selected is not None else {}),
                 **({"full_rate": _full_rate_dict(self.full_rate)} if self.full_rate is not None else {}),
                 **({"with_network": _nominal_dict(self.learned)} if self.learned is not None else {}),
+                "robot": self.robot, "warnings": [w.to_dict() for w in self.warnings],
                 "notes": list(self.notes)}
 
 
@@ -297,9 +303,15 @@ def predict(result_path: str | Path, log_config: str | Path, progress: Progress 
                                        held_out.meta.get("source"))
     if not comparable:
         notes.append("the efforts are motor currents with unit drive gains: the nominal model is not comparable")
+    from dynid.pipeline.diagnostics import limit_alarms, nominal_alarms
+
+    alarms = limit_alarms(log_a.q, log_a.tau if comparable else None, names, system.actuator_kinds(), system, "data")
+    if prior is not None and comparable:
+        alarms += nominal_alarms(prior, "new-log")
     return PredictOutcome(saved.folder, result.method, dict(raw.meta), metrics, prior, comparison, selected, full,
                           other, learned, tuple(notes),
-                          robot=f"{system.model.name} ({getattr(system.model, 'source', '') or robot_cfg.model})")
+                          robot=f"{system.model.name} ({getattr(system.model, 'source', '') or robot_cfg.model})",
+                          warnings=tuple(alarms))
 
 
 def plot_prediction(outcome: PredictOutcome, path: Path) -> Path:
