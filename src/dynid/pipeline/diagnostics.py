@@ -137,7 +137,7 @@ def limit_alarms(q: FloatArray, tau: FloatArray | None, names: Sequence[str], ki
                 fits.append(f"the log is in {was}, read as {read}: scaled by {f:.4g} every "
                             f"position of {', '.join(names[a] for a in sel)} lies within its limits (set "
                             f"{label}.position.unit = \"{unit}\")")
-        other = (f"a wrong column, or an encoder offset (robot.position_offset / the zero of the joint) - or limits in "
+        other = ("a wrong column, or an encoder offset (robot.position_offset / the zero of the joint) - or limits in "
                  "the description that are not the robot's")
         worst = float(np.max(np.maximum(qmax - hi, lo - qmin)[idx] / span[idx]))
         if fits and worst < 1.0:  # less than a range beyond: a unit fits, but so may an offset
