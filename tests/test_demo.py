@@ -56,6 +56,8 @@ def test_demo(demo):
     assert true < nominal  # the true model tracks best (paper 001, Table 5)
     assert identified < 0.85 * nominal, (identified, nominal)
     assert "the identified model beats the nominal model on held-out data" in r.stdout
+    # it names the robot it identified (issue 34, item 13), and its logs raise no alarm (no false one)
+    assert r.stdout.startswith("Robot: shang2dof (builtin:shang2dof)") and "WARNING: " not in r.stdout
     for name in ("summary.txt", "result.json", "params.csv", "config.toml", "tracking.png", "tracking.json"):
         assert f"{out / name}" in r.stdout
         assert (out / name).is_file()

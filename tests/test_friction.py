@@ -293,6 +293,9 @@ def test_simulate_and_friction_commands_recover_the_truth(tmp_path, capsys):
     for name in ("friction.json", "summary.txt", "points.csv", "friction.png", "config.toml"):
         assert (tmp_path / "out" / name).is_file()
     doc = json.loads((tmp_path / "out" / "friction.json").read_text())
+    # the summary names the robot and where it comes from (issue 34, item 13)
+    assert (tmp_path / "out" / "summary.txt").read_text().startswith("robot   : cobot6r (builtin:cobot6r)")
+    assert doc["robot"] == "cobot6r" and doc["robot_source"] == "builtin:cobot6r"
     j = doc["joints"]["joint_2"]
     assert list(doc["joints"]) == ["joint_2"] and j["n_points"] == 11 and j["n_held_out"] == 5
     assert any(n.startswith("joint_2 at 0.01 (repetition 1)") and "left out" in n for n in doc["notes"])

@@ -5,7 +5,7 @@
 * :func:`motion_overlap`: does the validation motion repeat the training motion (then its
   errors are in-sample errors, whatever file or window they come from);
 * :func:`prior_comparison`: does the identified model beat the nominal (CAD) model on the same
-  rows (the prior is the first baseline).
+  rows (the prior is the first baseline), or tie with it (:func:`tie_tolerance`).
 
 Computed by :mod:`dynid.pipeline.identification`; read by the report and the studies.
 """
@@ -21,7 +21,7 @@ from dynid._typing import FloatArray
 from dynid.dataset import Dataset
 from dynid.stats import REPEAT_THRESHOLD, nearest_distances
 
-__all__ = ["ValidationMetrics", "motion_overlap", "overlap_record", "prior_comparison"]
+__all__ = ["TIE_FLOOR", "ValidationMetrics", "motion_overlap", "overlap_record", "prior_comparison", "tie_tolerance"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -167,6 +167,19 @@ def overlap_record(d: FloatArray) -> dict[str, Any]:
             "metric": "distance of held-out (q, dq, ddq) to the nearest training state, in training standard deviations"}
 
 
+TIE_FLOOR = 0.01
+"""The smallest relative difference of two mean relative RMSEs taken as a difference (1 %), however
+many rows: held-out errors are correlated in time, so the rows resolve less than their count says."""
+
+
+def tie_tolerance(n: int) -> float:
+    """The relative difference of two RMSEs on ``n`` held-out rows that the rows cannot resolve:
+    ``max(TIE_FLOOR, 1/sqrt(2 n))``. The RMS of n independent Gaussian errors has a relative
+    standard error of 1/sqrt(2 n) (the variance of a sample variance is 2 sigma^4 / n); two
+    models on the same rows share part of it, so this is a bound, not a test. No rows: 1."""
+    return 1.0 if n <= 0 else max(TIE_FLOOR, 1.0 / np.sqrt(2.0 * n))
+
+
 def prior_comparison(identified: ValidationMetrics, nominal: ValidationMetrics, comparable: bool = True,
                      label: str = "held-out") -> dict[str, Any]:
     """Does the identified model predict the held-out data better than the nominal (CAD) model?
@@ -174,10 +187,19 @@ def prior_comparison(identified: ValidationMetrics, nominal: ValidationMetrics, 
     Per channel the RMSE of both; the headline is the mean relative RMSE over the channels
     (unit-free, so torques and forces can be averaged). ``comparable = False`` when the efforts
     are in units the nominal model does not predict (motor currents with unknown drive gains);
-    ``label`` names the data (``"held-out"`` or ``"in-sample"``, :attr:`ValidationMetrics.label`)."""
+    ``label`` names the data (``"held-out"`` or ``"in-sample"``, :attr:`ValidationMetrics.label`).
+
+    The identified model *beats* the nominal one only when its mean relative RMSE is lower by
+    more than :func:`tie_tolerance` of the larger of the two (the fewest rows of a channel set
+    it); within it the two *tie* (``"tie": True``, ``beats_nominal`` False): "beats" is never said
+    of 99.8 % against 99.8 %."""
     rel_i, rel_n = np.asarray(identified.rel_rmse_pct), np.asarray(nominal.rel_rmse_pct)
     better = [bool(a < b) for a, b in zip(identified.rmse, nominal.rmse)]
     mean_i, mean_n = float(np.nanmean(rel_i)), float(np.nanmean(rel_n))
+    rows = np.asarray(identified.rows_per_channel, dtype=float)
+    tol = tie_tolerance(int(rows[rows > 0].min()) if np.any(rows > 0) else 0)
+    tie = bool(abs(mean_i - mean_n) <= tol * max(mean_i, mean_n))
+    beats = bool(comparable and mean_i < mean_n and not tie)
     out: dict[str, Any] = {
         "comparable": comparable,
         "metric": "mean over channels of the held-out RMSE relative to the RMS of the measured output [%]",
@@ -186,11 +208,21 @@ def prior_comparison(identified: ValidationMetrics, nominal: ValidationMetrics, 
         "channels_better": int(sum(better)),
         "n_channels": len(better),
         "better_per_channel": better,
-        "beats_nominal": bool(comparable and mean_i < mean_n),
+        "beats_nominal": beats,
+        "tie": bool(comparable and tie),
+        "tie_tolerance_pct": 100.0 * tol,
+        "tie_rule": ("a tie when the two mean relative RMSEs differ by at most max(1 %, 1/sqrt(2 n)) of the larger, n "
+                     "the fewest held-out rows of a channel: the relative standard error of an RMS over n independent "
+                     "errors"),
     }
     if not comparable:
         out["verdict"] = ("the nominal model cannot be compared: the efforts are motor currents with unit drive gains "
                           "(the identified parameters absorb the unknown gains, the nominal ones do not)")
+    elif tie:
+        out["verdict"] = (f"the identified model TIES with the nominal model on {label} data: mean relative RMSE "
+                          f"{mean_i:.3g} % against {mean_n:.3g} % (a difference within {100 * tol:.3g} % of the larger, "
+                          f"which these rows cannot resolve; {sum(better)} of {len(better)} channels better); the "
+                          "identification adds nothing the robot description did not already predict")
     elif mean_i < mean_n:
         out["verdict"] = (f"the identified model beats the nominal model on {label} data: mean relative RMSE "
                           f"{mean_i:.3g} % against {mean_n:.3g} % ({sum(better)} of {len(better)} channels better)")

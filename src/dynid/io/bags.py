@@ -19,6 +19,7 @@ import numpy as np
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, MissingExtraError
+from dynid.io.readers import missing_names, nearest_names
 
 __all__ = ["BAG_SUFFIXES", "JOINT_STATE", "BagReader"]
 
@@ -89,7 +90,10 @@ class BagReader:
                     have = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
                     if not have:
                         raise InputError(f"{self.path.name}: the bag holds no topics (an empty bag)")
-                    raise InputError(f"{self.path.name}: no topic {topic!r}; the bag has {', '.join(have)}")
+                    near = nearest_names(topic, sorted({c.topic for c in reader.connections}))
+                    raise InputError(f"{self.path}: no topic {topic!r}"
+                                     + (f" (nearest: {', '.join(repr(x) for x in near)})" if near else "")
+                                     + f"; the bag has {', '.join(have)}")
                 types = sorted({c.msgtype for c in connections})
                 if types != [JOINT_STATE]:
                     raise InputError(f"{self.path.name}: topic {topic!r} carries {', '.join(types)}; dynid reads "
@@ -135,8 +139,9 @@ class BagReader:
                 where = {n: i for i, n in enumerate(names)}
                 missing = [j for j in joints if j not in where]
                 if missing:
-                    raise InputError(f"{self.path.name}: message {k + 1} of {topic!r} has no joint "
-                                     f"{', '.join(repr(j) for j in missing)}; it names {list(names)}")
+                    raise InputError(f"{self.path}: message {k + 1} of {topic!r} has no joint "
+                                     f"{', '.join(repr(j) for j in missing)} ({missing_names(missing, names)}); "
+                                     f"it names {list(names)}")
                 idx = index_of[names] = [where[j] for j in joints]
             if vals.shape[0] != len(names):
                 raise InputError(f"{self.path.name}: message {k + 1} of {topic!r} has {vals.shape[0]} {field} values "

@@ -3,7 +3,8 @@
 A log is read through an explicit column mapping: the caller names the columns (CSV,
 Parquet) or keys (NPZ) it wants, and gets a float array ``(n_samples, n_columns)``.
 Missing files, missing columns and non-numeric cells are :class:`~dynid.errors.InputError`
-with a one-line message naming them (and listing what the file has).
+with a one-line message naming them, the file's path, the nearest names the file has
+(:func:`missing_names`) and what the file has.
 
 For NPZ files a single name may refer to a 2-D array (``"positions"`` of shape
 ``(n, 7)``); several names refer to 1-D arrays stacked as columns; ``"key[3]"`` picks
@@ -13,6 +14,7 @@ column 3 of a 2-D array.
 from __future__ import annotations
 
 import csv
+import difflib
 import hashlib
 import re
 import warnings
@@ -25,11 +27,31 @@ import numpy as np
 from dynid._typing import FloatArray
 from dynid.errors import InputError, MissingExtraError, existing_file
 
-__all__ = ["RowStream", "TableReader", "file_sha256"]
+__all__ = ["RowStream", "TableReader", "file_sha256", "missing_names", "nearest_names"]
 
 _INDEXED = re.compile(r"^(?P<key>.+)\[(?P<col>\d+)\]$")
 _SEPARATORS = {",": "comma", ";": "semicolon", "\t": "tab", "|": "vertical bar"}
 _HEAD_BYTES = 1 << 16
+
+
+def nearest_names(name: str, available: Sequence[str], n: int = 2) -> list[str]:
+    """The names of ``available`` closest to ``name`` (case-insensitive, :func:`difflib.get_close_matches`
+    at a similarity ratio of 0.5, twice the characters in common over the total: ``'torque2'``
+    finds ``'tau2'`` (0.55), ``'tau1'`` does not find ``'t'`` (0.4)), best first, at most ``n``."""
+    lower: dict[str, str] = {}
+    for a in available:
+        lower.setdefault(str(a).lower(), str(a))
+    return [lower[m] for m in difflib.get_close_matches(str(name).lower(), list(lower), n=n, cutoff=0.5)]
+
+
+def missing_names(missing: Sequence[str], available: Sequence[str]) -> str:
+    """``"nearest to 'torque2': 'tau2', 'q2'"`` for each missing name (``"no similar name"``
+    when none comes close): the part of a missing-column message that says what was meant."""
+    hints = []
+    for m in missing:
+        near = nearest_names(m, available)
+        hints.append(f"nearest to {m!r}: {', '.join(repr(x) for x in near)}" if near else f"no name like {m!r}")
+    return "; ".join(hints)
 
 
 def file_sha256(path: str | Path) -> str:
@@ -214,10 +236,10 @@ class TableReader:
         missing = [n for n in names if n not in frame.columns]
         if missing:
             if not self.header:
-                raise InputError(f"{self.path.name}: missing columns {missing}; the file has {frame.shape[1]} columns "
+                raise InputError(f"{self.path}: missing columns {missing}; the file has {frame.shape[1]} columns "
                                  f"(0 to {frame.shape[1] - 1}; header = false names columns by index)")
             raise InputError(
-                f"{self.path.name}: missing columns {missing}; "
+                f"{self.path}: missing columns {missing} ({missing_names(missing, self.available)}); "
                 + (self._separator_hint() or f"the file has {self.available[:20]}")
             )
         import pandas as pd
@@ -237,7 +259,8 @@ class TableReader:
             m = _INDEXED.match(n)
             key, col = (m.group("key"), int(m.group("col"))) if m and n not in z else (n, None)
             if key not in z:
-                raise InputError(f"{self.path.name}: missing key {n!r}; the file has {sorted(z)}")
+                raise InputError(f"{self.path}: missing key {n!r} ({missing_names([key], sorted(z))}); the file has "
+                                 f"{sorted(z)}")
             arr = np.asarray(z[key])
             if not np.issubdtype(arr.dtype, np.number):
                 raise InputError(f"{self.path.name}: key {key!r} is not numeric (dtype {arr.dtype})")

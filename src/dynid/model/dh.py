@@ -153,7 +153,8 @@ def build_dh_model(
         jm = pin.JointModelRZ() if row.kind == "revolute" else pin.JointModelPZ()
         jid = model.addJoint(
             parent, jm, placement, jname,
-            np.array([1e3]), np.array([1e2]), np.array([row.lower]), np.array([row.upper]),
+            # DH rows give no effort or velocity limit: none (pinocchio's "no limit", DBL_MAX), not an invented one
+            np.array([_NO_LIMIT]), np.array([_NO_LIMIT]), np.array([row.lower]), np.array([row.upper]),
         )
         inertia = row.inertia if row.inertia is not None else pin.Inertia.Zero()
         model.appendBodyToJoint(jid, x_link.act(inertia), pin.SE3.Identity())
@@ -162,6 +163,9 @@ def build_dh_model(
         x_prev = x_link
     model.addFrame(pin.Frame("tool", parent, x_prev, pin.FrameType.OP_FRAME), False)
     return model
+
+
+_NO_LIMIT = float(np.finfo(float).max)
 
 
 # ---------------------------------------------------------------------- TOML reader

@@ -31,7 +31,9 @@ _UNBOUNDED = {
 def _bounded_revolute(model: pin.Model) -> pin.Model:
     """Replace continuous (unbounded, nq=2) revolute joints by ordinary ones (nq=1).
 
-    dynid works with joint angles; continuous joints get limits ±π for sampling.
+    dynid works with joint angles; a continuous joint has no position limit (±inf: pinocchio's
+    "unbounded"; :meth:`RobotModel.position_limits` samples it in ±π), and every joint keeps its
+    effort and velocity limits (the alarms of :mod:`dynid.pipeline.diagnostics` read them).
     """
     if model.nq == model.nv:
         return model
@@ -43,13 +45,13 @@ def _bounded_revolute(model: pin.Model) -> pin.Model:
         short = jm.shortname()
         if short in _UNBOUNDED:
             njm = _UNBOUNDED[short]()
-            lo, hi = np.array([-np.pi]), np.array([np.pi])
+            lo, hi = np.array([-np.inf]), np.array([np.inf])
         elif short == "JointModelRevoluteUnboundedUnaligned":
             axis = jm.extract().axis if hasattr(jm, "extract") else None
             if axis is None:
                 raise ModelError(f"continuous joint {model.names[j]!r} with an unaligned axis is not supported")
             njm = pin.JointModelRevoluteUnaligned(np.asarray(axis))
-            lo, hi = np.array([-np.pi]), np.array([np.pi])
+            lo, hi = np.array([-np.inf]), np.array([np.inf])
         elif jm.nq == jm.nv:
             njm = jm
             lo = model.lowerPositionLimit[jm.idx_q : jm.idx_q + jm.nq]
@@ -60,7 +62,8 @@ def _bounded_revolute(model: pin.Model) -> pin.Model:
                              "(hinge/revolute or slide/prismatic)")
         jid = new.addJoint(
             model.parents[j], njm, model.jointPlacements[j], model.names[j],
-            np.full(njm.nv, 1e3), np.full(njm.nv, 1e2), np.asarray(lo, float), np.asarray(hi, float),
+            model.effortLimit[jm.idx_v : jm.idx_v + jm.nv].copy(), model.velocityLimit[jm.idx_v : jm.idx_v + jm.nv].copy(),
+            np.asarray(lo, float), np.asarray(hi, float),
         )
         new.appendBodyToJoint(jid, model.inertias[j], pin.SE3.Identity())
     for f in model.frames:

@@ -148,6 +148,7 @@ def load_mechanism_mjcf(
     model.armature = np.zeros(model.nv)
     model.damping = np.zeros(model.nv)
     model.friction = np.zeros(model.nv)
+    _mjcf_force_ranges(root, model, per_joint)
     if actuated is None:
         actuated = _mjcf_actuators(root, path, per_joint, notes)
     if independent is None:
@@ -516,6 +517,30 @@ def _mjcf_closures(model: pin.Model, constraints, equalities: list[dict]) -> lis
                     pb = data.oMi[j2].actInv(data.oMi[j1] * pa)
         out.append(LoopClosure(name, j1, pa, j2, pb, kind))
     return out
+
+
+def _mjcf_force_ranges(root: ET.Element, model: pin.Model, joints: dict[str, int]) -> None:
+    """The effort limit of each joint an actuator with a ``forcerange`` drives (MuJoCo's
+    ``forcelimited`` "auto": limited when the range is given; "false": not), written as the actuator's
+    largest force times its gear, the joint-side effort (pinocchio reads the joint's own
+    ``actuatorfrcrange``, not the actuator's): the smaller of the two when both are given. Only
+    attributes on the actuator itself; a range from a ``<default>`` class is not read."""
+    for act in root.iter("actuator"):
+        for el in act:
+            joint = el.get("joint") or el.get("jointinparent") if isinstance(el.tag, str) else None
+            rng = el.get("forcerange")
+            if joint not in joints or rng is None or el.get("forcelimited", "auto") == "false":
+                continue
+            try:
+                lo, hi = (float(x) for x in rng.split())
+                gear = abs(float((el.get("gear") or "1").split()[0]))
+            except ValueError:
+                continue  # MuJoCo refuses such a file; the limit is then not used for anything here
+            effort = max(abs(lo), abs(hi)) * gear
+            v = joints[joint]
+            have = float(model.effortLimit[v])
+            if effort > 0 and not (0 < have < effort):
+                model.effortLimit[v] = effort
 
 
 def _mjcf_actuators(root: ET.Element, path: Path, joints: dict[str, int], notes: list[str]) -> list[str]:

@@ -54,7 +54,10 @@ class ArrayTable:
         names = [names] if isinstance(names, str) else list(names)
         missing = [n for n in names if n not in self._columns]
         if missing:
-            raise InputError(f"{self.path.name}: missing columns {missing}; the arrays are {self.available}")
+            from dynid.io.readers import missing_names
+
+            raise InputError(f"{self.path.name}: missing columns {missing} ({missing_names(missing, self.available)}); "
+                             f"the arrays are {self.available}")
         return np.column_stack([self._columns[n] for n in names])
 
     def sha256(self) -> str:

@@ -61,6 +61,7 @@ class FrictionOutcome:
     config: FrictionConfig
     robot: str
     notes: tuple[str, ...]
+    robot_source: str = ""  # the description's file (or builtin:<name>) the robot comes from
 
     def table4(self, key: str = "held_out") -> dict[str, dict]:
         """Per model: RMSE per joint and their sum (paper 003, Table 4), of the fits to all points
@@ -73,7 +74,7 @@ class FrictionOutcome:
 
     def summary_text(self) -> str:
         cfg = self.config
-        lines = [f"robot   : {self.robot}",
+        lines = [f"robot   : {self.robot}" + (f" ({self.robot_source})" if self.robot_source else ""),
                  f"points  : {sum(len(j.points) for j in self.joints)} friction points on {len(self.joints)} joint(s); "
                  f"held out: {cfg.held_out}"]
         for j in self.joints:
@@ -195,7 +196,8 @@ def run_friction(cfg: FrictionConfig, progress: Progress | None = None) -> Frict
             if progress:
                 progress("friction fits", done, total)
         out.append(JointFriction(name=names[k], points=p, fits=fits, held_out=held, held_out_rmse=rmse))
-    return FrictionOutcome(joints=tuple(out), config=cfg, robot=system.model.name, notes=tuple(notes))
+    return FrictionOutcome(joints=tuple(out), config=cfg, robot=system.model.name, notes=tuple(notes),
+                           robot_source=getattr(system.model, "source", "") or str(cfg.robot.model))
 
 
 def _json(outcome: FrictionOutcome) -> dict:
@@ -223,6 +225,7 @@ def _json(outcome: FrictionOutcome) -> dict:
         "format": FRICTION_FORMAT,
         "dynid_version": __version__,
         "robot": outcome.robot,
+        "robot_source": outcome.robot_source,
         "method": "paper 003 Sec. 3.1: F_f = (tau(q, v) - tau(q, -v)) / 2 at matched positions of the windows' steady "
                   "parts; bounded weighted least squares, std from the Jacobian scaled by the reduced chi-square",
         "settings": {"models": list(cfg.models), "skip_s": cfg.skip, "min_samples": cfg.min_samples,

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import platform
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -488,16 +489,60 @@ class IdentifyOutcome:
     # a streamed run with plots: (raw, processed) training signals for plot_processing, thinned and with Welch
     # spectra (dynid.pipeline.stream_plots.StreamedSignals); the validation figure's series are in validation.thinned
     streamed_plots: tuple[Any, Any] | None = None
+    # what the log looks like against the description and the nominal model: units, sign, column order
+    # (dynid.pipeline.diagnostics.Alarm; console, summary.txt, result.json "warnings")
+    warnings: tuple[Any, ...] = ()
 
     @property
     def n_train(self) -> int:
         """Processed training samples."""
         return self.train.n_samples if self.train is not None else int(self.data_path["training_samples"])
 
+    @functools.cached_property
+    def flags(self) -> dict[str, Any]:
+        """:func:`~dynid.pipeline.reporting.parameter_flags` of the result (computed once: the
+        physical-consistency check, a semidefinite program, runs with the report only)."""
+        system = self.system if self.system is not None else as_system(self.robot)
+        return parameter_flags(self.result, self.base, system, physical=self.config.output.plots)
+
+    def robot_line(self) -> str:
+        """The robot identified: its name and its description's file (or ``builtin:<name>``)."""
+        source = getattr(self.robot, "source", "") or str(self.config.robot.model)
+        return f"Robot: {self.robot.name} ({source})"
+
+    def flags_line(self) -> str:
+        """How many parameters are flagged (paper 000 Sec. 6.2), and how many of them are
+        physically inconsistent, as the report counts them (:func:`parameter_flags`)."""
+        f = self.flags
+        n = len(self.result.names)
+        above, undet = list(f.get("rel_std_above", ())), list(f.get("undetermined", ()))
+        phys = f.get("physical") or {}
+        inconsistent = list(phys.get("parameters", ())) if phys.get("checked") else []
+        flagged = dict.fromkeys([*above, *undet, *inconsistent])
+        if not f.get("assessed", True):
+            head = f"Flagged parameters: relative standard deviations not assessed ({f.get('reason')})"
+        else:
+            head = (f"Flagged parameters: {len(flagged)} of {n} ({len(above)} with relative standard deviation >= "
+                    f"{f['rel_std_limit_pct']:g} %, {len(undet)} undetermined")
+            head += (f", {len(inconsistent)} physically inconsistent)" if phys.get("checked") else ")")
+            if flagged:
+                head += ": " + ", ".join(flagged)
+        if phys.get("checked"):
+            head += ("; the base parameters are physically consistent" if phys.get("feasible") else
+                     f"; the base parameters are physically INCONSISTENT ({len(phys.get('violated', ()))} constraint(s) "
+                     "violated)")
+        else:
+            head += f"; physical consistency not checked: {phys.get('reason', 'no check')}"
+        return head
+
     def summary_text(self) -> str:
         v = self.validation
         lines = [
+            self.robot_line(),
+            "",
             str(self.result.summary()),
+            "",
+            self.flags_line(),
             "",
             v.heading(),
             v.table(),
@@ -505,6 +550,10 @@ class IdentifyOutcome:
         if self.nominal_validation is not None and self.prior is not None:
             lines += ["", "Nominal model (the robot description's parameters: the prior) on the same data",
                       self.nominal_validation.table(), "", self.prior["verdict"]]
+            if self.warnings:
+                lines.append(f"(not to be trusted before the {len(self.warnings)} warning"
+                             f"{'s' if len(self.warnings) > 1 else ''} at the end are resolved: a linear fit absorbs a "
+                             "wrong unit, sign or column order into its parameters)")
         sel = self.selected
         if sel is not None:
             lines += ["", sel.heading(), sel.metrics.table()]
@@ -528,6 +577,9 @@ class IdentifyOutcome:
             lines += self.learning.summary_lines()
         if self.data_path is not None:
             lines += ["", f"Data path: {self.data_path['mode']} ({self.data_path['reason']})"]
+        if self.warnings:
+            lines += ["", f"{len(self.warnings)} warning{'s' if len(self.warnings) > 1 else ''} about the logs "
+                          "(dynid.pipeline.diagnostics):"] + [str(w) for w in self.warnings]
         return "\n".join(lines)
 
     def _repr_html_(self) -> str:
@@ -1333,11 +1385,33 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
         learned = _learn(cfg, system, base, result, train, held_out, icfg.chunk_size, progress,
                          fj if icfg.hierarchical else None)
     prediction = prediction_inputs(cfg0, pcfg, periodic, smoothing, system, base, force_model)
+    alarms = _alarms(system, result, prior, comparable, ((train_a.q, train_a.tau, "data"),
+                                                        (valid_a.q, valid_a.tau, "validation")))
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
+                           warnings=alarms,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
                            other_view=other, selected=selected, full_rate=full, learning=learned,
                            units=effort_units(system, force_model, raw_train.meta["effort_kind"]), prediction=prediction,
                            data_path={**data_path, "training_samples": train.n_samples})
+
+
+def _alarms(system: System, result: IdentificationResult, nominal: ValidationMetrics | None, comparable: bool,
+            logs: tuple[tuple[FloatArray, FloatArray, str], ...]) -> tuple[Any, ...]:
+    """The warnings of :mod:`dynid.pipeline.diagnostics` on this run: positions and efforts of
+    each log ``(q, tau, label)`` (actuator space, SI) against the description's limits, the
+    nominal model's held-out prediction against the measured efforts, the signs of the estimated
+    friction. Efforts that are motor currents with unit drive gains (``comparable`` False) are in
+    A: neither the effort limits nor the nominal model apply to them."""
+    from dynid.pipeline.diagnostics import friction_alarms, limit_alarms, nominal_alarms
+
+    out = []
+    names, kinds = system.actuator_names, system.actuator_kinds()
+    for q, tau, label in logs:
+        out += limit_alarms(q, tau if comparable else None, names, kinds, system, label)
+    if nominal is not None and comparable:
+        out += nominal_alarms(nominal, nominal.label)
+    out += friction_alarms(result, system)
+    return tuple(out)
 
 
 def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: str | None, streams, data_path: dict,
@@ -1367,16 +1441,18 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
     notes: list[str] = []
     q_lo = np.full(system.n_actuators, np.inf)
     q_hi = np.full(system.n_actuators, -np.inf)
+    tau_max = np.zeros(system.n_actuators)
     reference = StateSample(n_eff, 20000, std=True)
     plots = cfg.output.plots
     proc_plot = ProcessingPlot(tr.t, n_eff, proc["k"], system.n_actuators) if plots else None
 
     def training_chunks() -> Iterator[Chunk]:
-        nonlocal q_lo, q_hi
+        nonlocal q_lo, q_hi, tau_max
         rows = system.rows(force_model)
         for j0, p in tr.processed(system, pcfg, size, constant=constant, notes=notes,
                                   raw_tap=proc_plot.add_raw if plots else None):
             q_lo, q_hi = np.minimum(q_lo, p["q"].min(axis=0)), np.maximum(q_hi, p["q"].max(axis=0))
+            tau_max = np.maximum(tau_max, np.abs(p["tau"]).max(axis=0))
             reference.add(j0, p)
             if plots:
                 proc_plot.add_processed(j0, p)
@@ -1451,7 +1527,10 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
     comparable = not (tr.meta["effort_kind"] == "current" and (system.transmission is None
                                                                  or np.all(system.transmission.drive_gains == 1.0)))
     prediction = prediction_inputs(cfg0, pcfg, None, None, system, base, force_model)
+    # the training log's extremes (processed: the streamed path holds no raw log)
+    alarms = _alarms(system, result, prior, comparable, ((np.vstack([q_lo, q_hi]), tau_max[None, :], "data"),))
     return IdentifyOutcome(cfg, system.model, base, result, metrics, None, None, tuple(notes), None,
+                           warnings=alarms,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
                            selected=selected, full_rate=full,
                            units=effort_units(system, force_model, tr.meta["effort_kind"]), prediction=prediction,
@@ -1736,13 +1815,15 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     system = outcome.system if outcome.system is not None else as_system(outcome.robot)
     # the physical-consistency check (a semidefinite program) runs with the report only
     jobs = outcome.jobs if outcome.config.output.plots else None
-    flags = parameter_flags(res, outcome.base, system, physical=outcome.config.output.plots)
+    flags = outcome.flags
     res.save(
         stage / "result",
         extra={
             "validation": {**outcome.validation.to_dict(), **({"units_per_joint": list(outcome.units)}
                                                               if outcome.units else {})},
             "parameter_flags": flags,
+            "robot": {"name": outcome.robot.name, "source": getattr(outcome.robot, "source", "")},
+            "warnings": [w.to_dict() for w in outcome.warnings],
             **({"nominal_validation": _nominal_dict(outcome.nominal_validation), "prior_comparison": outcome.prior}
                if outcome.nominal_validation is not None else {}),
             **({"validation_other_view": {"label": outcome.other_view.label,

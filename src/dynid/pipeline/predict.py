@@ -134,6 +134,9 @@ class PredictOutcome:
     other_view: Any = None
     learned: ValidationMetrics | None = None
     notes: tuple[str, ...] = ()
+    robot: str = ""  # the robot's name and its description's file
+    # the new log against the description's limits and the nominal model (dynid.pipeline.diagnostics)
+    warnings: tuple[Any, ...] = ()
 
     def per_joint(self) -> list[dict[str, Any]]:
         rows = []
@@ -168,6 +171,7 @@ class PredictOutcome:
         files = self.source.get("source", {})
         src = ", ".join(sorted(set(map(str, files.values())))) if isinstance(files, dict) and files else "?"
         lines = [f"dynid predict: the {self.method} result of {self.result_dir} on a new log ({src})",
+                 *([f"robot: {self.robot}"] if self.robot else []),
                  f"{self.metrics.n_samples} processed samples, processed as at identification", "",
                  "Per joint: the identified model, and the nominal model (the robot description's parameters)",
                  self.table()]
@@ -189,6 +193,9 @@ class PredictOutcome:
         if self.learned is not None:
             lines += ["", "The identified model plus its learned residual network", self.learned.table()]
         lines += [f"note: {n}" for n in self.notes]
+        if self.warnings:
+            lines += ["", f"{len(self.warnings)} warning{'s' if len(self.warnings) > 1 else ''} about the new log "
+                          "(dynid.pipeline.diagnostics):"] + [str(w) for w in self.warnings]
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -202,6 +209,7 @@ class PredictOutcome:
                 **({"selected_rows": _selected_dict(self.selected)} if self.selected is not None else {}),
                 **({"full_rate": _full_rate_dict(self.full_rate)} if self.full_rate is not None else {}),
                 **({"with_network": _nominal_dict(self.learned)} if self.learned is not None else {}),
+                "robot": self.robot, "warnings": [w.to_dict() for w in self.warnings],
                 "notes": list(self.notes)}
 
 
@@ -295,8 +303,15 @@ def predict(result_path: str | Path, log_config: str | Path, progress: Progress 
                                        held_out.meta.get("source"))
     if not comparable:
         notes.append("the efforts are motor currents with unit drive gains: the nominal model is not comparable")
+    from dynid.pipeline.diagnostics import limit_alarms, nominal_alarms
+
+    alarms = limit_alarms(log_a.q, log_a.tau if comparable else None, names, system.actuator_kinds(), system, "data")
+    if prior is not None and comparable:
+        alarms += nominal_alarms(prior, "new-log")
     return PredictOutcome(saved.folder, result.method, dict(raw.meta), metrics, prior, comparison, selected, full,
-                          other, learned, tuple(notes))
+                          other, learned, tuple(notes),
+                          robot=f"{system.model.name} ({getattr(system.model, 'source', '') or robot_cfg.model})",
+                          warnings=tuple(alarms))
 
 
 def plot_prediction(outcome: PredictOutcome, path: Path) -> Path:

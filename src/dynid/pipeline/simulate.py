@@ -82,7 +82,8 @@ class SimulationOutcome:
     def summary_text(self) -> str:
         m = self.metadata
         lines = [
-            f"robot            : {m['robot']} ({m['kind']}, {m['n_actuators']} actuators)",
+            f"robot            : {m['robot']} ({m['kind']}, {m['n_actuators']} actuators"
+            + (f"; {m['robot_source']})" if m.get("robot_source") else ")"),
             f"trajectory       : {m['trajectory']['kind']}, {m['duration_s']:.3f} s simulated",
             f"control          : {m['control']['kind']} at {m['control']['rate_hz']:g} Hz with the {_model_label(m['control'])} model",
             f"log              : {m['n_samples']} samples at {m['log_rate_hz']:g} Hz, efforts as {m['effort_kind']}",
@@ -601,6 +602,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
     metadata = {
         "dynid_version": __version__,
         "robot": robot.name,
+        "robot_source": getattr(robot, "source", "") or str(cfg.robot.model),
         "kind": "closed-loop" if mech else "serial",
         "n_actuators": len(act_names),
         "actuators": act_names,

@@ -80,7 +80,8 @@ def verdict(metrics: Any, nominal: Any = None, prior: Mapping[str, Any] | None =
     """The report's one-line verdict and whether it is good news.
 
     From ``prior`` (:func:`~dynid.estimation.validation.prior_comparison`: the identified model
-    beats the nominal one when its mean relative RMSE over the channels is lower), the channels
+    beats the nominal one when its mean relative RMSE over the channels is lower by more than
+    the tie tolerance, and ties with it within that tolerance), the channels
     on which it is better, the mean RMSE of both in the channels' unit when they share one, the
     kind of validation (held-out, or in-sample when the validation motion repeats the training
     motion) and the number of flagged parameters."""
@@ -101,6 +102,7 @@ def verdict(metrics: Any, nominal: Any = None, prior: Mapping[str, Any] | None =
                    f"{_fmt(prior['identified_mean_rel_rmse_pct'])} % vs {_fmt(prior['nominal_mean_rel_rmse_pct'])} %)")
         good = bool(prior["beats_nominal"])
         line = (f"the identified model beats the nominal model on {label} data {numbers}" if good else
+                f"the identified model TIES with the nominal model on {label} data {numbers}" if prior.get("tie") else
                 f"the identified model does NOT beat the nominal model on {label} data {numbers}")
     if label == "in-sample":
         good = False
