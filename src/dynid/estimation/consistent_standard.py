@@ -296,6 +296,17 @@ def consistent_standard(beta: FloatArray, smap: StandardMap, prior: FloatArray, 
         miss = problem(tau)
         miss.norm_bound(A, d, None)
         pi2, stages["mismatch"] = miss.solve("the smallest base-parameter mismatch", factor)
+        if pi2 is None and metric.startswith("standard deviations"):
+            # an estimate known far better in some directions than others (nearly noise-free data)
+            # makes the covariance metric too ill-conditioned for the solver: the magnitudes instead
+            L = np.diag(np.linalg.norm(B * s, axis=1))
+            metric = ("magnitudes of the base parameters (the covariance of the estimate is too ill-conditioned "
+                      "for the solver)")
+            A = sla.solve_triangular(L, B, lower=True)
+            d = sla.solve_triangular(L, beta, lower=True)
+            miss = problem(tau)
+            miss.norm_bound(A, d, None)
+            pi2, stages["mismatch"] = miss.solve("the smallest base-parameter mismatch", factor)
         if pi2 is None:
             raise DynidError(f"no physically consistent standard vector found: solver status "
                              f"{stages['mismatch']['status']!r} on the base-parameter mismatch")
