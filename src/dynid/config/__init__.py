@@ -678,10 +678,14 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
                           f"controller: set {where}.experiment to the dynid simulate config of the training experiment "
                           "(controller, gains, reference, rates)")
     reg = _str(t.get("regularization", "none"), f"{where}.regularization", ("none", "euclidean", "logdet"))
-    reg_w = _num(t.get("regularization_weight", 0.0), f"{where}.regularization_weight")
-    if (reg == "none") != (reg_w == 0.0) or reg_w < 0:
-        raise ConfigError(f"{where}.regularization = 'euclidean' or 'logdet' needs regularization_weight > 0 "
-                          "(and a weight needs a regularization)")
+    # a named regularization weighs 1 by default: lambda is in units of the residual chi^2 (PhysicalLS), so at 1 a
+    # unit divergence from the nominal model costs as much as one noise variance of extra residual; "none" has none
+    reg_w = _num(t.get("regularization_weight", 0.0 if reg == "none" else 1.0), f"{where}.regularization_weight")
+    if reg == "none" and reg_w != 0.0:
+        raise ConfigError(f"{where}.regularization_weight = {reg_w:g} needs a regularization: set "
+                          f"{where}.regularization = 'euclidean' or 'logdet'")
+    if reg != "none" and not reg_w > 0:
+        raise ConfigError(f"{where}.regularization = {reg!r} needs regularization_weight > 0 (default 1), got {reg_w:g}")
     margin = _num(t.get("margin", 0.0), f"{where}.margin")
     if margin < 0:
         raise ConfigError(f"{where}.margin must be >= 0, got {margin}")
