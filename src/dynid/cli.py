@@ -244,7 +244,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
     _check_out(args.out)
     cfg = load_design_config(args.config)
-    from dynid.pipeline.design import DesignOutcome, run_design, write_design
+    from dynid.pipeline.design import DesignOutcome, run_design, simulate_snippet, write_design
 
     with _progress_bar(not args.quiet) as progress:
         outcome = run_design(cfg, progress)
@@ -261,6 +261,8 @@ def _cmd_design(args: argparse.Namespace) -> int:
     if args.quiet and not isinstance(outcome, DesignOutcome):  # the summary lists them otherwise
         for line in outcome.design.dropped:
             print(line)
+    print()
+    print(simulate_snippet(outcome, args.out))
     return EXIT_OK
 
 

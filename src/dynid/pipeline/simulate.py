@@ -170,6 +170,13 @@ def _trajectory(cfg: SimulateConfig, robot):
     n_u = lo.size
     if tc.kind == "constant_velocity":
         return _constant_velocity(v, robot, lo, hi, names, cfg.base_dir), names
+    if "design" in v and tc.kind in ("circle", "fourier"):  # what `dynid design` wrote (its design.json)
+        traj = _design_trajectory(cfg, names, tc.kind)
+        if isinstance(traj, FourierTrajectory) and v["periods"] > 1:
+            return Repeated(traj, v["periods"]), names
+        if not isinstance(traj, FourierTrajectory) and tc.kind == "fourier" and v["periods"] > 1:
+            raise ConfigError("trajectory.periods: a rest-to-rest (quintic) design has one period")
+        return traj, names
     if tc.kind in ("circle", "polyline"):
         dim = 2 if tc.kind == "circle" else len(v["vertices"][0])
         axes = v.get("axes")
@@ -192,16 +199,13 @@ def _trajectory(cfg: SimulateConfig, robot):
             rest = robot.coordinates(robot.q_ref)[0] if isinstance(robot, Mechanism) else 0.5 * (lo + hi)
             traj = Embedded(traj, tuple(names.index(a) for a in axes), rest)
         return traj, names
-    if "design" in v:
-        four = _design_trajectory(cfg, names)
-    else:
-        rng = np.random.default_rng(v["seed"])
-        try:
-            four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
-                                            max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"],
-                                            fill=v["fill"], rest_to_rest=bool(v["quintic"]))
-        except InputError as exc:
-            raise ConfigError(f"trajectory: {exc}") from None
+    rng = np.random.default_rng(v["seed"])
+    try:
+        four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
+                                        max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"],
+                                        fill=v["fill"], rest_to_rest=bool(v["quintic"]))
+    except InputError as exc:
+        raise ConfigError(f"trajectory: {exc}") from None
     if v["quintic"]:
         return FourierQuintic(four), names
     return (Repeated(four, v["periods"]) if v["periods"] > 1 else four), names
@@ -295,8 +299,15 @@ def _constant_velocity_design(path: Path, base_dir: Path, lo: np.ndarray, hi: np
         raise ConfigError(f"{path}: not a constant_velocity design.json of dynid design ({exc})") from None
 
 
-def _design_trajectory(cfg: SimulateConfig, names: list[str]) -> FourierTrajectory:
-    """The Fourier series of a ``dynid design`` result (its design.json)."""
+_DESIGN_KINDS = {"fourier": ("fourier", "fourier_quintic"), "circle": ("circle",)}
+"""The ``trajectory`` kinds of a ``dynid design`` design.json that each ``[trajectory] kind`` replays
+(``constant_velocity`` designs: :func:`_constant_velocity_design`)."""
+
+
+def _design_trajectory(cfg: SimulateConfig, names: list[str], kind: str = "fourier"):
+    """The trajectory of a ``dynid design`` result (its design.json), as the design evaluated it:
+    a periodic Fourier series, the rest-to-rest Fourier + quintic of ``quintic = true``
+    (:class:`~dynid.trajectories.FourierQuintic`), or paper 001's circle."""
     path = Path(cfg.trajectory.values["design"])
     path = path if path.is_absolute() else cfg.base_dir / path
     text = read_file_text(path, "design file")
@@ -308,16 +319,25 @@ def _design_trajectory(cfg: SimulateConfig, names: list[str]) -> FourierTrajecto
             raise ValueError("'trajectory' must be an object and 'coordinates' a list")
     except (ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{path}: not a design.json of dynid design ({exc})") from None
-    if traj.get("kind") != "fourier":
-        raise ConfigError(f"{path}: a {traj.get('kind')!r} design; trajectory.design takes periodic Fourier designs")
+    got = traj.get("kind")
+    if got not in _DESIGN_KINDS[kind]:
+        replay = next((k for k, kinds in _DESIGN_KINDS.items() if got in kinds),
+                      "constant_velocity" if got == "constant_velocity" else None)
+        hint = f"; replay it with trajectory.kind = {replay!r}" if replay else ""
+        raise ConfigError(f"{path}: a {got!r} design; trajectory.kind = {kind!r} replays {' or '.join(_DESIGN_KINDS[kind])} "
+                          f"designs{hint}")
     if list(coords) != list(names):
         raise ConfigError(f"{path}: the design moves {coords}, the simulated robot's coordinates are {names} "
                           "(set trajectory.coordinates as the design did)")
     try:
-        return FourierTrajectory(float(traj["base_frequency_hz"]), np.array(traj["a"], dtype=float),
+        if got == "circle":
+            return CirclePath(tuple(float(x) for x in traj["centre"]), float(traj["radius"]), float(traj["speed"]),
+                              turns=float(traj["turns"]), clockwise=bool(traj["clockwise"]), ramp=float(traj["ramp"]))
+        four = FourierTrajectory(float(traj["base_frequency_hz"]), np.array(traj["a"], dtype=float),
                                  np.array(traj["b"], dtype=float), np.array(traj["q0"], dtype=float))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ConfigError(f"{path}: not a design.json of dynid design (its Fourier coefficients: {exc})") from None
+        return FourierQuintic(four) if got == "fourier_quintic" else four
+    except (KeyError, TypeError, ValueError, InputError) as exc:
+        raise ConfigError(f"{path}: not a design.json of dynid design (its {got} trajectory: {exc})") from None
 
 
 def _gains(value, n: int, where: str, what: str = "independent coordinates") -> np.ndarray:
