@@ -236,6 +236,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         print(outcome.summary_text())
         print()
     print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    for w in outcome.metadata["warnings"]:  # also in metadata.json; printed even with -q
+        print(f"dynid: warning: {w['message']}", file=sys.stderr)
     return EXIT_OK
 
 

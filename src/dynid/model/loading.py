@@ -60,7 +60,8 @@ def _bounded_revolute(model: pin.Model) -> pin.Model:
                              "(hinge/revolute or slide/prismatic)")
         jid = new.addJoint(
             model.parents[j], njm, model.jointPlacements[j], model.names[j],
-            np.full(njm.nv, 1e3), np.full(njm.nv, 1e2), np.asarray(lo, float), np.asarray(hi, float),
+            model.effortLimit[jm.idx_v : jm.idx_v + jm.nv].copy(), model.velocityLimit[jm.idx_v : jm.idx_v + jm.nv].copy(),
+            np.asarray(lo, float), np.asarray(hi, float),
         )
         new.appendBodyToJoint(jid, model.inertias[j], pin.SE3.Identity())
     for f in model.frames:

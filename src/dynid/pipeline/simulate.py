@@ -581,6 +581,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
         act_names = list(robot.joint_names)
         constraint = None
     u_ref = traj.sample(motion.t)[0]
+    warnings = _loop_warnings(robot, mech, c, motion.t, u_ref, u, coord_names, tau, act_names)
     references = {f"ref_{name}": u_ref[:, k] for k, name in enumerate(coord_names)}
     if {"RZ", "RY", "RX"} <= set(coord_names):  # commanded angular velocity, paper 004 Eq. 16
         sel = [coord_names.index(n) for n in ("RZ", "RY", "RX")]
@@ -650,6 +651,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
         "tracking": _jsonable_metrics(track),
         "tracking_actuators": None if track_actuators is None else _jsonable_metrics(track_actuators),
         "constraint_error_max": constraint,
+        "warnings": warnings,
     }
     dataset = Dataset(
         t=meas.t, q=meas.q, tau=meas.effort, names=tuple(act_names),
@@ -658,6 +660,35 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
     )
     return SimulationOutcome(dataset=dataset, columns=columns, truth=truth, metadata=metadata, config=cfg, motion=motion,
                              signals=signals)
+
+
+def _loop_warnings(robot, mech: bool, c, t: np.ndarray, u_ref: np.ndarray, u: np.ndarray, coord_names: list[str],
+                   tau: np.ndarray, act_names: list[str]) -> list[dict]:
+    """:func:`dynid.simulation.loop_checks.loop_warnings` of a run; a run whose state or efforts
+    left the finite numbers is refused (its log would be NaN from there on: nothing to write)."""
+    from dynid.model.closures import JointCoordinates
+    from dynid.model.robot import joint_kinds
+    from dynid.simulation.loop_checks import declared_limits, loop_warnings, unstable_state
+
+    bad = unstable_state(t, u, tau)
+    if bad is not None:
+        raise ConfigError(f"control: the loop is unstable: the state or the efforts are no longer finite from t = "
+                          f"{t[bad]:.4g} s ({c.kind} at {c.rate_hz:g} Hz, kp {_short(c.kp)}, kd {_short(c.kd)}); lower the "
+                          "gains or raise control.rate_hz (README 'Virtual experiments' gives the gains' units)")
+    act = list(robot.actuated) if mech else list(range(robot.dof))
+    kinds = joint_kinds(robot.pin_model)
+    ind = robot.independent if mech else None
+    coord_kinds = ([kinds[j] for j in ind.joints] if isinstance(ind, JointCoordinates) else ["prismatic"] * len(coord_names)
+                   ) if mech else list(kinds)
+    position_unit = {"prismatic": "m"}
+    effort_unit = {"prismatic": "N"}
+    return loop_warnings(t, u_ref, u, coord_names, [position_unit.get(k, "rad") for k in coord_kinds], tau,
+                         declared_limits(np.asarray(robot.pin_model.effortLimit)[act]), act_names,
+                         [effort_unit.get(kinds[j], "N*m") for j in act])
+
+
+def _short(value) -> str:
+    return f"{value:g}" if isinstance(value, (int, float)) else "[" + ", ".join(f"{v:g}" for v in value) + "]"
 
 
 def actuator_states(outcome: SimulationOutcome) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
