@@ -82,6 +82,7 @@ class RobotConfig:
     extras_given: bool = False  # extras named in the file (a mechanism then gains them on its actuated joints)
     actuated: tuple[str, ...] | None = None  # mechanisms: actuated joints, in actuator order (default: the model's)
     independent: tuple[str, ...] | None = None  # mechanisms: joints whose positions are the independent coordinates
+    rotor_inertia: tuple[float, ...] | None = None  # serial robots: nominal Ia per joint [kg*m^2 or kg, joint side]
 
     @property
     def has_transmission(self) -> bool:
@@ -336,7 +337,8 @@ class Config:
 
 
 # ---------------------------------------------------------------------- parsing
-ROBOT_KEYS = ("extras", "gear_ratios", "couplings", "drive_gains", "position_offset", "actuated", "independent")
+ROBOT_KEYS = ("extras", "gear_ratios", "couplings", "drive_gains", "position_offset", "actuated", "independent",
+              "rotor_inertia")
 """The keys of ``[robot]`` besides ``model``."""
 PROCESSING_KEYS = ("resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity",
                    "min_velocity_passive", "periodic", "reversal_guard")
@@ -384,7 +386,20 @@ def _parse_robot(t: Any, base: Path) -> RobotConfig:
         extras_given="extras" in t,
         actuated=joint_name_list(t, "actuated", where),
         independent=joint_name_list(t, "independent", where),
+        rotor_inertia=rotor_inertia_list(t, where),
     )
+
+
+def rotor_inertia_list(t: Mapping[str, Any], where: str) -> tuple[float, ...] | None:
+    """``[robot] rotor_inertia``: the nominal rotor inertias of a serial robot's joints, reflected to
+    the joint side [kg*m^2 or kg], one per joint, each >= 0 (None: absent; the description's, if any).
+    URDF has no element for them; they become the nominal ``Ia`` (:func:`dynid.model.loading.with_rotor_inertia`)."""
+    if "rotor_inertia" not in t:
+        return None
+    values = _list(t["rotor_inertia"], f"{where}.rotor_inertia", lambda v, w: _num(v, w, minimum=0.0))
+    if not values:
+        raise ConfigError(f"{where}.rotor_inertia: empty list; give one value per joint [kg*m^2]")
+    return values
 
 
 def joint_name_list(t: Mapping[str, Any], key: str, where: str) -> tuple[str, ...] | None:

@@ -6,7 +6,9 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     ``model`` (required): anything ``dynid info`` loads (serial or closed-loop);
     ``perturbation``: relative standard deviation of a multiplicative perturbation of the
     true parameters (body parameters and joint terms) away from the model's nominal values
-    (default 0: the truth is the nominal model); ``perturbation_seed``.
+    (default 0: the truth is the nominal model); ``perturbation_seed``; ``rotor_inertia``
+    (serial robots: one per joint, reflected to the joint side [kg·m² or kg], the nominal and
+    true ``Ia``; a URDF has no element for it), ``actuated`` and ``independent`` (mechanisms).
 ``[robot.friction]``
     Ground-truth friction replacing the linear joint terms of the joints of a serial robot or
     the actuated joints of a parallel one (passive joints keep theirs): ``model`` =
@@ -84,7 +86,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from dynid.config import _bool, _int, _list, _num, _num_or_list, _str, _table, joint_name_list, read_toml
+from dynid.config import (_bool, _int, _list, _num, _num_or_list, _str, _table, joint_name_list, read_toml,
+                          rotor_inertia_list)
 from dynid.errors import ConfigError
 
 __all__ = [
@@ -114,6 +117,7 @@ class RobotSimConfig:
     payload: Mapping[str, Any] | None = None
     actuated: tuple[str, ...] | None = None  # mechanisms: as [robot] actuated / independent of dynid identify
     independent: tuple[str, ...] | None = None
+    rotor_inertia: tuple[float, ...] | None = None  # serial robots: as [robot] rotor_inertia of dynid identify
 
 
 @dataclasses.dataclass(frozen=True)
@@ -393,7 +397,7 @@ def parse_simulate_config(doc: Mapping[str, Any], base_dir: Path, source: Path |
     doc = _table(dict(doc), "config", {"robot", "trajectory", "control", "sensors", "simulation", "output"},
                  {"robot", "trajectory"})
     r = _table(doc["robot"], "robot", {"model", "perturbation", "perturbation_seed", "friction", "payload", "actuated",
-                                       "independent"}, {"model"})
+                                       "independent", "rotor_inertia"}, {"model"})
     robot = RobotSimConfig(
         model=_str(r["model"], "robot.model"),
         perturbation=_num(r.get("perturbation", 0.0), "robot.perturbation"),
@@ -402,6 +406,7 @@ def parse_simulate_config(doc: Mapping[str, Any], base_dir: Path, source: Path |
         payload=_parse_payload(r["payload"]) if "payload" in r else None,
         actuated=joint_name_list(r, "actuated", "robot"),
         independent=joint_name_list(r, "independent", "robot"),
+        rotor_inertia=rotor_inertia_list(r, "robot"),
     )
     if robot.perturbation < 0:
         raise ConfigError(f"robot.perturbation must be >= 0, got {robot.perturbation}")

@@ -81,7 +81,7 @@ def _limits(cfg: DesignConfig) -> DesignLimits:
 
 
 def run_design(cfg: DesignConfig, progress=None) -> DesignOutcome | ConstantVelocityOutcome:
-    robot = load_model(cfg.model, actuated=cfg.actuated, independent=cfg.independent)
+    robot = load_model(cfg.model, actuated=cfg.actuated, independent=cfg.independent, rotor_inertia=cfg.rotor_inertia)
     if cfg.kind == "constant_velocity":
         return _run_constant_velocity(cfg, robot)
     box = (np.asarray(cfg.box[0], float), np.asarray(cfg.box[1], float)) if cfg.box is not None else None

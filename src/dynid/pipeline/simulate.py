@@ -59,7 +59,8 @@ from dynid.simulation.sensors import Measurements, Sensors
 from dynid.trajectories import FourierTrajectory
 from dynid.stats import tracking_errors
 
-__all__ = ["SimulationOutcome", "TrueSignals", "actuator_states", "measure_signals", "run_simulation", "write_simulation", "SIMULATION_FILES"]
+__all__ = ["SimulationOutcome", "TrueSignals", "actuator_states", "load_simulated_robot", "measure_signals", "run_simulation",
+           "write_simulation", "SIMULATION_FILES"]
 
 SIMULATION_FILES = ("log.csv", "log.npz", "truth.json", "metadata.json", "config.toml")
 Progress = Callable[[str, int, int], None]
@@ -129,6 +130,13 @@ def measure_signals(signals: TrueSignals, seed: int | None = None) -> tuple[Meas
     for name, values in signals.references.items():
         columns[name] = values[meas.index]
     return meas, columns
+
+
+def load_simulated_robot(cfg: SimulateConfig):
+    """The model of ``[robot]``: ``model`` with its chart (``actuated``, ``independent``) and its
+    rotor inertias (``rotor_inertia``)."""
+    r = cfg.robot
+    return load_model(r.model, actuated=r.actuated, independent=r.independent, rotor_inertia=r.rotor_inertia)
 
 
 def _true_parameters(robot, nominal: np.ndarray, cfg: SimulateConfig) -> np.ndarray:
@@ -489,7 +497,7 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, rob
 
 def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None,
                     plant_params: np.ndarray | None = None, coulomb_band: float | None = None) -> SimulationOutcome:
-    robot = load_model(cfg.robot.model, actuated=cfg.robot.actuated, independent=cfg.robot.independent)
+    robot = load_simulated_robot(cfg)
     if variant is not None:
         if list(variant.parameter_names) != list(robot.parameter_names):
             raise ModelError(f"the variant of {cfg.robot.model} has other parameters than the model itself")
@@ -696,8 +704,7 @@ def actuator_states(outcome: SimulationOutcome) -> tuple[np.ndarray, np.ndarray,
     velocities, accelerations (n, n_a) (accelerations at the start of each hold, under the held
     forces)."""
     motion = outcome.motion
-    r = outcome.config.robot
-    robot = load_model(r.model, actuated=r.actuated, independent=r.independent)
+    robot = load_simulated_robot(outcome.config)
     act = list(robot.actuated) if isinstance(robot, Mechanism) else slice(None)
     return motion.t, motion.q[:, act], motion.dq[:, act], motion.ddq[:, act]
 
