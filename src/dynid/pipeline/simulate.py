@@ -15,10 +15,14 @@ Outputs, written together or not at all:
   :mod:`dynid.trajectories.constant_velocity`);
 * ``truth.json``: the true and nominal standard parameters of the robot (names and values),
   the true base parameters with their grouping expressions, the payload (body, mass, centre
-  of mass, inertia) separately; with ``[robot.friction]`` the linear friction terms that model
+  of mass, inertia) separately; with a payload, ``true_parameters_with_payload`` (the payload's
+  inertia added to its body's block) and base ``true_values`` *with* the payload, what an
+  identification of the log estimates (``true_values_without_payload``: the robot alone); with ``[robot.friction]`` the linear friction terms that model
   replaces in the plant are recorded as 0 and listed in ``replaced_by_ground_truth_friction``
   (the plant's friction is ``ground_truth_friction`` alone);
-* ``metadata.json``: what every column means, units, seeds, control and sensor settings, the
+* ``metadata.json``: ``warnings`` (:mod:`dynid.simulation.loop_checks`: an unstable loop, a large
+  tracking error, efforts beyond the description's limits), what every column means, units, seeds,
+  control and sensor settings, the
   model the controller used (``control.model_used``: nominal, true, or the identification
   result's path relative to the configuration's folder), tracking metrics in the independent
   coordinates (per-axis RMS, P-RSME of Shang 2009, Eq. 23) and, for the PIDs of a mechanism,
@@ -389,11 +393,13 @@ def _payload(cfg: SimulateConfig, robot):
     return body, names.index(body), inertia
 
 
-def _with_payload(mech: Mechanism, params: np.ndarray, joint: int, payload) -> np.ndarray:
-    """The standard parameters of ``mech`` with the payload's dynamic parameters
-    ``[m, m c, I about the joint origin]`` added to the block of body ``joint``: the true model of
-    the simulator (the robot's own true parameters stay in truth.json)."""
-    k = mech.bodies.index(joint)
+def _with_payload(robot, params: np.ndarray, joint: int, payload) -> np.ndarray:
+    """The standard parameters of ``robot`` with the payload's dynamic parameters
+    ``[m, m c, I about the joint origin]`` added to the block of body ``joint`` (pinocchio joint
+    index): the true model of the simulator (a mechanism's plant; a serial plant adds the same
+    inertia to its pinocchio body, :class:`~dynid.simulation.control.SerialPlant`), and truth.json's
+    ``true_parameters_with_payload`` and base ``true_values``."""
+    k = robot.bodies.index(joint) if isinstance(robot, Mechanism) else joint - 1
     out = np.array(params, dtype=float)
     out[10 * k : 10 * k + 10] += np.asarray(payload.toDynamicParameters(), dtype=float)
     return out
@@ -609,6 +615,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
     replaced = _replaced_friction(robot, mech) if cfg.robot.friction is not None and plant_params is None else []
     recorded = np.array(true, dtype=float)
     recorded[[list(robot.parameter_names).index(n) for n in replaced]] = 0.0
+    loaded = recorded if payload is None else _with_payload(robot, recorded, payload[1], payload[2])
     truth = {
         "model": cfg.robot.model if variant is None else f"variant of {cfg.robot.model}",
         "parameter_names": list(robot.parameter_names),
@@ -620,9 +627,13 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
                                   "the joint terms of true_parameters"),
         "payload": ({"body": payload[0], **{k: v for k, v in cfg.robot.payload.items() if k != "body"}}
                     if payload is not None else None),
+        **({"true_parameters_with_payload": loaded.tolist()} if payload is not None else {}),
         "base_parameters": None if base is None else {
             "names": list(base.names),
-            "true_values": base.from_standard(recorded).tolist(),
+            # what an identification of the log estimates: the robot with its payload
+            "true_values": base.from_standard(loaded).tolist(),
+            **({"true_values_without_payload": base.from_standard(recorded).tolist(),
+                "payload_included": True} if payload is not None else {}),
             "expressions": list(base.expressions()),
         },
     }
