@@ -111,3 +111,26 @@ def test_every_design_kind_is_simulated_from_the_printed_table(tmp_path, name, d
     np.testing.assert_allclose(log["t"][:n], designed["t"][:n], rtol=0, atol=1e-12)
     for c in coords:
         np.testing.assert_allclose(log[f"ref_{c}"][:n], designed[f"{prefix}{c}"][:n], rtol=0, atol=1e-10, err_msg=c)
+
+
+def test_a_design_file_sets_its_own_trajectory(tmp_path):
+    """The design file decides what it replays: its rest-to-rest quintic is not a simulate key then,
+    a circle design takes no circle keys beside it, and a design given to the other kind says which
+    kind replays it."""
+    from dynid.config.simulate import parse_simulate_config
+    from dynid.errors import ConfigError
+    from dynid.pipeline.simulate import run_simulation
+
+    robot = {"model": "builtin:shang2dof"}
+    with pytest.raises(ConfigError, match="the design file says whether its excitation is rest-to-rest"):
+        parse_simulate_config({"robot": robot, "trajectory": {"kind": "fourier", "design": "d.json", "quintic": True}},
+                              tmp_path)
+    with pytest.raises(ConfigError, match=r"\['radius'\] are set by the design file"):
+        parse_simulate_config({"robot": robot, "trajectory": {"kind": "circle", "design": "d.json", "radius": 0.1}},
+                              tmp_path)
+    (tmp_path / "design.toml").write_text(CIRCLE_DESIGN)
+    _run(["design", str(tmp_path / "design.toml"), "--out", str(tmp_path / "d"), "-q"])
+    cfg = parse_simulate_config({"robot": robot, "trajectory": {"kind": "fourier", "design": "d/design.json"}}, tmp_path)
+    with pytest.raises(ConfigError, match="a 'circle' design; trajectory.kind = 'fourier' replays fourier or "
+                                          "fourier_quintic designs; replay it with trajectory.kind = 'circle'"):
+        run_simulation(cfg)

@@ -595,7 +595,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
         act_names = list(robot.joint_names)
         constraint = None
     u_ref = traj.sample(motion.t)[0]
-    warnings = _loop_warnings(robot, mech, c, motion.t, u_ref, u, coord_names, tau, act_names)
+    warnings = _loop_warnings(robot, mech, c, motion.t, u_ref, u, coord_names, tau, act_names, replay=plant_params is not None)
     references = {f"ref_{name}": u_ref[:, k] for k, name in enumerate(coord_names)}
     if {"RZ", "RY", "RX"} <= set(coord_names):  # commanded angular velocity, paper 004 Eq. 16
         sel = [coord_names.index(n) for n in ("RZ", "RY", "RX")]
@@ -682,14 +682,19 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
 
 
 def _loop_warnings(robot, mech: bool, c, t: np.ndarray, u_ref: np.ndarray, u: np.ndarray, coord_names: list[str],
-                   tau: np.ndarray, act_names: list[str]) -> list[dict]:
+                   tau: np.ndarray, act_names: list[str], replay: bool = False) -> list[dict]:
     """:func:`dynid.simulation.loop_checks.loop_warnings` of a run; a run whose state or efforts
-    left the finite numbers is refused (its log would be NaN from there on: nothing to write)."""
+    left the finite numbers is refused (its log would be NaN from there on: nothing to write): a
+    ConfigError (the configured gains), or for a replay on given plant parameters an InputError
+    (the parameters: DIDIM and IDIM-IV then halve their step, :mod:`dynid.pipeline.control_loop`)."""
     from dynid.model.closures import JointCoordinates
     from dynid.model.robot import joint_kinds
     from dynid.simulation.loop_checks import declared_limits, loop_warnings, unstable_state
 
     bad = unstable_state(t, u, tau)
+    if bad is not None and replay:
+        raise InputError(f"the replayed experiment is unstable: the state or the efforts are no longer finite from "
+                         f"t = {t[bad]:.4g} s")
     if bad is not None:
         raise ConfigError(f"control: the loop is unstable: the state or the efforts are no longer finite from t = "
                           f"{t[bad]:.4g} s ({c.kind} at {c.rate_hz:g} Hz, kp {_short(c.kp)}, kd {_short(c.kd)}); lower the "
