@@ -52,6 +52,24 @@ rate_hz = 50
 plots = false
 """
 
+TASK_DESIGN = """
+[robot]
+model = "builtin:rps3"
+[design]
+coordinates = "task"
+harmonics = 1
+base_frequency_hz = 1.0
+samples = 16
+starts = 1
+max_iter = 5
+[limits]
+velocity = 0.5
+acceleration = 5.0
+[output]
+rate_hz = 50
+plots = false
+"""
+
 CV_DESIGN = """
 [robot]
 model = "builtin:generic6r"
@@ -89,6 +107,7 @@ def _csv(path: Path) -> dict[str, np.ndarray]:
     ("fourier", GENERIC6R_DESIGN.format(extra=""), "builtin:generic6r", 'model = "true"', "u_"),
     ("fourier_quintic", GENERIC6R_DESIGN.format(extra="quintic = true"), "builtin:generic6r", 'model = "true"', "u_"),
     ("circle", CIRCLE_DESIGN, "builtin:shang2dof", 'kp = 35000\nkd = 300\nmodel = "true"', "u_"),
+    ("fourier", TASK_DESIGN, "builtin:rps3", 'kp = 2000\nkd = 80\nmodel = "true"', "u_"),  # the platform pose
     ("constant_velocity", CV_DESIGN, "builtin:generic6r", 'model = "true"', "q_"),
 ])
 def test_every_design_kind_is_simulated_from_the_printed_table(tmp_path, name, design, model, control, prefix):

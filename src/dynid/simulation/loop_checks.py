@@ -108,7 +108,8 @@ def loop_warnings(t: FloatArray, reference: FloatArray, actual: FloatArray, coor
                         "message": f"large tracking error: {coordinates[k]} is {e[i, k]:.3g} {coordinate_units[k]} "
                                    f"off its reference at t = {t[i]:.3f} s, above {threshold[k]:.3g} "
                                    f"{coordinate_units[k]} ({TRACKING_FRACTION:.0%} of its commanded range: the log "
-                                   "holds another motion than the commanded one); retune the gains"})
+                                   "holds another motion than the commanded one, which identification uses, but not "
+                                   "the designed excitation); retune the gains"})
     lim = np.asarray(effort_limit, dtype=float)
     peak = np.abs(tau).max(axis=0) if tau.size else np.zeros(lim.size)
     for k in np.flatnonzero(peak > lim):
