@@ -184,7 +184,8 @@ def test_simulate_replays_the_design_with_its_own_generator(tmp_path):
     for k in la:
         assert la[k].tobytes() == lb[k].tobytes(), k
     fourier = parse_simulate_config({**common, "trajectory": {"kind": "fourier", "design": "d/design.json"}}, tmp_path)
-    with pytest.raises(ConfigError, match="a 'constant_velocity' design; trajectory.design takes periodic Fourier"):
+    with pytest.raises(ConfigError, match="a 'constant_velocity' design; trajectory.kind = 'fourier' replays fourier or fourier_quintic designs; "
+                                          "replay it with trajectory.kind = 'constant_velocity'"):
         _trajectory(fourier, r)
     other = parse_simulate_config({**common, "robot": {"model": "builtin:puma560"},
                                    "trajectory": {"kind": "constant_velocity", "design": "d/design.json"}}, tmp_path)

@@ -370,7 +370,8 @@ def test_mass_matrix_of_the_constrained_model_matches_pinocchio():
 @pytest.mark.parametrize("ident, message", [
     ({"margin": 1e-3}, "physical_consistency = true"),
     ({"physical_consistency": True, "method": "tls"}, "'ols', 'wls', 'gm' and 'didim'"),
-    ({"physical_consistency": True, "regularization": "logdet"}, "regularization_weight > 0"),
+    ({"physical_consistency": True, "regularization": "logdet", "regularization_weight": 0.0}, "regularization_weight > 0"),
+    ({"physical_consistency": True, "regularization_weight": 2.0}, "needs a regularization"),
     ({"physical_consistency": True, "bodies": {"3": {"mass": [1.0]}}}, "list of 2 numbers"),
     ({"physical_consistency": True, "bodies": {"3": {"volume": 1.0}}}, "volume"),
     ({"physical_consistency": True, "margin": -1.0}, "margin must be >= 0"),
@@ -381,6 +382,20 @@ def test_config_errors_are_one_line(ident, message):
     with pytest.raises(ConfigError, match=message) as err:
         _parse_identification(ident)
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("kind", ["euclidean", "logdet"])
+def test_named_regularization_weighs_one_by_default(kind):
+    """A named regularization without a weight weighs 1 (a unit divergence = one noise variance of
+    residual), and the estimator the pipeline builds carries it; no regularization, no weight."""
+    from dynid.config import _parse_identification
+    from dynid.pipeline.data import physical_options
+
+    icfg = _parse_identification({"physical_consistency": True, "regularization": kind})
+    assert icfg.regularization_weight == 1.0
+    est = make_estimator(icfg.method, True, physical=physical_options(icfg))
+    assert est.regularization == kind and est.regularization_weight == 1.0
+    assert _parse_identification({"physical_consistency": True}).regularization_weight == 0.0
 
 
 def test_config_builds_the_estimator():

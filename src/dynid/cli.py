@@ -259,6 +259,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         print(outcome.summary_text())
         print()
     print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    for w in outcome.metadata["warnings"]:  # also in metadata.json; printed even with -q
+        print(f"dynid: warning: {w['message']}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -267,7 +269,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
     _check_out(args.out)
     cfg = load_design_config(args.config)
-    from dynid.pipeline.design import DesignOutcome, run_design, write_design
+    from dynid.pipeline.design import DesignOutcome, run_design, simulate_snippet, write_design
 
     with _progress_bar(not args.quiet) as progress:
         outcome = run_design(cfg, progress)
@@ -284,6 +286,8 @@ def _cmd_design(args: argparse.Namespace) -> int:
     if args.quiet and not isinstance(outcome, DesignOutcome):  # the summary lists them otherwise
         for line in outcome.design.dropped:
             print(line)
+    print()
+    print(simulate_snippet(outcome, args.out))
     return EXIT_OK
 
 

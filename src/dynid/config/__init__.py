@@ -82,6 +82,7 @@ class RobotConfig:
     extras_given: bool = False  # extras named in the file (a mechanism then gains them on its actuated joints)
     actuated: tuple[str, ...] | None = None  # mechanisms: actuated joints, in actuator order (default: the model's)
     independent: tuple[str, ...] | None = None  # mechanisms: joints whose positions are the independent coordinates
+    rotor_inertia: tuple[float, ...] | None = None  # serial robots: nominal Ia per joint [kg*m^2 or kg, joint side]
 
     @property
     def has_transmission(self) -> bool:
@@ -336,7 +337,8 @@ class Config:
 
 
 # ---------------------------------------------------------------------- parsing
-ROBOT_KEYS = ("extras", "gear_ratios", "couplings", "drive_gains", "position_offset", "actuated", "independent")
+ROBOT_KEYS = ("extras", "gear_ratios", "couplings", "drive_gains", "position_offset", "actuated", "independent",
+              "rotor_inertia")
 """The keys of ``[robot]`` besides ``model``."""
 PROCESSING_KEYS = ("resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity",
                    "min_velocity_passive", "periodic", "reversal_guard")
@@ -384,7 +386,20 @@ def _parse_robot(t: Any, base: Path) -> RobotConfig:
         extras_given="extras" in t,
         actuated=joint_name_list(t, "actuated", where),
         independent=joint_name_list(t, "independent", where),
+        rotor_inertia=rotor_inertia_list(t, where),
     )
+
+
+def rotor_inertia_list(t: Mapping[str, Any], where: str) -> tuple[float, ...] | None:
+    """``[robot] rotor_inertia``: the nominal rotor inertias of a serial robot's joints, reflected to
+    the joint side [kg*m^2 or kg], one per joint, each >= 0 (None: absent; the description's, if any).
+    URDF has no element for them; they become the nominal ``Ia`` (:func:`dynid.model.loading.with_rotor_inertia`)."""
+    if "rotor_inertia" not in t:
+        return None
+    values = _list(t["rotor_inertia"], f"{where}.rotor_inertia", lambda v, w: _num(v, w, minimum=0.0))
+    if not values:
+        raise ConfigError(f"{where}.rotor_inertia: empty list; give one value per joint [kg*m^2]")
+    return values
 
 
 def joint_name_list(t: Mapping[str, Any], key: str, where: str) -> tuple[str, ...] | None:
@@ -678,10 +693,14 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
                           f"controller: set {where}.experiment to the dynid simulate config of the training experiment "
                           "(controller, gains, reference, rates)")
     reg = _str(t.get("regularization", "none"), f"{where}.regularization", ("none", "euclidean", "logdet"))
-    reg_w = _num(t.get("regularization_weight", 0.0), f"{where}.regularization_weight")
-    if (reg == "none") != (reg_w == 0.0) or reg_w < 0:
-        raise ConfigError(f"{where}.regularization = 'euclidean' or 'logdet' needs regularization_weight > 0 "
-                          "(and a weight needs a regularization)")
+    # a named regularization weighs 1 by default: lambda is in units of the residual chi^2 (PhysicalLS), so at 1 a
+    # unit divergence from the nominal model costs as much as one noise variance of extra residual; "none" has none
+    reg_w = _num(t.get("regularization_weight", 0.0 if reg == "none" else 1.0), f"{where}.regularization_weight")
+    if reg == "none" and reg_w != 0.0:
+        raise ConfigError(f"{where}.regularization_weight = {reg_w:g} needs a regularization: set "
+                          f"{where}.regularization = 'euclidean' or 'logdet'")
+    if reg != "none" and not reg_w > 0:
+        raise ConfigError(f"{where}.regularization = {reg!r} needs regularization_weight > 0 (default 1), got {reg_w:g}")
     margin = _num(t.get("margin", 0.0), f"{where}.margin")
     if margin < 0:
         raise ConfigError(f"{where}.margin must be >= 0, got {margin}")

@@ -1,7 +1,8 @@
 """The configuration of ``dynid design``: a strict, typed schema read from TOML.
 
 ``[robot]``
-    ``model`` (required): anything ``dynid info`` loads.
+    ``model`` (required): anything ``dynid info`` loads; ``rotor_inertia`` (serial robots: one
+    per joint [kg·m² or kg], as in ``dynid identify``); ``actuated``, ``independent`` (mechanisms).
 ``[design]``
     ``kind``: ``"fourier"`` (default: optimized Fourier series), ``"circle"`` (paper 001's
     one-line design, evaluated, not optimized: ``centre``, ``radius``, ``speed``, ``turns``) or
@@ -29,7 +30,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from dynid.config import _bool, _int, _list, _num, _num_or_list, _str, _table, joint_name_list, read_toml
+from dynid.config import (_bool, _int, _list, _num, _num_or_list, _str, _table, joint_name_list, read_toml,
+                          rotor_inertia_list)
 from dynid.errors import ConfigError
 
 __all__ = ["DesignConfig", "load_design_config", "parse_design_config"]
@@ -62,6 +64,7 @@ class DesignConfig:
     actuated: tuple[str, ...] | None = None  # mechanisms: as [robot] actuated / independent of dynid identify
     independent: tuple[str, ...] | None = None
     constant_velocity: Mapping[str, Any] | None = None  # kind = "constant_velocity": its keys, parsed
+    rotor_inertia: tuple[float, ...] | None = None  # serial robots: as [robot] rotor_inertia of dynid identify
 
 
 def _range(t: Any, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -74,7 +77,7 @@ def _range(t: Any, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
 
 def parse_design_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = None) -> DesignConfig:
     doc = _table(dict(doc), "config", {"robot", "design", "limits", "output"}, {"robot"})
-    r = _table(doc["robot"], "robot", {"model", "actuated", "independent"}, {"model"})
+    r = _table(doc["robot"], "robot", {"model", "actuated", "independent", "rotor_inertia"}, {"model"})
     model = _str(r["model"], "robot.model")
     if not model.startswith("builtin:"):
         p = Path(model).expanduser()
@@ -121,6 +124,7 @@ def parse_design_config(doc: Mapping[str, Any], base_dir: Path, source: Path | N
         model=model,
         actuated=joint_name_list(r, "actuated", "robot"),
         independent=joint_name_list(r, "independent", "robot"),
+        rotor_inertia=rotor_inertia_list(r, "robot"),
         kind=kind,
         coordinates=_str(d.get("coordinates", "independent"), "design.coordinates", ("independent", "task")),
         harmonics=_int(d.get("harmonics", 5), "design.harmonics", 1),

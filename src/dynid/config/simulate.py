@@ -6,7 +6,9 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     ``model`` (required): anything ``dynid info`` loads (serial or closed-loop);
     ``perturbation``: relative standard deviation of a multiplicative perturbation of the
     true parameters (body parameters and joint terms) away from the model's nominal values
-    (default 0: the truth is the nominal model); ``perturbation_seed``.
+    (default 0: the truth is the nominal model); ``perturbation_seed``; ``rotor_inertia``
+    (serial robots: one per joint, reflected to the joint side [kg·m² or kg], the nominal and
+    true ``Ia``; a URDF has no element for it), ``actuated`` and ``independent`` (mechanisms).
 ``[robot.friction]``
     Ground-truth friction replacing the linear joint terms of the joints of a serial robot or
     the actuated joints of a parallel one (passive joints keep theirs): ``model`` =
@@ -29,13 +31,15 @@ Sections (all keys optional unless said; unknown keys are errors naming the dott
     ``"task"`` (the platform pose of a parallel robot that declares one: x, y, z and the
     z-y-x angles; the commanded angular velocity of paper 004, Eq. 16 is logged too);
     ``kind`` (required): ``"circle"`` (``centre``, ``radius``, ``speed``, ``turns``,
-    ``clockwise``, ``ramp``), ``"polyline"`` (``vertices``, ``speed``, ``ramp``) — with
+    ``clockwise``, ``ramp``; or ``design``: the ``design.json`` of ``dynid design``'s
+    ``kind = "circle"``), ``"polyline"`` (``vertices``, ``speed``, ``ramp``) — with
     ``axes`` (coordinate names) when the robot has more coordinates than the path, the others
     staying at the reference assembly — or
     ``"fourier"`` (``base_frequency_hz``, ``harmonics``, ``fill``: fraction of the half range
     of each coordinate, ``max_velocity``, ``max_acceleration``, ``periods``, ``quintic``:
     rest-to-rest Fourier + quintic, ``seed``; or ``design``: the ``design.json`` of
-    ``dynid design``, whose coefficients and coordinates are used, with ``periods``), or
+    ``dynid design``, whose coefficients, coordinates and rest-to-rest quintic (if designed) are
+    used, with ``periods`` for a periodic design), or
     ``"constant_velocity"`` (serial robots: the friction experiment of paper 003, Sec. 3.1, one
     joint at a time: ``joints`` (names, default all), ``speeds`` [rad/s or m/s] (default sixteen
     log-spaced from 0.002 to 0.8), ``window`` [s] (each constant-velocity window, default 2),
@@ -82,7 +86,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from dynid.config import _bool, _int, _list, _num, _num_or_list, _str, _table, joint_name_list, read_toml
+from dynid.config import (_bool, _int, _list, _num, _num_or_list, _str, _table, joint_name_list, read_toml,
+                          rotor_inertia_list)
 from dynid.errors import ConfigError
 
 __all__ = [
@@ -96,7 +101,7 @@ __all__ = [
 ]
 
 _TRAJ_KEYS = {
-    "circle": {"centre", "radius", "speed", "turns", "clockwise", "ramp", "axes"},
+    "circle": {"centre", "radius", "speed", "turns", "clockwise", "ramp", "axes", "design"},
     "polyline": {"vertices", "speed", "ramp", "axes"},
     "fourier": {"base_frequency_hz", "harmonics", "fill", "max_velocity", "max_acceleration", "periods", "quintic", "seed", "design"},
     "constant_velocity": {"joints", "speeds", "window", "pose", "max_acceleration", "switch", "rest", "repetitions", "design"},
@@ -112,6 +117,7 @@ class RobotSimConfig:
     payload: Mapping[str, Any] | None = None
     actuated: tuple[str, ...] | None = None  # mechanisms: as [robot] actuated / independent of dynid identify
     independent: tuple[str, ...] | None = None
+    rotor_inertia: tuple[float, ...] | None = None  # serial robots: as [robot] rotor_inertia of dynid identify
 
 
 @dataclasses.dataclass(frozen=True)
@@ -220,7 +226,12 @@ def _parse_trajectory(t: Any) -> TrajectoryConfig:
         raise ConfigError(f"trajectory: keys {extra} do not apply to kind {kind!r}; it takes {sorted(_TRAJ_KEYS[kind])}")
     v: dict[str, Any] = {"coordinates": _str(t.get("coordinates", "independent"), "trajectory.coordinates", ("independent", "task"))}
     w = "trajectory"
-    if kind == "circle":
+    if kind == "circle" and "design" in t:  # the circle `dynid design` evaluated (its design.json)
+        given = sorted(set(t) - {"kind", "coordinates", "design"})
+        if given:
+            raise ConfigError(f"trajectory: {given} are set by the design file; give design alone")
+        v["design"] = str(Path(_str(t["design"], f"{w}.design")).expanduser())
+    elif kind == "circle":
         for k in ("centre", "radius", "speed"):
             if k not in t:
                 raise ConfigError(f"trajectory: a circle needs {k!r}")
@@ -258,6 +269,9 @@ def _parse_trajectory(t: Any) -> TrajectoryConfig:
             random_keys = sorted({"base_frequency_hz", "harmonics", "fill", "max_velocity", "max_acceleration", "seed"} & set(t))
             if random_keys:
                 raise ConfigError(f"trajectory: {random_keys} describe a random series; a design file gives its own coefficients")
+            if "quintic" in t:
+                raise ConfigError("trajectory.quintic: the design file says whether its excitation is rest-to-rest "
+                                  "(dynid design's quintic = true); give design without quintic")
         if v["fill"] > 1:
             raise ConfigError(f"trajectory.fill must be in (0, 1], got {v['fill']}")
         if v["quintic"] and v["periods"] != 1:
@@ -383,7 +397,7 @@ def parse_simulate_config(doc: Mapping[str, Any], base_dir: Path, source: Path |
     doc = _table(dict(doc), "config", {"robot", "trajectory", "control", "sensors", "simulation", "output"},
                  {"robot", "trajectory"})
     r = _table(doc["robot"], "robot", {"model", "perturbation", "perturbation_seed", "friction", "payload", "actuated",
-                                       "independent"}, {"model"})
+                                       "independent", "rotor_inertia"}, {"model"})
     robot = RobotSimConfig(
         model=_str(r["model"], "robot.model"),
         perturbation=_num(r.get("perturbation", 0.0), "robot.perturbation"),
@@ -392,6 +406,7 @@ def parse_simulate_config(doc: Mapping[str, Any], base_dir: Path, source: Path |
         payload=_parse_payload(r["payload"]) if "payload" in r else None,
         actuated=joint_name_list(r, "actuated", "robot"),
         independent=joint_name_list(r, "independent", "robot"),
+        rotor_inertia=rotor_inertia_list(r, "robot"),
     )
     if robot.perturbation < 0:
         raise ConfigError(f"robot.perturbation must be >= 0, got {robot.perturbation}")

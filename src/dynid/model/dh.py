@@ -34,6 +34,7 @@ TOML format::
     theta = 0.0                       # joint angle offset [rad] (for prismatic joints d is the offset)
     lower = -2.79                     # optional position limits
     upper = 2.79
+    effort = 150.0                    # optional effort limit [N*m or N] (default none: dynid simulate's check skips it)
     mass = 17.4                       # optional inertial data in link frame i:
     com = [0.068, 0.006, -0.016]      #   centre of mass [m]
     inertia = [0.13, 0.524, 0.539, 0.0, 0.0, 0.0]  # [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] about the CoM
@@ -98,7 +99,8 @@ def inertia_from_link_params(params: Sequence[float]) -> pin.Inertia:
 class DHJoint:
     """One row of a DH table (see module docstring for the meaning per convention).
 
-    ``inertia`` is the body's spatial inertia expressed in link frame ``i``.
+    ``inertia`` is the body's spatial inertia expressed in link frame ``i``; ``effort`` the
+    joint's effort limit [N*m or N] (default the largest double, pinocchio's "no limit").
     """
 
     alpha: float
@@ -110,12 +112,15 @@ class DHJoint:
     lower: float = -math.pi
     upper: float = math.pi
     inertia: pin.Inertia | None = None
+    effort: float = float(np.finfo(float).max)  # pinocchio's "no limit"
 
     def __post_init__(self) -> None:
         if self.kind not in ("revolute", "prismatic"):
             raise ModelError(f"joint type must be 'revolute' or 'prismatic', got {self.kind!r}")
         if not self.lower < self.upper:
             raise ModelError(f"joint {self.name or '?'}: lower limit {self.lower} is not below upper {self.upper}")
+        if not self.effort > 0:
+            raise ModelError(f"joint {self.name or '?'}: effort limit {self.effort} must be positive")
 
 
 def build_dh_model(
@@ -153,8 +158,9 @@ def build_dh_model(
         jm = pin.JointModelRZ() if row.kind == "revolute" else pin.JointModelPZ()
         jid = model.addJoint(
             parent, jm, placement, jname,
-            # DH rows give no effort or velocity limit: none (pinocchio's "no limit", DBL_MAX), not an invented one
-            np.array([_NO_LIMIT]), np.array([_NO_LIMIT]), np.array([row.lower]), np.array([row.upper]),
+            # DH rows give no velocity limit, and an effort limit only when the row names one: none is
+            # pinocchio's "no limit" (DBL_MAX), not an invented one
+            np.array([row.effort]), np.array([_NO_LIMIT]), np.array([row.lower]), np.array([row.upper]),
         )
         inertia = row.inertia if row.inertia is not None else pin.Inertia.Zero()
         model.appendBodyToJoint(jid, x_link.act(inertia), pin.SE3.Identity())
@@ -220,7 +226,7 @@ def _joint_inertia(row: Mapping[str, Any], where: str) -> pin.Inertia | None:
     return pin.Inertia(mass, com, rot)
 
 
-_ROW_KEYS = {"name", "type", "alpha", "a", "d", "theta", "lower", "upper", "mass", "com", "inertia", "params", *_EXTRA_KEYS}
+_ROW_KEYS = {"name", "type", "alpha", "a", "d", "theta", "lower", "upper", "effort", "mass", "com", "inertia", "params", *_EXTRA_KEYS}
 _TOP_KEYS = {"name", "convention", "gravity", "joints"}
 
 
@@ -279,6 +285,7 @@ def read_dh_toml(path: str | Path, *, check_inertia: bool = True) -> tuple[pin.M
             lower=_num(row.get("lower", -math.pi), f"{where}.lower"),
             upper=_num(row.get("upper", math.pi), f"{where}.upper"),
             inertia=inertia,
+            **({"effort": _num(row["effort"], f"{where}.effort")} if "effort" in row else {}),
         )
         try:
             joint = DHJoint(**values)

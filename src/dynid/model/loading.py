@@ -19,7 +19,7 @@ from dynid.model._xml import check_mjcf_inertials, native_stderr, parse_failure,
 from dynid.model.robot import JOINT_EXTRAS, RobotModel
 from dynid.model.transmission import Transmission
 
-__all__ = ["load_model", "load_pin_model", "load_robot"]
+__all__ = ["load_model", "load_pin_model", "load_robot", "with_rotor_inertia"]
 
 _UNBOUNDED = {
     "JointModelRUBX": pin.JointModelRX,
@@ -181,8 +181,32 @@ def _mjcf_has_closures(path: Path) -> bool:
     return any(len(eq) > 0 for eq in root.iter("equality"))
 
 
+def with_rotor_inertia(robot, rotor_inertia: Sequence[float]):
+    """``robot`` with the nominal rotor inertias ``rotor_inertia`` (one per joint, reflected to the
+    joint side: kg·m² for a revolute joint, kg for a prismatic one), replacing the description's
+    (MJCF ``armature``; URDF has no element for it). They are the nominal ``Ia`` parameters, so
+    :meth:`RobotModel.with_parameters` puts them in ``model.armature``: pinocchio's RNEA and ABA,
+    the simulated plant and every nominal model include them. Serial robots with the ``Ia`` extra."""
+    from dynid.model.mechanism import Mechanism
+
+    if isinstance(robot, Mechanism):
+        raise ModelError(f"rotor_inertia is given per joint of a serial robot; {robot.name!r} is a closed-loop mechanism, "
+                         "whose rotor inertias are its Ia_<joint> terms (MJCF armature)")
+    ia = np.array(rotor_inertia, dtype=float, ndmin=1)
+    if ia.shape != (robot.dof,):
+        raise ModelError(f"rotor_inertia has {ia.size} entries; {robot.name!r} has {robot.dof} joints "
+                         f"({', '.join(robot.joint_names)})")
+    if not np.all(np.isfinite(ia)) or np.any(ia < 0):
+        raise ModelError(f"rotor_inertia must be finite and >= 0 (a reflected rotor inertia), got {ia.tolist()}")
+    if "Ia" not in robot.extras:
+        raise ModelError(f"rotor_inertia needs the joint extra 'Ia' in the parameters (extras are {list(robot.extras)}); "
+                         "link-side torque sensors do not measure the rotor: leave rotor_inertia out then")
+    return robot.replace(nominal_extras={**robot.nominal_extras, "Ia": ia})
+
+
 def load_model(spec: str, *, extras: Sequence[str] = JOINT_EXTRAS, closures: str | Path | None = None,
-               actuated: Sequence[str] | None = None, independent: Sequence[str] | None = None):
+               actuated: Sequence[str] | None = None, independent: Sequence[str] | None = None,
+               rotor_inertia: Sequence[float] | None = None):
     """A serial :class:`RobotModel` or a closed-loop :class:`~dynid.model.mechanism.Mechanism`.
 
     Closed-loop models are: ``builtin:`` mechanisms (shang2dof, rps3, hexapod, fivebar),
@@ -194,7 +218,13 @@ def load_model(spec: str, *, extras: Sequence[str] = JOINT_EXTRAS, closures: str
     ``independent`` of the configs): the actuated joints in actuator order (default: the file's
     actuators, or the built-in's) and the joints whose positions are the independent coordinates
     (default: the actuated joints; a redundantly actuated robot needs as many as its mobility).
+
+    ``rotor_inertia`` (``[robot] rotor_inertia`` of the configs; serial robots): the nominal rotor
+    inertias, one per joint (:func:`with_rotor_inertia`).
     """
+    if rotor_inertia is not None:
+        return with_rotor_inertia(load_model(spec, extras=extras, closures=closures, actuated=actuated,
+                                             independent=independent), rotor_inertia)
     chart = actuated is not None or independent is not None
     if spec.startswith("builtin:"):
         from dynid.model.robots import MECHANISMS, build_mechanism

@@ -214,7 +214,10 @@ class RobotModel:
     Parameters
     ----------
     pin_model : pinocchio.Model
-        Kinematic tree and nominal inertias (copied; treat as immutable).
+        Kinematic tree and nominal inertias (copied; treat as immutable). A non-zero
+        ``armature`` (an MJCF description's rotor inertias) becomes the nominal ``Ia`` (unless
+        ``nominal_extras`` gives it) and is cleared in the copy: rotor inertia reaches pinocchio's
+        RNEA through :meth:`with_parameters` only, when the layout has ``Ia``.
     name : str
         Human-readable name.
     extras : sequence of str
@@ -249,6 +252,14 @@ class RobotModel:
                     f"joint {m.names[j]!r} has {m.joints[j].nv} DOF; serial RobotModel supports 1-DOF joints "
                     "(closed-loop and multi-DOF joints are handled by Mechanism)"
                 )
+        armature = np.array(m.armature, dtype=float)
+        if np.any(armature != 0.0):
+            # one route for rotor inertia: a description's armature (MJCF) is the nominal Ia, and the model's
+            # armature is set from the parameters only (with_parameters), so that rnea and the regressor agree
+            # (as Mechanism's MJCF loader does with its Ia_<joint> terms)
+            m.armature = np.zeros(m.nv)
+            if "Ia" not in self.nominal_extras:
+                object.__setattr__(self, "nominal_extras", {**dict(self.nominal_extras), "Ia": armature})
         object.__setattr__(self, "pin_model", m)
         object.__setattr__(self, "extras", _normalize_extras(self.extras))
         if self.transmission is not None and self.transmission.n != m.nv:

@@ -48,7 +48,8 @@ def build_system(cfg: RobotConfig) -> System:
     drive gains, encoder offsets), for serial and parallel robots alike."""
     from dynid.model.loading import load_model
 
-    model = load_model(cfg.model, extras=cfg.extras, actuated=cfg.actuated, independent=cfg.independent)
+    model = load_model(cfg.model, extras=cfg.extras, actuated=cfg.actuated, independent=cfg.independent,
+                       rotor_inertia=cfg.rotor_inertia)
     if isinstance(model, Mechanism) and cfg.extras_given:
         model = with_actuator_extras(model, cfg.extras)
     system = as_system(model)

@@ -38,7 +38,7 @@ from dynid.model.mechanism import Mechanism
 from dynid.trajectories import CirclePath
 from dynid.trajectories import FourierTrajectory
 
-__all__ = ["ConstantVelocityOutcome", "DesignOutcome", "run_design", "write_design"]
+__all__ = ["ConstantVelocityOutcome", "DesignOutcome", "run_design", "simulate_snippet", "write_design"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -81,7 +81,7 @@ def _limits(cfg: DesignConfig) -> DesignLimits:
 
 
 def run_design(cfg: DesignConfig, progress=None) -> DesignOutcome | ConstantVelocityOutcome:
-    robot = load_model(cfg.model, actuated=cfg.actuated, independent=cfg.independent)
+    robot = load_model(cfg.model, actuated=cfg.actuated, independent=cfg.independent, rotor_inertia=cfg.rotor_inertia)
     if cfg.kind == "constant_velocity":
         return _run_constant_velocity(cfg, robot)
     box = (np.asarray(cfg.box[0], float), np.asarray(cfg.box[1], float)) if cfg.box is not None else None
@@ -119,6 +119,24 @@ def _trajectory_doc(traj) -> dict:
     return {"kind": "fourier" if isinstance(traj, FourierTrajectory) else "fourier_quintic",
             "base_frequency_hz": four.base_frequency_hz, "a": four.a.tolist(), "b": four.b.tolist(), "q0": four.q0.tolist(),
             "formula": "q_j(t) = q0_j + sum_k a_jk/(w k) sin(w k t) - b_jk/(w k) cos(w k t), w = 2 pi f0"}
+
+
+def simulate_snippet(outcome: DesignOutcome | ConstantVelocityOutcome, out_dir: str | Path) -> str:
+    """The ``[trajectory]`` table of a ``dynid simulate`` config that replays this design from
+    ``out_dir/design.json`` (its absolute path, so that the table works in any config): the
+    design's kind (``fourier`` for periodic and rest-to-rest Fourier designs, ``circle``,
+    ``constant_velocity``) and, for a parallel robot's platform pose, ``coordinates = "task"``."""
+    path = json.dumps(str((Path(out_dir) / "design.json").resolve()))  # a JSON string is a TOML basic string
+    if isinstance(outcome, ConstantVelocityOutcome):
+        kind, extra = "constant_velocity", []
+    else:
+        traj = outcome.design.trajectory
+        kind = "circle" if isinstance(traj, CirclePath) else "fourier"
+        extra = ['coordinates = "task"'] if outcome.config.coordinates == "task" else []
+        if isinstance(traj, FourierTrajectory):
+            extra.append("# periods = 1                  # the periodic design repeated")
+    return "\n".join(["[trajectory]                     # dynid simulate: replays this design (same [robot])",
+                      f'kind = "{kind}"', f"design = {path}", *extra])
 
 
 def write_design(outcome: DesignOutcome | ConstantVelocityOutcome, out_dir: str | Path) -> list[str]:

@@ -15,10 +15,14 @@ Outputs, written together or not at all:
   :mod:`dynid.trajectories.constant_velocity`);
 * ``truth.json``: the true and nominal standard parameters of the robot (names and values),
   the true base parameters with their grouping expressions, the payload (body, mass, centre
-  of mass, inertia) separately; with ``[robot.friction]`` the linear friction terms that model
+  of mass, inertia) separately; with a payload, ``true_parameters_with_payload`` (the payload's
+  inertia added to its body's block) and base ``true_values`` *with* the payload, what an
+  identification of the log estimates (``true_values_without_payload``: the robot alone); with ``[robot.friction]`` the linear friction terms that model
   replaces in the plant are recorded as 0 and listed in ``replaced_by_ground_truth_friction``
   (the plant's friction is ``ground_truth_friction`` alone);
-* ``metadata.json``: what every column means, units, seeds, control and sensor settings, the
+* ``metadata.json``: ``warnings`` (:mod:`dynid.simulation.loop_checks`: an unstable loop, a large
+  tracking error, efforts beyond the description's limits), what every column means, units, seeds,
+  control and sensor settings, the
   model the controller used (``control.model_used``: nominal, true, or the identification
   result's path relative to the configuration's folder), tracking metrics in the independent
   coordinates (per-axis RMS, P-RSME of Shang 2009, Eq. 23) and, for the PIDs of a mechanism,
@@ -59,7 +63,8 @@ from dynid.simulation.sensors import Measurements, Sensors
 from dynid.trajectories import FourierTrajectory
 from dynid.stats import tracking_errors
 
-__all__ = ["SimulationOutcome", "TrueSignals", "actuator_states", "measure_signals", "run_simulation", "write_simulation", "SIMULATION_FILES"]
+__all__ = ["SimulationOutcome", "TrueSignals", "actuator_states", "load_simulated_robot", "measure_signals", "run_simulation",
+           "write_simulation", "SIMULATION_FILES"]
 
 SIMULATION_FILES = ("log.csv", "log.npz", "truth.json", "metadata.json", "config.toml")
 Progress = Callable[[str, int, int], None]
@@ -132,6 +137,13 @@ def measure_signals(signals: TrueSignals, seed: int | None = None) -> tuple[Meas
     return meas, columns
 
 
+def load_simulated_robot(cfg: SimulateConfig):
+    """The model of ``[robot]``: ``model`` with its chart (``actuated``, ``independent``) and its
+    rotor inertias (``rotor_inertia``)."""
+    r = cfg.robot
+    return load_model(r.model, actuated=r.actuated, independent=r.independent, rotor_inertia=r.rotor_inertia)
+
+
 def _true_parameters(robot, nominal: np.ndarray, cfg: SimulateConfig) -> np.ndarray:
     """The twin's truth: ``perturbation`` away from the nominal model, body by body in mass, centre
     of mass and principal second moments, so that a physically consistent nominal model gives a
@@ -171,6 +183,13 @@ def _trajectory(cfg: SimulateConfig, robot):
     n_u = lo.size
     if tc.kind == "constant_velocity":
         return _constant_velocity(v, robot, lo, hi, names, cfg.base_dir), names
+    if "design" in v and tc.kind in ("circle", "fourier"):  # what `dynid design` wrote (its design.json)
+        traj = _design_trajectory(cfg, names, tc.kind)
+        if isinstance(traj, FourierTrajectory) and v["periods"] > 1:
+            return Repeated(traj, v["periods"]), names
+        if not isinstance(traj, FourierTrajectory) and tc.kind == "fourier" and v["periods"] > 1:
+            raise ConfigError("trajectory.periods: a rest-to-rest (quintic) design has one period")
+        return traj, names
     if tc.kind in ("circle", "polyline"):
         dim = 2 if tc.kind == "circle" else len(v["vertices"][0])
         axes = v.get("axes")
@@ -193,16 +212,13 @@ def _trajectory(cfg: SimulateConfig, robot):
             rest = robot.coordinates(robot.q_ref)[0] if isinstance(robot, Mechanism) else 0.5 * (lo + hi)
             traj = Embedded(traj, tuple(names.index(a) for a in axes), rest)
         return traj, names
-    if "design" in v:
-        four = _design_trajectory(cfg, names)
-    else:
-        rng = np.random.default_rng(v["seed"])
-        try:
-            four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
-                                            max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"],
-                                            fill=v["fill"], rest_to_rest=bool(v["quintic"]))
-        except InputError as exc:
-            raise ConfigError(f"trajectory: {exc}") from None
+    rng = np.random.default_rng(v["seed"])
+    try:
+        four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
+                                        max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"],
+                                        fill=v["fill"], rest_to_rest=bool(v["quintic"]))
+    except InputError as exc:
+        raise ConfigError(f"trajectory: {exc}") from None
     if v["quintic"]:
         return FourierQuintic(four), names
     return (Repeated(four, v["periods"]) if v["periods"] > 1 else four), names
@@ -296,8 +312,15 @@ def _constant_velocity_design(path: Path, base_dir: Path, lo: np.ndarray, hi: np
         raise ConfigError(f"{path}: not a constant_velocity design.json of dynid design ({exc})") from None
 
 
-def _design_trajectory(cfg: SimulateConfig, names: list[str]) -> FourierTrajectory:
-    """The Fourier series of a ``dynid design`` result (its design.json)."""
+_DESIGN_KINDS = {"fourier": ("fourier", "fourier_quintic"), "circle": ("circle",)}
+"""The ``trajectory`` kinds of a ``dynid design`` design.json that each ``[trajectory] kind`` replays
+(``constant_velocity`` designs: :func:`_constant_velocity_design`)."""
+
+
+def _design_trajectory(cfg: SimulateConfig, names: list[str], kind: str = "fourier"):
+    """The trajectory of a ``dynid design`` result (its design.json), as the design evaluated it:
+    a periodic Fourier series, the rest-to-rest Fourier + quintic of ``quintic = true``
+    (:class:`~dynid.trajectories.FourierQuintic`), or paper 001's circle."""
     path = Path(cfg.trajectory.values["design"])
     path = path if path.is_absolute() else cfg.base_dir / path
     text = read_file_text(path, "design file")
@@ -309,16 +332,25 @@ def _design_trajectory(cfg: SimulateConfig, names: list[str]) -> FourierTrajecto
             raise ValueError("'trajectory' must be an object and 'coordinates' a list")
     except (ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{path}: not a design.json of dynid design ({exc})") from None
-    if traj.get("kind") != "fourier":
-        raise ConfigError(f"{path}: a {traj.get('kind')!r} design; trajectory.design takes periodic Fourier designs")
+    got = traj.get("kind")
+    if got not in _DESIGN_KINDS[kind]:
+        replay = next((k for k, kinds in _DESIGN_KINDS.items() if got in kinds),
+                      "constant_velocity" if got == "constant_velocity" else None)
+        hint = f"; replay it with trajectory.kind = {replay!r}" if replay else ""
+        raise ConfigError(f"{path}: a {got!r} design; trajectory.kind = {kind!r} replays {' or '.join(_DESIGN_KINDS[kind])} "
+                          f"designs{hint}")
     if list(coords) != list(names):
         raise ConfigError(f"{path}: the design moves {coords}, the simulated robot's coordinates are {names} "
                           "(set trajectory.coordinates as the design did)")
     try:
-        return FourierTrajectory(float(traj["base_frequency_hz"]), np.array(traj["a"], dtype=float),
+        if got == "circle":
+            return CirclePath(tuple(float(x) for x in traj["centre"]), float(traj["radius"]), float(traj["speed"]),
+                              turns=float(traj["turns"]), clockwise=bool(traj["clockwise"]), ramp=float(traj["ramp"]))
+        four = FourierTrajectory(float(traj["base_frequency_hz"]), np.array(traj["a"], dtype=float),
                                  np.array(traj["b"], dtype=float), np.array(traj["q0"], dtype=float))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ConfigError(f"{path}: not a design.json of dynid design (its Fourier coefficients: {exc})") from None
+        return FourierQuintic(four) if got == "fourier_quintic" else four
+    except (KeyError, TypeError, ValueError, InputError) as exc:
+        raise ConfigError(f"{path}: not a design.json of dynid design (its {got} trajectory: {exc})") from None
 
 
 def _gains(value, n: int, where: str, what: str = "independent coordinates") -> np.ndarray:
@@ -362,11 +394,13 @@ def _payload(cfg: SimulateConfig, robot):
     return body, names.index(body), inertia
 
 
-def _with_payload(mech: Mechanism, params: np.ndarray, joint: int, payload) -> np.ndarray:
-    """The standard parameters of ``mech`` with the payload's dynamic parameters
-    ``[m, m c, I about the joint origin]`` added to the block of body ``joint``: the true model of
-    the simulator (the robot's own true parameters stay in truth.json)."""
-    k = mech.bodies.index(joint)
+def _with_payload(robot, params: np.ndarray, joint: int, payload) -> np.ndarray:
+    """The standard parameters of ``robot`` with the payload's dynamic parameters
+    ``[m, m c, I about the joint origin]`` added to the block of body ``joint`` (pinocchio joint
+    index): the true model of the simulator (a mechanism's plant; a serial plant adds the same
+    inertia to its pinocchio body, :class:`~dynid.simulation.control.SerialPlant`), and truth.json's
+    ``true_parameters_with_payload`` and base ``true_values``."""
+    k = robot.bodies.index(joint) if isinstance(robot, Mechanism) else joint - 1
     out = np.array(params, dtype=float)
     out[10 * k : 10 * k + 10] += np.asarray(payload.toDynamicParameters(), dtype=float)
     return out
@@ -470,7 +504,7 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, rob
 
 def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None,
                     plant_params: np.ndarray | None = None, coulomb_band: float | None = None) -> SimulationOutcome:
-    robot = load_model(cfg.robot.model, actuated=cfg.robot.actuated, independent=cfg.robot.independent)
+    robot = load_simulated_robot(cfg)
     if variant is not None:
         if list(variant.parameter_names) != list(robot.parameter_names):
             raise ModelError(f"the variant of {cfg.robot.model} has other parameters than the model itself")
@@ -562,6 +596,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
         act_names = list(robot.joint_names)
         constraint = None
     u_ref = traj.sample(motion.t)[0]
+    warnings = _loop_warnings(robot, mech, c, motion.t, u_ref, u, coord_names, tau, act_names, replay=plant_params is not None)
     references = {f"ref_{name}": u_ref[:, k] for k, name in enumerate(coord_names)}
     if {"RZ", "RY", "RX"} <= set(coord_names):  # commanded angular velocity, paper 004 Eq. 16
         sel = [coord_names.index(n) for n in ("RZ", "RY", "RX")]
@@ -581,6 +616,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
     replaced = _replaced_friction(robot, mech) if cfg.robot.friction is not None and plant_params is None else []
     recorded = np.array(true, dtype=float)
     recorded[[list(robot.parameter_names).index(n) for n in replaced]] = 0.0
+    loaded = recorded if payload is None else _with_payload(robot, recorded, payload[1], payload[2])
     truth = {
         "model": cfg.robot.model if variant is None else f"variant of {cfg.robot.model}",
         "parameter_names": list(robot.parameter_names),
@@ -592,9 +628,13 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
                                   "the joint terms of true_parameters"),
         "payload": ({"body": payload[0], **{k: v for k, v in cfg.robot.payload.items() if k != "body"}}
                     if payload is not None else None),
+        **({"true_parameters_with_payload": loaded.tolist()} if payload is not None else {}),
         "base_parameters": None if base is None else {
             "names": list(base.names),
-            "true_values": base.from_standard(recorded).tolist(),
+            # what an identification of the log estimates: the robot with its payload
+            "true_values": base.from_standard(loaded).tolist(),
+            **({"true_values_without_payload": base.from_standard(recorded).tolist(),
+                "payload_included": True} if payload is not None else {}),
             "expressions": list(base.expressions()),
         },
     }
@@ -632,6 +672,7 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
         "tracking": _jsonable_metrics(track),
         "tracking_actuators": None if track_actuators is None else _jsonable_metrics(track_actuators),
         "constraint_error_max": constraint,
+        "warnings": warnings,
     }
     dataset = Dataset(
         t=meas.t, q=meas.q, tau=meas.effort, names=tuple(act_names),
@@ -642,13 +683,46 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
                              signals=signals)
 
 
+def _loop_warnings(robot, mech: bool, c, t: np.ndarray, u_ref: np.ndarray, u: np.ndarray, coord_names: list[str],
+                   tau: np.ndarray, act_names: list[str], replay: bool = False) -> list[dict]:
+    """:func:`dynid.simulation.loop_checks.loop_warnings` of a run; a run whose state or efforts
+    left the finite numbers is refused (its log would be NaN from there on: nothing to write): a
+    ConfigError (the configured gains), or for a replay on given plant parameters an InputError
+    (the parameters: DIDIM and IDIM-IV then halve their step, :mod:`dynid.pipeline.control_loop`)."""
+    from dynid.model.closures import JointCoordinates
+    from dynid.model.robot import joint_kinds
+    from dynid.simulation.loop_checks import declared_limits, loop_warnings, unstable_state
+
+    bad = unstable_state(t, u, tau)
+    if bad is not None and replay:
+        raise InputError(f"the replayed experiment is unstable: the state or the efforts are no longer finite from "
+                         f"t = {t[bad]:.4g} s")
+    if bad is not None:
+        raise ConfigError(f"control: the loop is unstable: the state or the efforts are no longer finite from t = "
+                          f"{t[bad]:.4g} s ({c.kind} at {c.rate_hz:g} Hz, kp {_short(c.kp)}, kd {_short(c.kd)}); lower the "
+                          "gains or raise control.rate_hz (README 'Virtual experiments' gives the gains' units)")
+    act = list(robot.actuated) if mech else list(range(robot.dof))
+    kinds = joint_kinds(robot.pin_model)
+    ind = robot.independent if mech else None
+    coord_kinds = ([kinds[j] for j in ind.joints] if isinstance(ind, JointCoordinates) else ["prismatic"] * len(coord_names)
+                   ) if mech else list(kinds)
+    position_unit = {"prismatic": "m"}
+    effort_unit = {"prismatic": "N"}
+    return loop_warnings(t, u_ref, u, coord_names, [position_unit.get(k, "rad") for k in coord_kinds], tau,
+                         declared_limits(np.asarray(robot.pin_model.effortLimit)[act]), act_names,
+                         [effort_unit.get(kinds[j], "N*m") for j in act])
+
+
+def _short(value) -> str:
+    return f"{value:g}" if isinstance(value, (int, float)) else "[" + ", ".join(f"{v:g}" for v in value) + "]"
+
+
 def actuator_states(outcome: SimulationOutcome) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The true actuator states of a simulation at the control instants: ``t`` (n,), positions,
     velocities, accelerations (n, n_a) (accelerations at the start of each hold, under the held
     forces)."""
     motion = outcome.motion
-    r = outcome.config.robot
-    robot = load_model(r.model, actuated=r.actuated, independent=r.independent)
+    robot = load_simulated_robot(outcome.config)
     act = list(robot.actuated) if isinstance(robot, Mechanism) else slice(None)
     return motion.t, motion.q[:, act], motion.dq[:, act], motion.ddq[:, act]
 
