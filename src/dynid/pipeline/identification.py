@@ -1122,6 +1122,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
         else:
             structure = {"mode": "auto", "chosen": "full",
                          "reason": "no identical chains: none declared by the robot description, none found in it"}
+            cfg0, cfg = _explicit_structure(cfg0, "full", None), _explicit_structure(cfg, "full", None)
     else:
         system = system.with_structure(cfg.identification.structure, cfg.identification.identical_chains)
         if system.kind != "serial":
@@ -1145,6 +1146,8 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
 
     streams, data_path = streaming.plan(cfg, system, readers)
     if streams is not None:
+        if cfg.identification.structure == "auto":  # no decision on a stream (below): the full model
+            cfg0, cfg = _explicit_structure(cfg0, "full", None), _explicit_structure(cfg, "full", None)
         outcome = _identify_streamed(cfg0, cfg, system, force_model, streams, data_path, progress)
         if auto is not None:  # the decision cross-validates over the log's segments, which a stream does not keep
             structure = {"mode": "auto", "chosen": "full", "chains": [[list(c) for c in g] for g in auto[0]],
@@ -1310,11 +1313,14 @@ def _decide_structure(cfg0: Config, cfg: Config, system: System, train: Dataset,
     chosen = tied if decision.chosen == "identical_chains" else system
     chains = groups if decision.chosen == "identical_chains" else None
 
-    def explicit(c: Config) -> Config:
-        ic = dataclasses.replace(c.identification, structure=decision.chosen, identical_chains=chains)
-        return dataclasses.replace(c, identification=ic)
+    return (chosen, decision.record, _explicit_structure(cfg0, decision.chosen, chains),
+            _explicit_structure(cfg, decision.chosen, chains))
 
-    return chosen, decision.record, explicit(cfg0), explicit(cfg)
+
+def _explicit_structure(cfg: Config, structure: str, chains) -> Config:
+    """``cfg`` with the structure ``"auto"`` chose (what the hierarchical prior rebuilds)."""
+    ic = dataclasses.replace(cfg.identification, structure=structure, identical_chains=chains)
+    return dataclasses.replace(cfg, identification=ic)
 
 
 def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: str | None, streams, data_path: dict,
