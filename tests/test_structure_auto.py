@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from conftest import seed
+from dynid.cli import main
 from dynid.estimation import ProblemBuilder
 from dynid.model.closed_loop import actuator_regressor
 from dynid.model.mechanism_io import load_mechanism_mjcf
@@ -261,7 +262,7 @@ plots = {plots}
 
 
 @pytest.mark.numerics
-def test_identify_writes_the_decision_and_forcing_works(stewart, simulated, tmp_path):
+def test_identify_writes_the_decision_and_forcing_works(stewart, simulated, tmp_path, capsys):
     from dynid.config import load_config
     from dynid.pipeline.identification import identify, write_outputs
 
@@ -271,6 +272,14 @@ def test_identify_writes_the_decision_and_forcing_works(stewart, simulated, tmp_
     same, _ = _truths(mech, tied)
     W = actuator_regressor(mech, state).W
     _log(tmp_path, mech, state, W @ same + 0.1 * rng.standard_normal((W.shape[0], 6)))
+    # dynid info lists the legs, dynid init writes them with structure "auto"
+    capsys.readouterr()
+    assert main(["info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["identical_chains"] == [[list(c) for c in LEGS]] and info["identical_chains_source"].startswith("found")
+    assert main(["init", str(path), str(tmp_path / "log.csv"), "--out", str(tmp_path / "init.toml")]) == 0
+    init = load_config(tmp_path / "init.toml").identification
+    assert init.structure == "auto" and init.identical_chains == (LEGS,)
     (tmp_path / "auto.toml").write_text(CONFIG.format(model=path, ident="", plots="true"))
     out = identify(load_config(tmp_path / "auto.toml"))
     rec = out.structure

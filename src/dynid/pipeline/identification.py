@@ -264,8 +264,11 @@ def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str 
 def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model, min_velocity, parallel_decimate,
               chunk_size, progress, meta, cross, periodic, min_velocity_passive=None,
               blocks=None, reversal_guard: float | None = None,
-              keep: np.ndarray | None = None, source: Iterator[Chunk] | None = None) -> tuple[RegressionProblem, float]:
-    """:func:`build_problem` and the largest inconsistency of redundant actuator positions; ``blocks``
+              keep: np.ndarray | None = None, source: Iterator[Chunk] | None = None,
+              check: bool = True) -> tuple[RegressionProblem, float]:
+    """:func:`build_problem` and the largest inconsistency of redundant actuator positions; ``check``:
+    refuse a row selection that leaves no more equations than base parameters (off for a segment of
+    the log, :func:`_decide_structure`); ``blocks``
     (a :class:`~dynid.estimation.block_covariance.BlockBuilder`) also gets every chunk and its rows.
     ``source``: the chunks themselves (the streamed identification, :mod:`dynid.pipeline.streaming`;
     ``ds`` is then unused)."""
@@ -289,7 +292,7 @@ def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model,
     problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta or {})
     selection = [k for k, v in (("min_velocity", min_velocity), ("min_velocity_passive", min_velocity_passive),
                                 ("reversal_guard", reversal_guard)) if v is not None]
-    if selection and problem.n_total <= base.n_base:
+    if check and selection and problem.n_total <= base.n_base:
         rule = "whole samples (every actuator)" if not system.channels_are_actuators(force_model) else "per equation"
         raise IdentifiabilityError(
             f"data: the row selection ({', '.join('processing.' + k for k in selection)}; {rule}) keeps "
@@ -1308,7 +1311,7 @@ def _decide_structure(cfg0: Config, cfg: Config, system: System, train: Dataset,
                                   parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
                                   meta={}, cross=False, periodic=pcfg.periodic if pose else None,
                                   min_velocity_passive=pcfg.min_velocity_passive,
-                                  reversal_guard=pcfg.reversal_guard_s())[0])
+                                  reversal_guard=pcfg.reversal_guard_s(), check=False)[0])
     decision = decide_structure(segments, base_full, base_tied, tied.reduction.T, groups, source)
     chosen = tied if decision.chosen == "identical_chains" else system
     chains = groups if decision.chosen == "identical_chains" else None

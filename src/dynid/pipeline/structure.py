@@ -136,8 +136,9 @@ def decide_structure(segments: Sequence[RegressionProblem], base_full: BaseParam
     ----------
     segments : sequence of RegressionProblem
         The training log's contiguous segments, each compressed in the full model's base
-        parameters (all with the same columns and channels); one segment: no cross-validation
-        (the rule then rests on the F test alone, and says so).
+        parameters (all with the same columns and channels); fewer than two with equations (a
+        row selection may keep none of a segment): no cross-validation (the rule then rests on
+        the F test alone, and says so).
     base_full, base_tied : BaseParameters
         Base parameters of the full model and of the tied one (the latter over :math:`\\psi`).
     T : array (p, p_psi)
@@ -170,14 +171,15 @@ def decide_structure(segments: Sequence[RegressionProblem], base_full: BaseParam
     bic = {name: float(n * np.log(rss / n) + p * np.log(n))
            for name, rss, p in (("full", rss_f, p_f), ("identical_chains", rss_t, p_t))}
     cv: dict[str, Any] | None = None
-    if len(segments) >= 2:
+    held = [k for k in range(len(segments)) if n_seg[k] > 0]  # a row selection may keep nothing of a segment
+    if len(held) >= 2:
         per = {"full": [], "identical_chains": []}
-        for k in range(len(segments)):
+        for k in held:
             rest = [i for i in range(len(segments)) if i != k]
             for name, seg in (("full", seg_f), ("identical_chains", seg_t)):
                 beta, _ = _wls(_merge([seg[i] for i in rest]), w)
                 per[name].append(float(np.sqrt(w @ _rss(seg[k], beta) / max(n_seg[k], 1))))
-        cv = {"segments": len(segments), "full": float(np.mean(per["full"])),
+        cv = {"segments": len(held), "full": float(np.mean(per["full"])),
               "identical_chains": float(np.mean(per["identical_chains"])), "per_segment": per}
     rejected = p_value < alpha
     cv_prefers_full = cv is None or cv["full"] < cv["identical_chains"]
@@ -187,7 +189,8 @@ def decide_structure(segments: Sequence[RegressionProblem], base_full: BaseParam
         "chosen": chosen,
         "chains": [[list(c) for c in g] for g in chains],
         "chains_source": source,
-        "rule": RULE + ("" if cv is not None else " (one segment: no cross-validation, the F test alone)"),
+        "rule": RULE + ("" if cv is not None else " (fewer than two segments with equations: no cross-validation, "
+                                                  "the F test alone)"),
         "n_base_params": {"full": base_full.n_base, "identical_chains": base_tied.n_base},
         "rank": {"full": p_f, "identical_chains": p_t},
         "n_equations": n,
