@@ -1174,6 +1174,9 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     held_out, _ = preprocess(valid_a, pcfg, "validation")
     if system.kind != "serial" and system.model.independent_choice:  # a redundant robot's chart, over the log now
         system, cfg0, cfg = _chart_from_log(cfg0, cfg, system, train)
+        channels = system.channel_names(force_model)  # the projected equations' channels follow the chart
+        if original.kind != "serial":  # (hierarchical friction: the friction-carrying model, the same chart)
+            original = dataclasses.replace(original, model=original.model.with_chart(independent=cfg.robot.independent))
         notes = [*notes, f"independent coordinates "
                          f"{', '.join(system.model.pin_model.names[j + 1] for j in system.model.independent.joints)}: "
                          f"{system.model.independent_choice}; [robot] independent overrides"]
