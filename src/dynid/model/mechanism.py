@@ -153,7 +153,9 @@ class Mechanism:
     actuated : sequence of int
         Velocity indices (0-based) of the actuated joints, in actuator order.
     independent : JointCoordinates or PointCoordinates, optional
-        Independent coordinates; default: the actuated joints (non-redundant actuation only).
+        Independent coordinates; default: the actuated joints, or for redundant actuation the
+        subset of them whose velocity map is best conditioned over a sample of the workspace
+        (:meth:`rank_charts`; recorded in ``independent_choice``).
     terms : sequence of JointTerm
         Joint terms (friction, rotor inertia, offsets) in parameter order.
     massless : sequence of int

@@ -36,14 +36,13 @@ them exactly: with :math:`Y = Y_b B_f` (the full model's base map) the tied base
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
 from dynid._typing import FloatArray
-from dynid.dataset import Dataset
 from dynid.estimation.problem import RegressionProblem
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.reduction import CHAIN_TOL, chain_groups, detect_identical_chains
