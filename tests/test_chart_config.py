@@ -245,6 +245,11 @@ def test_montecarlo_passes_the_simulated_chart_to_identify(fivebar3):
     icfg = cfg.identify_config(fivebar3.parent / "log.npz", ["qa1", "qa2", "qb1"], "torque", 1000)
     assert icfg.robot.independent == ("qa1", "qa2")
     assert np.all(np.array(icfg.robot.independent) == np.array(cfg.simulate.robot.independent))
+    # every trial identifies one model: structure "full" unless named, "auto" refused (it could choose per trial)
+    assert icfg.identification.structure == "full"
+    doc["identify"] = {"identification": {"structure": "auto"}}
+    with pytest.raises(ConfigError, match="structure = 'auto' is not available in dynid montecarlo"):
+        parse_montecarlo_config(doc, fivebar3.parent)
 
 
 NOISE = 0.01  # N*m, the simulated force noise per actuator (SIMULATE)
