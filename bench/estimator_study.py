@@ -64,7 +64,7 @@ SHANG_SIM = {
 
 def _shang_identify(folder: Path, nominal_weighting: bool = False):
     acts = ["qa1", "qa2", "qa3"]
-    ident = {"method": "wls"}
+    ident = {"method": "wls", "structure": "full"}  # paper 001 identifies each chain (the simulated robot's differ)
     if nominal_weighting:
         ident["nominal_weighting"] = True
     doc = {

@@ -542,8 +542,10 @@ _info("dh-nan.toml", ROBOT.replace("a = 0.3", "a = nan"), "joints[1].a: expected
 _info("robot.stl", "solid x\nendsolid x\n", "unknown robot file type '.stl'")
 _info("extras.toml", ROBOT, "unknown joint extras ['stiction']", extra=("--extras", "Ia,stiction"))
 _info("closures.urdf", URDF, "closure file not found", "nope.yaml", extra=("--closures", "nope.yaml"))
+# a redundant file loads with a chart chosen among its actuators (issue 34); a chart of the wrong size given by hand does not
 _info("mjcf-redundant.xml", FIVEBAR.replace('<motor joint="qa2"/>', '<motor joint="qa2"/>\n    <motor joint="qb1"/>'),
-      "mechanism 'fivebar' has mobility 2", "but 3 independent coordinates were given", "e.g. ['qa1', 'qa2']")
+      "mechanism 'fivebar' has mobility 2", "but 3 independent coordinates were given", "e.g. ['qa1', 'qa2']",
+      extra=("--independent", "qa1,qa2,qb1"))
 _info("mjcf-independent-unknown.xml", FIVEBAR, "independent coordinates ['q9'] are not joints of the model",
       extra=("--independent", "qa1,q9"))
 _info("mjcf-independent-size.xml", FIVEBAR, "but 1 independent coordinates were given", extra=("--independent", "qa1"))

@@ -58,9 +58,29 @@ def _chart_is_valid(mech, names) -> bool:
         return False
 
 
+def test_a_redundant_robot_gets_the_best_conditioned_chart_of_its_actuators(fivebar3):
+    """No chart given: the subset of the actuated joints whose velocity map is best conditioned over a
+    sample of the workspace (issue 34, item 3), recorded; its condition number at the reference
+    configuration checked against the mechanism's own velocity map (the [J_c; J_u] solve of states)."""
+    mech = load_model(str(fivebar3))
+    assert mech.redundant and mech.dof == 2 and mech.independent.size == 2
+    assert set(mech.independent.joints) <= set(mech.actuated)
+    assert mech.independent_choice.startswith("chosen automatically among the actuated joints")
+    ranked = mech.rank_charts(mech.q_ref)
+    zero = np.zeros((1, 2))
+    for combo, cond in ranked:  # at one configuration the worst case is that configuration's condition number
+        G = mech.with_chart(independent=[mech.pin_model.names[j + 1] for j in combo]).states(mech.q_ref[None], zero, zero).G[0]
+        assert cond == pytest.approx(np.linalg.cond(G), rel=1e-9)  # an orthonormal change of basis: equal up to rounding
+    workspace = mech.rank_charts(mech._workspace_samples(mech.q_ref, mech._constraint_jacobian(
+        mech.q_ref, mech.pin_model.createData())[mech.constraint_rows], mech.pin_model.createData()))
+    assert tuple(mech.independent.joints) == workspace[0][0] and workspace[0][1] < workspace[1][1]
+    # given by hand, the chart stays as given
+    assert load_model(str(fivebar3), independent=["qa1", "qa2"]).independent_choice == ""
+
+
 def test_a_chart_of_the_wrong_size_lists_valid_choices_that_load(fivebar3):
     with pytest.raises(ModelError) as err:
-        load_model(str(fivebar3))
+        load_model(str(fivebar3), independent=["qa1", "qa2", "qb1"])
     msg = str(err.value)
     assert "\n" not in msg and "mobility 2" in msg and "3 independent coordinates were given" in msg
     choices = _listed(msg)
@@ -94,7 +114,11 @@ def test_unknown_or_repeated_joint_names_are_refused(fivebar3):
 
 
 def test_dynid_info_takes_the_chart(fivebar3, capsys):
-    assert main(["info", str(fivebar3)]) == 2
+    assert main(["info", str(fivebar3), "--json"]) == 0  # the redundant file as it is: the chart chosen and named
+    info = json.loads(capsys.readouterr().out)
+    chosen = [load_model(str(fivebar3)).pin_model.names[j + 1] for j in load_model(str(fivebar3)).independent.joints]
+    assert info["independent_coordinates"] == chosen and info["independent_choice"].startswith("chosen automatically")
+    assert main(["info", str(fivebar3), "--independent", "qa1,qa2,qb1"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("dynid: error: ") and err.count("\n") == 1 and "--independent" in err
     assert main(["info", str(fivebar3), "--independent", "qa1,qa2", "--json"]) == 0
@@ -181,6 +205,38 @@ def test_a_redundant_robot_from_its_own_files_is_simulated_and_identified_from_c
     capsys.readouterr()
 
 
+@pytest.mark.numerics
+def test_a_redundant_robot_is_initialised_and_identified_without_a_hand_chart(fivebar3, tmp_path, capsys):
+    """Issue 34, item 3: the walk-through's simulations and configs with no [robot] independent at all.
+    ``dynid init`` names the automatic chart (chosen over the workspace); identify chooses it again over
+    the training log, says so, projects on it, and beats the file's model on the held-out motion."""
+    d = tmp_path
+    (d / "fivebar3.xml").write_text(fivebar3.read_text())
+    robot = '[robot]\nmodel = "fivebar3.xml"\n'
+    (d / "sim.toml").write_text(robot + SIMULATE)  # the example's seeds (its figures are this draw's)
+    assert main(["simulate", str(d / "sim.toml"), "--out", str(d / "sim"), "-q"]) == 0
+    (d / "val.toml").write_text(robot + VALIDATE)
+    assert main(["simulate", str(d / "val.toml"), "--out", str(d / "val"), "-q"]) == 0
+    mech = load_model(str(d / "fivebar3.xml"))
+    chart = [mech.pin_model.names[j + 1] for j in mech.independent.joints]
+    assert main(["init", str(d / "fivebar3.xml"), str(d / "sim" / "log.csv"), "--out", str(d / "init.toml")]) == 0
+    text = (d / "init.toml").read_text()
+    assert f"# independent = [{', '.join(json.dumps(c) for c in chart)}]   # chosen automatically" in text
+    assert 'structure = "auto"' in text
+    (d / "id.toml").write_text(robot + IDENTIFY.format())
+    capsys.readouterr()
+    assert main(["identify", str(d / "id.toml"), "--out", str(d / "id"), "-q"]) == 0
+    res = json.loads((d / "id" / "result.json").read_text())
+    note = next(n for n in res["notes"] if n.startswith("independent coordinates"))
+    assert "over 200 samples of the training log" in note and "[robot] independent overrides" in note
+    used = note.split(":")[0].removeprefix("independent coordinates ").split(", ")
+    assert [c["name"] for c in res["channels"]] == [f"u_{j}" for j in used]  # projected on the chosen chart
+    assert res["prediction_inputs"]["robot"]["independent"] == used  # predict rebuilds the same chart
+    assert res["structure"]["chosen"] == "full"  # the five-bar's two arms differ: nothing to tie
+    prior = res["prior_comparison"]
+    assert prior["beats_nominal"] and prior["identified_mean_rel_rmse_pct"] < 0.5 * prior["nominal_mean_rel_rmse_pct"]
+
+
 def test_montecarlo_passes_the_simulated_chart_to_identify(fivebar3):
     doc = tomllib.loads(f"[simulate]\n{ROBOT.format(model=fivebar3.name).replace('[robot]', '[simulate.robot]')}"
                         + SIMULATE.replace("[trajectory]", "[simulate.trajectory]").replace("[control]", "[simulate.control]")
@@ -189,6 +245,11 @@ def test_montecarlo_passes_the_simulated_chart_to_identify(fivebar3):
     icfg = cfg.identify_config(fivebar3.parent / "log.npz", ["qa1", "qa2", "qb1"], "torque", 1000)
     assert icfg.robot.independent == ("qa1", "qa2")
     assert np.all(np.array(icfg.robot.independent) == np.array(cfg.simulate.robot.independent))
+    # every trial identifies one model: structure "full" unless named, "auto" refused (it could choose per trial)
+    assert icfg.identification.structure == "full"
+    doc["identify"] = {"identification": {"structure": "auto"}}
+    with pytest.raises(ConfigError, match="structure = 'auto' is not available in dynid montecarlo"):
+        parse_montecarlo_config(doc, fivebar3.parent)
 
 
 NOISE = 0.01  # N*m, the simulated force noise per actuator (SIMULATE)
@@ -271,7 +332,7 @@ plots = false
 
 def test_dynid_design_takes_the_chart(fivebar3, capsys):
     d = fivebar3.parent
-    (d / "design0.toml").write_text(f'[robot]\nmodel = "{fivebar3.name}"\n' + DESIGN)
+    (d / "design0.toml").write_text(f'[robot]\nmodel = "{fivebar3.name}"\nindependent = ["qa1", "qa2", "qb1"]\n' + DESIGN)
     assert main(["design", str(d / "design0.toml"), "--out", str(d / "design0")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "e.g. ['qa1', 'qa2']" in err and not (d / "design0").exists()

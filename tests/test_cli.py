@@ -377,9 +377,10 @@ def test_info_json_of_every_mechanism(runs, name, dof, n_actuators, redundant):
     assert 0 < info["n_base_params"] < info["n_standard_params"]
     if name == "shang2dof":
         assert (info["n_base_rigid_body"], info["n_base_joint_terms"]) == (10, 15)
-    # the reduced structures each built-in declares (identical chains, the papers' symmetric bodies)
+    # the reduced structures of the identical chains each built-in declares or dynid finds in it (shang2dof's
+    # chains 2 and 3: equal a, b, c in paper 001's Table 3), and the papers' symmetric bodies
     counts = {st: (d["n_base_rigid_body"], d["n_base_params"]) for st, d in info["structures"].items()}
-    assert counts == {"shang2dof": {}, "rps3": {"identical_chains": (15, 24)}, "fivebar": {},
+    assert counts == {"shang2dof": {"identical_chains": (7, 22)}, "rps3": {"identical_chains": (15, 24)}, "fivebar": {},
                       "hexapod": {"identical_chains": (23, 37), "paper": (10, 24)}}[name]
 
 

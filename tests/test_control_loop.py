@@ -151,7 +151,8 @@ def _config(d, method: str, **identification):
         "validation": {"file": "valid/log.csv"},
         "processing": {"lowpass": {"cutoff_hz": 20.0, "order": 4, "filter_effort": False}, "derivatives": "central",
                        "decimate": 5, "decimate_method": "parallel"},
-        "identification": {"method": method, "force_model": "projected", **identification},
+        # "full": the truth's chains differ (perturbation) and the tests compare with its base parameters
+        "identification": {"method": method, "force_model": "projected", "structure": "full", **identification},
     }, d)
 
 

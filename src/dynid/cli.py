@@ -94,17 +94,27 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _structures(mech) -> dict:
-    """Base-parameter counts of the reduced structures a mechanism declares (identical chains, the
-    papers' symmetric bodies; :mod:`dynid.model.reduction`)."""
+def _identical_chains(mech) -> tuple[tuple, str]:
+    """The mechanism's identical chains: declared by the description (a built-in's symmetry) or
+    found in it (:func:`dynid.model.reduction.detect_identical_chains`), and which."""
+    from dynid.model.reduction import CHAIN_TOL, detect_identical_chains
+
+    if mech.identical_chains:
+        return tuple(mech.identical_chains), "declared by the description"
+    return detect_identical_chains(mech), f"found in the description (joints and bodies equal to {CHAIN_TOL:g})"
+
+
+def _structures(mech, chains: tuple) -> dict:
+    """Base-parameter counts of the reduced structures of a mechanism's identical chains (and the
+    papers' symmetric bodies where the description declares them; :mod:`dynid.model.reduction`)."""
     from dynid.model.closed_loop import mechanism_base_parameters
     from dynid.model.reduction import reduce_mechanism
 
     out = {}
-    for st in ("identical_chains", "paper") if mech.identical_chains else ():
+    for st in ("identical_chains", "paper") if chains else ():
         if st == "paper" and not mech.symmetric_zero:
             continue
-        red = reduce_mechanism(mech, st)
+        red = reduce_mechanism(mech, st, chains)
         base = mechanism_base_parameters(mech, reduction=red)
         out[st] = {"n_params": red.n_params, "n_base_params": base.n_base,
                    "n_base_rigid_body": int(sum(1 for i in base.independent if i < red.n_body_params)),
@@ -123,6 +133,7 @@ def _info_mechanism(mech, as_json: bool) -> int:
         if hasattr(ind, "joints")
         else [f"{'xyz'[a]}@{mech.pin_model.names[ind.joint]}" for a in ind.axes]
     )
+    chains, chains_source = _identical_chains(mech)
     info = {
         "robot": mech.name,
         "source": mech.source,
@@ -135,13 +146,16 @@ def _info_mechanism(mech, as_json: bool) -> int:
         "closures": [{"name": c.name, "type": c.kind} for c in mech.closures],
         "actuated": mech.actuated_names,
         "independent_coordinates": coords,
+        "independent_choice": mech.independent_choice or "given (or the actuated joints)",
         "force_model": "projected (default for redundant actuation)" if mech.redundant else "actuator forces",
         "n_standard_params": mech.n_standard_params,
         "n_base_params": base.n_base,
         "n_base_rigid_body": n_rb,
         "n_base_joint_terms": base.n_base - n_rb,
         "base_param_names": list(base.names),
-        "structures": _structures(mech),
+        "identical_chains": [[list(c) for c in g] for g in chains],
+        "identical_chains_source": chains_source if chains else "none declared by the description, none found in it",
+        "structures": _structures(mech, chains),
         "notes": list(mech.notes),
     }
     if as_json:
@@ -153,7 +167,13 @@ def _info_mechanism(mech, as_json: bool) -> int:
           + ("  [redundant actuation]" if mech.redundant else ""))
     print(f"joints, bodies   : {mech.nv} joints (active and passive), {len(mech.bodies)} bodies with mass")
     print(f"loop closures    : {len(mech.closures)} ({', '.join(f'{c.name}:{c.kind}' for c in mech.closures)})")
-    print(f"independent u    : {', '.join(coords)}")
+    print(f"independent u    : {', '.join(coords)}" + (f" ({mech.independent_choice}; --independent overrides)"
+                                                           if mech.independent_choice else ""))
+    if chains:
+        for g in chains:
+            print(f"identical chains : {' = '.join('(' + ', '.join(c) + ')' for c in g)}  [{chains_source}]")
+    else:
+        print("identical chains : none (none declared by the description, none found in it)")
     print(f"standard params  : {mech.n_standard_params}")
     print(f"base params      : {base.n_base} ({n_rb} rigid-body + {base.n_base - n_rb} joint terms)")
     for name, expr in zip(base.names, base.expressions()):

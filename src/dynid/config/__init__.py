@@ -255,8 +255,10 @@ class IdentificationConfig:
     bodies: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
     friction_model: str = "linear"  # "stribeck": nonlinear friction (paper 000 Eq. 32)
     max_samples: int = 4000  # friction_model = "stribeck": samples used by the nonlinear fit
-    # structural reduction (dynid.model.reduction): "full", "identical_chains" or "paper"
-    structure: str = "full"
+    # structural reduction (dynid.model.reduction): "auto" (parallel robots: "full" or "identical_chains"
+    # chosen from the training data, dynid.pipeline.structure; serial robots: "full"), "full",
+    # "identical_chains" or "paper"
+    structure: str = "auto"
     identical_chains: tuple[tuple[tuple[str, ...], ...], ...] | None = None  # None: the mechanism's own chains
     covariance: CovarianceConfig = CovarianceConfig()  # the covariance the intervals use (issue 17)
     # methods "iv" and "didim" (issue 17): the experiment replayed on the model under its controller
@@ -638,7 +640,7 @@ def _parse_processing(t: Any) -> ProcessingConfig:
     )
 
 
-_STRUCTURES = ("full", "identical_chains", "paper")  # dynid.model.reduction.STRUCTURES (config sits above model)
+_STRUCTURES = ("auto", "full", "identical_chains", "paper")  # "auto" + dynid.model.reduction.STRUCTURES (config sits above model)
 
 
 def _chain_groups(spec: Any, where: str) -> tuple[tuple[tuple[str, ...], ...], ...]:
@@ -769,9 +771,11 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
                               f"friction model, not method {method!r}" + (" with friction_model = 'stribeck'"
                                                                             if friction_model != "linear" else ""))
     chains = _chain_groups(t["identical_chains"], f"{where}.identical_chains") if "identical_chains" in t else None
-    structure = _str(t.get("structure", "identical_chains" if chains else "full"), f"{where}.structure", _STRUCTURES)
+    # chains named by hand tie them unless the structure says otherwise ("auto": tied or full, from the data)
+    structure = _str(t.get("structure", "identical_chains" if chains else "auto"), f"{where}.structure", _STRUCTURES)
     if chains and structure == "full":
-        raise ConfigError(f"{where}.identical_chains needs {where}.structure = 'identical_chains' or 'paper', not 'full'")
+        raise ConfigError(f"{where}.identical_chains needs {where}.structure = 'identical_chains', 'paper' or 'auto', "
+                          "not 'full'")
     return IdentificationConfig(
         structure=structure,
         identical_chains=chains,

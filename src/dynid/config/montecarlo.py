@@ -103,6 +103,11 @@ def _identify_document(t: Mapping[str, Any], model: str, log: Path, actuators: S
     for key in ("processing", "identification"):
         if key in t:
             doc[key] = t[key]
+    # every trial identifies the same model (the trials' estimates are compared): the default structure is
+    # "full" here, not "auto", whose choice could change from trial to trial
+    ident = dict(doc.get("identification", {}))
+    if "structure" not in ident and "identical_chains" not in ident:
+        doc["identification"] = {**ident, "structure": "full"}
     return doc
 
 
@@ -125,6 +130,9 @@ def _parse_identify(t: Any, model: str, base_dir: Path) -> dict[str, Any]:
     if cfg.identification.hierarchical:
         raise ConfigError("identify.identification.hierarchical = true is not available in dynid montecarlo: its trials "
                           "compare base parameters with the simulated truth and do not map friction curves")
+    if cfg.identification.structure == "auto":
+        raise ConfigError("identify.identification.structure = 'auto' is not available in dynid montecarlo: its choice could "
+                          "differ between trials, whose estimates are compared; name 'full', 'identical_chains' or 'paper'")
     if cfg.identification.friction_model != "linear":
         raise ConfigError("identify.identification.friction_model = 'stribeck' is not available in dynid montecarlo: "
                           "its trials compare base parameters with the simulated truth and do not map Stribeck parameters yet")

@@ -153,7 +153,9 @@ class Mechanism:
     actuated : sequence of int
         Velocity indices (0-based) of the actuated joints, in actuator order.
     independent : JointCoordinates or PointCoordinates, optional
-        Independent coordinates; default: the actuated joints (non-redundant actuation only).
+        Independent coordinates; default: the actuated joints, or for redundant actuation the
+        subset of them whose velocity map is best conditioned over a sample of the workspace
+        (:meth:`rank_charts`; recorded in ``independent_choice``).
     terms : sequence of JointTerm
         Joint terms (friction, rotor inertia, offsets) in parameter order.
     massless : sequence of int
@@ -194,6 +196,11 @@ class Mechanism:
     coulomb_width : sequence of float, optional
         Per joint (velocity index), the velocity-noise std of the Coulomb terms' smooth sign
         (:func:`~dynid.model.serial_dynamics.smooth_sign`); None: the sign itself (default).
+    independent_choice : str
+        How the independent coordinates were chosen when none were given to a redundantly
+        actuated mechanism (:meth:`choose_independent`); empty when given (or when they are the
+        actuated joints of a non-redundant one). Set by the mechanism itself, kept by
+        ``dataclasses.replace``.
     """
 
     pin_model: pin.Model
@@ -214,6 +221,7 @@ class Mechanism:
     symmetric_zero: tuple[str, ...] = ()
     ball_joints: tuple[BallJoint, ...] = ()
     coulomb_width: tuple[float, ...] | None = None
+    independent_choice: str = ""
 
     # derived
     bodies: tuple[int, ...] = dataclasses.field(init=False)
@@ -313,6 +321,7 @@ class Mechanism:
         set_(self, "symmetric_zero", tuple(self.symmetric_zero))
         if set(self.symmetric_zero) - set(pnames):
             raise ModelError(f"symmetric_zero names unknown parameters {sorted(set(self.symmetric_zero) - set(pnames))[:3]}")
+        auto = self.independent is None  # redundant actuation: chosen in _check_topology (choose_independent)
         indep = self.independent if self.independent is not None else JointCoordinates(self.actuated)
         if isinstance(indep, JointCoordinates):
             badj = [j for j in indep.joints if not 0 <= j < nv]
@@ -321,7 +330,7 @@ class Mechanism:
         elif not 0 <= indep.joint < m.njoints:
             raise ModelError(f"independent point attached to joint index {indep.joint}, which does not exist")
         set_(self, "independent", indep)
-        self._check_topology()
+        self._check_topology(auto)
 
     # ------------------------------------------------------------------ ball joints
     def _check_balls(self) -> tuple[tuple[str, int], ...]:
@@ -368,8 +377,11 @@ class Mechanism:
                 )
 
     # ------------------------------------------------------------------ set-up checks
-    def _check_topology(self) -> None:
-        """Assemble the loops, find independent constraint rows and check the mobility."""
+    def _check_topology(self, auto: bool = False) -> None:
+        """Assemble the loops, find independent constraint rows and check the mobility; ``auto``
+        (no independent coordinates given): a redundantly actuated mechanism gets the best
+        conditioned subset of its actuated joints over a sample of its workspace
+        (:meth:`choose_independent`)."""
         m = self.pin_model
         nv = m.nv
         data = m.createData()
@@ -391,6 +403,13 @@ class Mechanism:
         object.__setattr__(self, "mobility", mob)
         if mob <= 0:
             raise ModelError(f"mechanism {self.name!r} cannot move: the loop closures remove all {nv} degrees of freedom")
+        if auto and len(self.actuated) > mob:
+            qs = self._workspace_samples(q, Jc[rows], data)
+            ranked = self.rank_charts(qs)
+            best, worst = ranked[0]
+            if np.isfinite(worst) and worst <= 1e8:
+                object.__setattr__(self, "independent", JointCoordinates(best))
+                object.__setattr__(self, "independent_choice", self._choice_text(ranked, len(qs), "workspace samples"))
         n_u = self.independent.size
         if len(self.actuated) < mob:
             raise ModelError(
@@ -418,6 +437,79 @@ class Mechanism:
                 f"the independent coordinates{given} do not determine the motion at the reference configuration "
                 f"(condition number of [J_c; J_u] = {cond:.3g}){self._chart_hint(Jc[rows], mob)}"
             )
+
+    # ------------------------------------------------------------------ independent coordinates
+    WORKSPACE_SAMPLES = 64
+    """Configurations of the workspace over which a redundant mechanism's chart is chosen without a log."""
+
+    def _workspace_samples(self, q_ref: FloatArray, Jc: FloatArray, data: pin.Data, seed: int = 0) -> FloatArray:
+        """Assembled configurations around ``q_ref``: steps along the tangent space of the loops
+        (null space of ``Jc``) scaled to a quarter of each joint's range (0.3 rad, or 0.3 of the
+        mechanism's length scale for a slide, where the description gives no limits), at random
+        fractions of that size, then closed by :meth:`_assemble`; those that cannot close or come
+        near a ball joint's singularity are left out. ``q_ref`` first."""
+        m = self.pin_model
+        rng = np.random.default_rng(seed)
+        N = sla.null_space(Jc)
+        lo, hi = self.position_limits()
+        length = max((float(np.linalg.norm(m.jointPlacements[j].translation)) for j in range(1, m.njoints)), default=1.0)
+        slide = np.array([m.joints[j].shortname().startswith("JointModelP") for j in range(1, m.njoints)])
+        size = np.where(np.isfinite(hi - lo), 0.25 * (hi - lo), np.where(slide, 0.3 * length, 0.3))
+        out = [q_ref]
+        for _ in range(self.WORKSPACE_SAMPLES - 1):
+            d = N @ rng.standard_normal(N.shape[1])
+            d *= rng.uniform() / max(np.max(np.abs(d) / size), 1e-300)
+            try:
+                qk = self._assemble(q_ref + d, data)
+                self.check_ball_charts(qk)
+            except ModelError:
+                continue
+            out.append(qk)
+        return np.array(out)
+
+    def rank_charts(self, q: FloatArray) -> list[tuple[tuple[int, ...], float]]:
+        r"""Subsets of the actuated joints as independent coordinates, best first: each with the
+        worst condition number over the configurations ``q`` (n, n_v) of its velocity map.
+
+        With :math:`N(q)` an orthonormal basis of the loops' tangent space (null space of
+        :math:`J_c`), the velocity map of the joints :math:`S` is :math:`G = N (S N)^{-1}`
+        (:math:`\dot q = G \dot u`), whose condition number is that of :math:`S N`: infinite where
+        the joints do not determine the motion. Mixed joint kinds compare rad with m (the
+        condition number is not unit-free); the subsets are tried in actuator order, ties keep
+        the first."""
+        import itertools
+
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        data = self.pin_model.createData()
+        bases = [sla.null_space(self._constraint_jacobian(qk, data)[self.constraint_rows]) for qk in q]
+        out = []
+        for combo in itertools.combinations(self.actuated, self.mobility):
+            worst = 0.0
+            for N in bases:
+                c = np.linalg.cond(N[list(combo)]) if N.shape[1] == len(combo) else np.inf
+                worst = max(worst, c if np.isfinite(c) else np.inf)
+            out.append((tuple(int(j) for j in combo), float(worst)))
+        return sorted(out, key=lambda t: t[1])
+
+    def _choice_text(self, ranked: list[tuple[tuple[int, ...], float]], n: int, over: str) -> str:
+        names = self.pin_model.names
+        label = lambda c: "(" + ", ".join(names[j + 1] for j in c) + ")"  # noqa: E731
+        others = ", ".join(f"{label(c)} {w:.3g}" for c, w in ranked[1:4])
+        return (f"chosen automatically among the actuated joints: the best-conditioned velocity map over {n} {over} "
+                f"(worst-case condition number {ranked[0][1]:.3g}" + (f"; next {others}" if others else "") + ")")
+
+    def choose_independent(self, q: FloatArray, over: str = "log samples") -> Mechanism:
+        """The same mechanism with the actuated joints whose velocity map is best conditioned over
+        the configurations ``q`` (n, n_v) as independent coordinates (:meth:`rank_charts`),
+        recorded in ``independent_choice``; unchanged when those are already its coordinates
+        (the record then says over what they were confirmed)."""
+        ranked = self.rank_charts(q)
+        best, worst = ranked[0]
+        if not np.isfinite(worst):
+            raise ModelError(f"{self.name!r}: no {self.mobility} of the actuated joints {self.actuated_names} determine "
+                             f"the motion at every one of the {len(q)} {over}; give [robot] independent")
+        return dataclasses.replace(self, independent=JointCoordinates(best), q_guess=self.q_ref,
+                                   independent_choice=self._choice_text(ranked, len(q), over))
 
     def _chart_hint(self, Jc: FloatArray, mob: int, limit: int = 4, budget: int = 5000) -> str:
         """``"; valid choices ...: [...], [...]"``: sets of ``mob`` joints whose positions are a
@@ -480,7 +572,8 @@ class Mechanism:
         if not self.task_coordinates:
             raise ModelError(f"{self.name!r} declares no task coordinates (a platform reached through a joint chain)")
         joints = tuple(list(self.pin_model.names).index(n) - 1 for n in self.task_coordinates)
-        return dataclasses.replace(self, independent=JointCoordinates(joints), q_guess=self.q_ref, position_guess=self.task_ik)
+        return dataclasses.replace(self, independent=JointCoordinates(joints), q_guess=self.q_ref, position_guess=self.task_ik,
+                                   independent_choice="")
 
     # ------------------------------------------------------------------ sizes and names
     @property
@@ -521,9 +614,12 @@ class Mechanism:
             return tuple(names.index(r) for r in refs)
 
         act = self.actuated if actuated is None else index(actuated, "actuated joints")
-        ind = (JointCoordinates(act) if independent is None and actuated is not None
-               else self.independent if independent is None else JointCoordinates(index(independent, "independent coordinates")))
-        return dataclasses.replace(self, actuated=act, independent=ind)
+        if independent is None and actuated is not None:  # new actuators: their own chart (chosen again if redundant)
+            return dataclasses.replace(self, actuated=act, independent=None, independent_choice="")
+        if independent is None:
+            return self
+        return dataclasses.replace(self, actuated=act, independent=JointCoordinates(index(independent, "independent coordinates")),
+                                   independent_choice="")
 
     @property
     def actuated_names(self) -> list[str]:

@@ -96,7 +96,9 @@ def load_mechanism_mjcf(
         Actuated joints (names, or velocity indices), in actuator order. Default: the
         joints driven by the ``<actuator>`` elements, in file order.
     independent : sequence of str or int, JointCoordinates or PointCoordinates, optional
-        Independent coordinates; default: the actuated joints.
+        Independent coordinates; default: those the file names (``dynid:independent``), else
+        the actuated joints (redundant actuation: the best-conditioned subset of them,
+        :meth:`Mechanism.rank_charts`).
     terms : sequence of JointTerm, optional
         Joint terms (velocity indices of the loaded model); default: see the module
         docstring. Nominal values from ``damping``/``frictionloss``/``armature`` are given

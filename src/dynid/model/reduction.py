@@ -39,13 +39,20 @@ from dynid.errors import ConfigError, ModelError
 from dynid.model.mechanism import Mechanism
 from dynid.model.robot import BODY_PARAMS
 
-__all__ = ["STRUCTURES", "ParameterReduction", "chain_groups", "reduce_mechanism"]
+__all__ = ["CHAIN_TOL", "STRUCTURES", "ParameterReduction", "chain_groups", "detect_identical_chains", "reduce_mechanism"]
 
 STRUCTURES = ("full", "identical_chains", "paper")
 """``full``: every body its own parameters; ``identical_chains``: corresponding bodies of identical
-chains share theirs; ``paper``: identical chains plus the description's symmetric-body zeros."""
+chains share theirs; ``paper``: identical chains plus the description's symmetric-body zeros.
+(``identification.structure = "auto"`` chooses between ``full`` and ``identical_chains`` from the
+data: :mod:`dynid.pipeline.structure`.)"""
 
-_BODY_TOL = 1e-9  # relative difference of two nominal body blocks still called identical
+CHAIN_TOL = 1e-6
+"""Relative tolerance within which two nominal bodies, joint axes and joint placements are called
+identical. A description written with 6 significant digits (``%g``, the usual CAD/URDF/MJCF
+export) rounds every value by up to 5e-7 relative: identical legs written that way must still
+match; a difference of 1e-6 of a body's mass or inertia is far below what any identification
+resolves (relative standard deviations of 1e-3 and more), so tying such bodies costs nothing."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -139,6 +146,52 @@ def chain_groups(spec) -> tuple[tuple[tuple[str, ...], ...], ...]:
     return tuple(out)
 
 
+def _motion_axis(m, j: int) -> FloatArray:
+    """The 1-DOF joint's motion subspace (6,) in its own frame (linear, angular)."""
+    jm = m.joints[j]
+    jd = jm.createData()
+    jm.calc(jd, np.zeros(jm.nq))
+    return np.asarray(jd.S, dtype=float).ravel()
+
+
+def _body_scales(pa: FloatArray, pb: FloatArray) -> FloatArray:
+    """Per-parameter magnitude of two body blocks ``[m, mc(3), I(6)]``: the mass, the first moments'
+    largest or sqrt(m * I_max) (kg m), the inertias' largest, so that a zero first moment rounded to
+    1e-9 in one file is not called a difference."""
+    m = max(abs(pa[0]), abs(pb[0]))
+    inertia = max(np.abs(pa[4:]).max(), np.abs(pb[4:]).max())
+    first = max(np.abs(pa[1:4]).max(), np.abs(pb[1:4]).max(), np.sqrt(m * inertia))
+    return np.array([m, first, first, first, *[inertia] * 6])
+
+
+def _mismatch(mech: Mechanism, a: int, b: int, first: bool, length: float, tol: float = CHAIN_TOL) -> str | None:
+    """Why pinocchio joints ``a`` and ``b`` (corresponding joints of two chains) differ, or None:
+    joint type and motion axis in the joint's own frame; unless ``first`` (the chain's own frame,
+    free), the placement in the previous joint's frame (rotation to ``tol``, translation to
+    ``tol * length``); the bodies (massless or not, inertial parameters in their own frames to
+    ``tol`` of :func:`_body_scales`)."""
+    m = mech.pin_model
+    ka, kb = m.joints[a].shortname(), m.joints[b].shortname()
+    if ka != kb or np.abs(_motion_axis(m, a) - _motion_axis(m, b)).max() > tol:
+        return f"joint types or axes differ ({ka} against {kb})"
+    if not first:
+        Ma, Mb = m.jointPlacements[a], m.jointPlacements[b]
+        if (np.abs(Ma.rotation - Mb.rotation).max() > tol
+                or np.abs(Ma.translation - Mb.translation).max() > tol * max(length, 1e-300)):
+            return "their placements in the previous joint's frame differ"
+    ma, mb = a in mech.massless, b in mech.massless
+    pa, pb = m.inertias[a].toDynamicParameters(), m.inertias[b].toDynamicParameters()
+    if ma != mb or np.any(np.abs(pa - pb) > tol * np.maximum(_body_scales(pa, pb), 1e-300)):
+        return "their bodies differ in the nominal model (own frames)"
+    return None
+
+
+def _chain_length(mech: Mechanism, chains: Sequence[Sequence[int]]) -> float:
+    """Length scale [m] of a set of chains: their largest joint-to-joint translation."""
+    m = mech.pin_model
+    return max((float(np.linalg.norm(m.jointPlacements[j].translation)) for c in chains for j in c), default=1.0)
+
+
 def _check_chains(mech: Mechanism, groups) -> list[list[list[int]]]:
     """pinocchio joint indices of every chain, checked (one-line ConfigError naming the cause)."""
     m = mech.pin_model
@@ -162,21 +215,67 @@ def _check_chains(mech: Mechanism, groups) -> list[list[list[int]]]:
                 seen[j] = gi
             idx_chains.append([names.index(j) for j in chain])
         ref = idx_chains[0]
+        length = _chain_length(mech, idx_chains)
         for chain, idx in zip(group[1:], idx_chains[1:]):
             for k, (a, b) in enumerate(zip(ref, idx)):
-                ka, kb = m.joints[a].shortname(), m.joints[b].shortname()
-                if ka != kb:
-                    raise ConfigError(f"identification.identical_chains: joint {names[b]!r} ({kb}) does not match "
-                                      f"joint {names[a]!r} ({ka}) of chain {list(group[0])}")
-                ma, mb = a in mech.massless, b in mech.massless
-                pa, pb = m.inertias[a].toDynamicParameters(), m.inertias[b].toDynamicParameters()
-                scale = max(np.abs(pa).max(), np.abs(pb).max(), 1e-300)
-                if ma != mb or np.abs(pa - pb).max() > _BODY_TOL * scale:
-                    raise ConfigError(f"identification.identical_chains: the body of joint {names[b]!r} is not identical to "
-                                      f"that of {names[a]!r} in the nominal model (own frames); chains "
-                                      f"{list(chain)} and {list(group[0])} are not identical")
+                # a named chain's joints need not follow each other in the tree: only the types and bodies are checked
+                why = _mismatch(mech, a, b, True, length)
+                if why is not None:
+                    raise ConfigError(f"identification.identical_chains: joint {names[b]!r} does not match joint "
+                                      f"{names[a]!r} of chain {list(group[0])}: {why}; chains {list(chain)} and "
+                                      f"{list(group[0])} are not identical")
         idx_groups.append(idx_chains)
     return idx_groups
+
+
+def detect_identical_chains(mech: Mechanism, tol: float = CHAIN_TOL) -> tuple[tuple[tuple[str, ...], ...], ...]:
+    """Groups of identical kinematic chains found in the description.
+
+    A chain is a path of the kinematic tree that starts at a child of a branching body (a body
+    with two or more child joints: the base of a parallel robot) and follows single children
+    until the tree branches or ends. Two sibling chains are identical over the length of the
+    shorter when their corresponding joints have the same type and axis in their own frames,
+    the same placements relative to the previous joint (the first joint's placement, which
+    puts the chain on the base, is free: that is the chain's local frame) and the same bodies
+    in their own frames, all within ``tol`` (:data:`CHAIN_TOL`, relative; :func:`_mismatch`).
+    A longer chain (the leg that carries the platform) contributes its first joints. Groups
+    without a body with mass are dropped (nothing to tie).
+
+    Returns
+    -------
+    tuple of groups, each a tuple of chains (joint names in corresponding order), as
+    :func:`chain_groups` returns them; empty when there is none.
+    """
+    m = mech.pin_model
+    children: dict[int, list[int]] = {}
+    for j in range(1, m.njoints):
+        children.setdefault(int(m.parents[j]), []).append(j)
+    groups_out = []
+    for node in sorted(children):
+        kids = children[node]
+        if len(kids) < 2:
+            continue
+        paths = []
+        for c in kids:
+            path = [c]
+            while len(children.get(path[-1], ())) == 1:
+                path.append(children[path[-1]][0])
+            paths.append(path)
+        groups: list[list[list[int]]] = []  # each: chains (joint indices), the first the reference
+        for path in paths:
+            for g in groups:
+                n = min(len(g[0]), len(path))
+                length = _chain_length(mech, [g[0][:n], path[:n]])
+                if all(_mismatch(mech, a, b, k == 0, length, tol) is None for k, (a, b) in enumerate(zip(g[0][:n], path[:n]))):
+                    g.append(path)
+                    break
+            else:
+                groups.append([path])
+        for g in groups:
+            n = min(len(c) for c in g)
+            if len(g) >= 2 and any(j not in mech.massless for j in g[0][:n]):
+                groups_out.append(tuple(tuple(m.names[j] for j in c[:n]) for c in g))
+    return tuple(groups_out)
 
 
 def reduce_mechanism(mech: Mechanism, structure: str, chains=None) -> ParameterReduction | None:
@@ -188,13 +287,15 @@ def reduce_mechanism(mech: Mechanism, structure: str, chains=None) -> ParameterR
     structure : {"full", "identical_chains", "paper"}
     chains : groups of chains, optional
         As :func:`chain_groups` returns; default: the mechanism's own ``identical_chains``
-        (declared by the built-ins from their symmetry).
+        (declared by the built-ins from their symmetry), else those found in its description
+        (:func:`detect_identical_chains`).
 
     Raises
     ------
     ConfigError
         Unknown structure or joints, chains of different lengths or joint types, bodies that
-        are not identical in the nominal model, a structure the mechanism declares nothing for.
+        are not identical in the nominal model, no identical chains (named, declared by the
+        mechanism or found by :func:`detect_identical_chains`).
     """
     if structure not in STRUCTURES:
         raise ConfigError(f"identification.structure = {structure!r}; choose from {list(STRUCTURES)}")
@@ -203,10 +304,11 @@ def reduce_mechanism(mech: Mechanism, structure: str, chains=None) -> ParameterR
             raise ConfigError("identification.identical_chains needs identification.structure = "
                               "'identical_chains' or 'paper'")
         return None
-    groups = chain_groups(chains) if chains else tuple(mech.identical_chains)
+    groups = chain_groups(chains) if chains else (tuple(mech.identical_chains) or detect_identical_chains(mech))
     if not groups:
-        raise ConfigError(f"identification.structure = {structure!r}: {mech.name!r} declares no identical chains; "
-                          "name them in identification.identical_chains")
+        raise ConfigError(f"identification.structure = {structure!r}: {mech.name!r} declares no identical chains and none "
+                          f"are found in its description (same joints and bodies to {CHAIN_TOL:g}); name them in "
+                          "identification.identical_chains")
     if structure == "paper" and not mech.symmetric_zero:
         raise ConfigError(f"identification.structure = 'paper': {mech.name!r} declares no symmetric-body "
                           "simplification (only the built-in hexapod does); use 'identical_chains'")

@@ -226,8 +226,8 @@ class SerialSystem:
             coulomb_width=None if actuator_width is None else tuple(actuator_width)))
 
     def with_structure(self, structure: str, chains: Any = None) -> SerialSystem:
-        """Only ``"full"``: a serial arm has one chain, nothing to tie."""
-        if structure != "full" or chains:
+        """Only ``"full"`` (which ``"auto"`` is here): a serial arm has one chain, nothing to tie."""
+        if structure not in ("full", "auto") or chains:
             raise ConfigError(f"identification.structure / identical_chains: {self.name!r} is a serial robot; identical "
                               "chains are those of a closed-loop mechanism")
         return self
@@ -353,7 +353,11 @@ class ClosedLoopSystem:
 
     def with_structure(self, structure: str, chains: Any = None) -> ClosedLoopSystem:
         """The same system whose parameters follow ``structure`` (``"full"``, ``"identical_chains"``,
-        ``"paper"``; :func:`dynid.model.reduction.reduce_mechanism`), the chains given or the mechanism's own."""
+        ``"paper"``; :func:`dynid.model.reduction.reduce_mechanism`), the chains given, the mechanism's own or
+        those found in its description. ``"auto"`` is a choice made from data (:mod:`dynid.pipeline.structure`)."""
+        if structure == "auto":
+            raise ConfigError("identification.structure = 'auto' is decided from the training log by dynid identify; "
+                              "here give 'full', 'identical_chains' or 'paper'")
         return dataclasses.replace(self, reduction=reduce_mechanism(self.model, structure, chains))
 
     def reduce_parameters(self, pi: FloatArray) -> FloatArray:

@@ -80,6 +80,7 @@ decimate_method = "parallel"
 [identification]
 method = "{method}"
 force_model = "projected"
+structure = "full"   # paper 001 identifies each chain; the simulated robot's chains differ (perturbation)
 """
 _DIDIM = ('experiment = "data/train/config.toml"   # the training experiment, replayed on the estimate\n'
           "physical_consistency = true   # every iterate a robot; the result projected onto the consistent set, "

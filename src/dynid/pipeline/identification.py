@@ -265,8 +265,11 @@ def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str 
 def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model, min_velocity, parallel_decimate,
               chunk_size, progress, meta, cross, periodic, min_velocity_passive=None,
               blocks=None, reversal_guard: float | None = None,
-              keep: np.ndarray | None = None, source: Iterator[Chunk] | None = None) -> tuple[RegressionProblem, float]:
-    """:func:`build_problem` and the largest inconsistency of redundant actuator positions; ``blocks``
+              keep: np.ndarray | None = None, source: Iterator[Chunk] | None = None,
+              check: bool = True) -> tuple[RegressionProblem, float]:
+    """:func:`build_problem` and the largest inconsistency of redundant actuator positions; ``check``:
+    refuse a row selection that leaves no more equations than base parameters (off for a segment of
+    the log, :func:`_decide_structure`); ``blocks``
     (a :class:`~dynid.estimation.block_covariance.BlockBuilder`) also gets every chunk and its rows.
     ``source``: the chunks themselves (the streamed identification, :mod:`dynid.pipeline.streaming`;
     ``ds`` is then unused)."""
@@ -290,7 +293,7 @@ def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model,
     problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta or {})
     selection = [k for k, v in (("min_velocity", min_velocity), ("min_velocity_passive", min_velocity_passive),
                                 ("reversal_guard", reversal_guard)) if v is not None]
-    if selection and problem.n_total <= base.n_base:
+    if check and selection and problem.n_total <= base.n_base:
         rule = "whole samples (every actuator)" if not system.channels_are_actuators(force_model) else "per equation"
         raise IdentifiabilityError(
             f"data: the row selection ({', '.join('processing.' + k for k in selection)}; {rule}) keeps "
@@ -481,6 +484,7 @@ class IdentifyOutcome:
     learning: Any = None  # [learning]: dynid.pipeline.learning.LearningOutcome (the residual network)
     units: tuple[str, ...] = ()  # unit of each output channel, from the log (effort_units)
     prediction: dict[str, Any] | None = None  # what dynid predict needs (result.json "prediction_inputs")
+    structure: dict[str, Any] | None = None  # parallel robots: the parameter structure and, for "auto", its evidence
     # which path ran (result.json "data_path"): "in-memory", or "streamed" (dynid.pipeline.streaming: then
     # train, held_out and raw_train are None and the validation metrics keep no arrays)
     data_path: dict[str, Any] | None = None
@@ -580,6 +584,10 @@ class IdentifyOutcome:
         if self.warnings:
             lines += ["", f"{len(self.warnings)} warning{'s' if len(self.warnings) > 1 else ''} about the logs "
                           "(dynid.pipeline.diagnostics):"] + [str(w) for w in self.warnings]
+        if self.structure is not None:
+            from dynid.report.html import structure_lines
+
+            lines += structure_lines(self.structure)
         return "\n".join(lines)
 
     def _repr_html_(self) -> str:
@@ -1254,7 +1262,25 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
         from dynid.pipeline.hierarchical import rigid_system
 
         system = rigid_system(system)
-    system = system.with_structure(cfg.identification.structure, cfg.identification.identical_chains)
+    auto, structure = None, None  # "auto": (full system, candidate chains, their source); the decision's record
+    if cfg.identification.structure == "auto" and system.kind != "serial":
+        from dynid.pipeline.structure import candidate_chains
+
+        groups, source = candidate_chains(system.model, cfg.identification.identical_chains)
+        if groups:
+            system.with_structure("identical_chains", groups)  # the groups checked before any data is read
+            auto = (groups, source)
+        else:
+            structure = {"mode": "auto", "chosen": "full",
+                         "reason": "no identical chains: none declared by the robot description, none found in it"}
+            cfg0, cfg = _explicit_structure(cfg0, "full", None), _explicit_structure(cfg, "full", None)
+    else:
+        system = system.with_structure(cfg.identification.structure, cfg.identification.identical_chains)
+        if system.kind != "serial":
+            structure = {"mode": "forced", "chosen": system.structure,
+                         "reason": f"identification.structure = {cfg.identification.structure!r}",
+                         **({"chains": [[list(c) for c in g] for g in system.reduction.chains]}
+                            if system.reduction is not None else {})}
     force_model = _check_config(cfg, system)
     icfg, pcfg = cfg.identification, cfg.processing
     if cfg.learning is not None:
@@ -1271,7 +1297,15 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
 
     streams, data_path = streaming.plan(cfg, system, readers)
     if streams is not None:
-        return _identify_streamed(cfg0, cfg, system, force_model, streams, data_path, progress)
+        if cfg.identification.structure == "auto":  # no decision on a stream (below): the full model
+            cfg0, cfg = _explicit_structure(cfg0, "full", None), _explicit_structure(cfg, "full", None)
+        outcome = _identify_streamed(cfg0, cfg, system, force_model, streams, data_path, progress)
+        if auto is not None:  # the decision cross-validates over the log's segments, which a stream does not keep
+            structure = {"mode": "auto", "chosen": "full", "chains": [[list(c) for c in g] for g in auto[0]],
+                         "reason": f"identical chains {auto[1]}, but the training log is streamed ({data_path['reason']}) "
+                                   "and the decision needs it in memory: full kept; identification.structure = "
+                                   "'identical_chains' ties them"}
+        return dataclasses.replace(outcome, structure=structure)
     raw_train = read_log(cfg.data, system.n_actuators, names, "data", readers)
     raw_valid = read_log(cfg.validation, system.n_actuators, names, "validation", readers)
     check_held_out(raw_train, raw_valid)
@@ -1286,6 +1320,14 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     if jobs is not None and icfg.method != "ml":  # (maximum likelihood processes again at its cut-off)
         _submit_processing(jobs, train_a, train)
     held_out, _ = preprocess(valid_a, pcfg, "validation")
+    if system.kind != "serial" and system.model.independent_choice:  # a redundant robot's chart, over the log now
+        system, cfg0, cfg = _chart_from_log(cfg0, cfg, system, train)
+        channels = system.channel_names(force_model)  # the projected equations' channels follow the chart
+        if original.kind != "serial":  # (hierarchical friction: the friction-carrying model, the same chart)
+            original = dataclasses.replace(original, model=original.model.with_chart(independent=cfg.robot.independent))
+        notes = [*notes, f"independent coordinates "
+                         f"{', '.join(system.model.pin_model.names[j + 1] for j in system.model.independent.joints)}: "
+                         f"{system.model.independent_choice}; [robot] independent overrides"]
     if (gains is None and raw_train.meta["effort_kind"] == "current" and cfg0.robot.drive_gains is None
             and system.channels_are_actuators(force_model)):
         # currents without drive gains: the gains from the prior, then the identification in torque units
@@ -1304,6 +1346,9 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     if smoothing is not None:
         system = system.with_coulomb_width(smoothing["width"])
     check_joint_motion(train, system, icfg.min_joint_motion, "data")
+    if auto is not None:
+        system, structure, cfg0, cfg = _decide_structure(cfg0, cfg, system, train, force_model, auto, progress)
+        icfg = cfg.identification
     progress("base parameters", 0, 1)
     base = base_parameters()
     progress("base parameters", 1, 1)
@@ -1387,12 +1432,80 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     prediction = prediction_inputs(cfg0, pcfg, periodic, smoothing, system, base, force_model)
     alarms = _alarms(system, result, prior, comparable, ((train_a.q, train_a.tau, "data"),
                                                         (valid_a.q, valid_a.tau, "validation")))
+    if structure is not None:  # what predict rebuilds: the structure chosen, never "auto" again
+        ident = {k: v for k, v in prediction["identification"].items() if k != "identical_chains"}
+        red = getattr(system, "reduction", None)
+        prediction["identification"] = {**ident, "structure": system.structure,
+                                         **({"identical_chains": [[list(c) for c in g] for g in red.chains]}
+                                            if red is not None else {})}
+        result = result.with_notes(f"parameter structure {structure['chosen']} ({structure['mode']}): see summary "
+                                   "'Parameter structure' and result.json 'structure'")
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
                            warnings=alarms,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
                            other_view=other, selected=selected, full_rate=full, learning=learned,
                            units=effort_units(system, force_model, raw_train.meta["effort_kind"]), prediction=prediction,
-                           data_path={**data_path, "training_samples": train.n_samples})
+                           data_path={**data_path, "training_samples": train.n_samples}, structure=structure)
+
+
+def _chart_from_log(cfg0: Config, cfg: Config, system: System, train: Dataset,
+                    max_samples: int = 200) -> tuple[System, Config, Config]:
+    """The independent coordinates of a redundantly actuated mechanism that were chosen over its
+    workspace, chosen again over the training log (:meth:`~dynid.model.mechanism.Mechanism.choose_independent`
+    on up to ``max_samples`` evenly spread samples, all joints solved through the workspace chart);
+    both configs then name them in ``[robot] independent`` (what the hierarchical prior and
+    ``dynid predict`` rebuild)."""
+    mech = system.model
+    act = list(mech.actuated)
+    cols = [act.index(j) for j in mech.independent.joints]
+    pick = np.unique(np.linspace(0, train.n_samples - 1, min(max_samples, train.n_samples)).astype(int))
+    q = mech.solve_positions(np.asarray(train.q)[pick][:, cols])
+    chosen = mech.choose_independent(q, "samples of the training log")
+    names = tuple(chosen.pin_model.names[j + 1] for j in chosen.independent.joints)
+
+    def named(c: Config) -> Config:
+        return dataclasses.replace(c, robot=dataclasses.replace(c.robot, independent=names))
+
+    return dataclasses.replace(system, model=chosen), named(cfg0), named(cfg)
+
+
+def _decide_structure(cfg0: Config, cfg: Config, system: System, train: Dataset, force_model: str | None,
+                      auto: tuple, progress: Progress) -> tuple[System, dict[str, Any], Config, Config]:
+    """``identification.structure = "auto"``: the full and the tied model compared on the training
+    log (:func:`dynid.pipeline.structure.decide_structure`); returns the chosen system, the decision's
+    record and both configs with the structure made explicit (what the rest of the run, the
+    hierarchical prior and ``dynid predict`` rebuild)."""
+    from dynid.pipeline.structure import N_SEGMENTS, decide_structure
+
+    groups, source = auto
+    icfg, pcfg = cfg.identification, cfg.processing
+    tied = system.with_structure("identical_chains", groups)
+    base_full = system.base_parameters(force_model, n_samples=icfg.base_samples, seed=icfg.base_seed)
+    base_tied = tied.base_parameters(force_model, n_samples=icfg.base_samples, seed=icfg.base_seed)
+    parallel = pcfg.decimate if pcfg.decimate_method == "parallel" else 1
+    pose = pcfg.periodic is not None and pcfg.periodic.domain == "pose"  # one averaged period: no time segments
+    k = 1 if pose else N_SEGMENTS
+    edges = np.linspace(0, train.n_samples, k + 1).astype(int)
+    segments = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        part = train if k == 1 else train.rows(int(a), int(b))
+        segments.append(_compress(system, base_full, part, force_model=force_model, min_velocity=pcfg.min_velocity,
+                                  parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
+                                  meta={}, cross=False, periodic=pcfg.periodic if pose else None,
+                                  min_velocity_passive=pcfg.min_velocity_passive,
+                                  reversal_guard=pcfg.reversal_guard_s(), check=False)[0])
+    decision = decide_structure(segments, base_full, base_tied, tied.reduction.T, groups, source)
+    chosen = tied if decision.chosen == "identical_chains" else system
+    chains = groups if decision.chosen == "identical_chains" else None
+
+    return (chosen, decision.record, _explicit_structure(cfg0, decision.chosen, chains),
+            _explicit_structure(cfg, decision.chosen, chains))
+
+
+def _explicit_structure(cfg: Config, structure: str, chains) -> Config:
+    """``cfg`` with the structure ``"auto"`` chose (what the hierarchical prior rebuilds)."""
+    ic = dataclasses.replace(cfg.identification, structure=structure, identical_chains=chains)
+    return dataclasses.replace(cfg, identification=ic)
 
 
 def _alarms(system: System, result: IdentificationResult, nominal: ValidationMetrics | None, comparable: bool,
@@ -1837,6 +1950,7 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
             "training": {"n_samples": outcome.n_train, "rmse_per_joint": res.rmse_per_channel.tolist()},
             **({"data_path": outcome.data_path} if outcome.data_path is not None else {}),
             **({"prediction_inputs": outcome.prediction} if outcome.prediction is not None else {}),
+            **({"structure": outcome.structure} if outcome.structure is not None else {}),
             "base_parameters": {
                 "names": list(outcome.base.names),
                 "expressions": list(expressions),
@@ -1895,4 +2009,5 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
         write_html_report(res, outcome.validation, stage / "report.html",
                           images={stage / name: title for name, title in images.items()},
                           nominal=outcome.nominal_validation, prior=outcome.prior, other_view=outcome.other_view,
-                          selected=outcome.selected, units=outcome.units or None, flags=flags, facts=run_facts())
+                          selected=outcome.selected, units=outcome.units or None, flags=flags, facts=run_facts(),
+                          structure=outcome.structure)

@@ -258,7 +258,10 @@ def predict(result_path: str | Path, log_config: str | Path, progress: Progress 
     system = build_system(cfg.robot)
     if icfg.hierarchical:
         system = rigid_system(system)
-    system = system.with_structure(icfg.structure, icfg.identical_chains)
+    # "auto" here: a record that names no structure (before "auto" was the default, a streamed log, or a
+    # mechanism without identical chains): the result was identified with every body its own parameters
+    auto = icfg.structure == "auto"
+    system = system.with_structure("full" if auto else icfg.structure, None if auto else icfg.identical_chains)
     force_model = system.force_model(icfg.force_model)
     names = system.actuator_names
     if list(names) != list(inp["actuators"]):

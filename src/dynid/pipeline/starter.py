@@ -357,6 +357,21 @@ def nearest(name: str, names) -> str | None:
 def _sig2(x: float) -> float:
     return float(f"{x:.2g}") if x > 0 else 0.0
 
+def _structure_lines(system) -> list[str]:
+    """``[identification] structure`` of a parallel robot, with the identical chains of its description."""
+    if system.kind == "serial":
+        return []
+    from dynid.pipeline.structure import candidate_chains
+
+    chains, source = candidate_chains(system.model, None)
+    if not chains:
+        return ["structure = \"auto\"                             # no identical chains (none declared, none found in the "
+                "description): every body its own parameters"]
+    return ["structure = \"auto\"                             # identical chains tied unless the training log rejects it "
+            "(F test and cross-validation); \"full\" or \"identical_chains\" force either",
+            f"identical_chains = [{', '.join('[' + ', '.join('[' + ', '.join(_s(j) for j in c) + ']' for c in g) + ']' for g in chains)}]",
+            f"# identical chains {source}"]
+
 
 def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: Sequence[str] | None = None,
                     independent: Sequence[str] | None = None, sample_rate_hz: float | None = None,
@@ -473,6 +488,10 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
         lines.append(f"actuated = [{', '.join(_s(a) for a in actuated)}]")
     if independent:
         lines.append(f"independent = [{', '.join(_s(a) for a in independent)}]")
+    elif system.kind != "serial" and system.model.independent_choice:  # redundant actuation: the automatic chart
+        chart = [system.model.pin_model.names[j + 1] for j in system.model.independent.joints]
+        lines += [f"# independent = [{', '.join(_s(a) for a in chart)}]   # {system.model.independent_choice};",
+                  "#   identify chooses again over the training log; uncomment (or name others) to fix them"]
     lines += [
         "# gear_ratios = [...]; couplings; drive_gains; position_offset: for motor-side logs (README, Configuration)",
         "",
@@ -538,7 +557,8 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
     else:
         lines.append("# decimate, min_velocity, reversal_guard: not derived (a column is unmatched); README, Processing")
     lines += ["", "[identification]",
-              "method = \"wls\"                                 # weighted least squares, per-joint noise (paper 001 Eqs. 10-16)"]
+              "method = \"wls\"                                 # weighted least squares, per-joint noise (paper 001 Eqs. 10-16)",
+              *_structure_lines(system)]
     if serial:
         lines.append("physical_consistency = true                    # a model a simulator can use (LMI, Wensing 2017); on the "
                      "real KUKA log the unconstrained fit does not generalize to another run (README)")

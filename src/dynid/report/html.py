@@ -22,7 +22,7 @@ import numpy as np
 
 from dynid.estimation.results import IdentificationResult
 
-__all__ = ["verdict", "write_html_report"]
+__all__ = ["structure_lines", "verdict", "write_html_report"]
 
 _STYLE = """
 body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px}
@@ -185,15 +185,52 @@ def _image_html(path: Path, title: str) -> str:
             f"<figcaption>{html.escape(title)} ({html.escape(Path(path).name)})</figcaption></figure>")
 
 
+def structure_lines(record: dict[str, Any] | None) -> list[str]:
+    """The parameter structure and the evidence of its choice in words (summary.txt, the report):
+    ``record`` is result.json's ``"structure"`` (:mod:`dynid.pipeline.structure`)."""
+    if record is None:
+        return []
+    head = f"Parameter structure: {record['chosen']}"
+    if "reason" in record:  # forced, or "auto" without a decision to make
+        return ["", head + f" ({record['mode']}: {record['reason']})"]
+    groups = "; ".join(" = ".join("(" + ", ".join(c) + ")" for c in g) for g in record["chains"])
+    lines = ["", head + " (identification.structure = 'auto')",
+             f"  identical chains {record['chains_source']}: {groups}",
+             f"  base parameters: full {record['n_base_params']['full']}, tied {record['n_base_params']['identical_chains']}"]
+    if record["F"] is not None:
+        lines.append(f"  F test of the tie: F = {record['F']:.4g} on ({record['df'][0]}, {record['df'][1]}) dof, "
+                     f"p = {record['p_value']:.3g} ({'rejected' if record['rejected'] else 'not rejected'} at "
+                     f"{100 * record['alpha']:g} %)")
+    else:
+        lines.append("  F test: the tie removes nothing these data determine")
+    lines.append(f"  BIC: full {record['bic']['full']:.6g}, tied {record['bic']['identical_chains']:.6g}")
+    cv = record["cv"]
+    if cv is not None:
+        lines.append(f"  cross-validation over {cv['segments']} time segments, mean held-out weighted RMSE: "
+                     f"full {cv['full']:.5g}, tied {cv['identical_chains']:.5g}")
+    lines.append(f"  rule: {record['rule']}")
+    return lines
+
+
+def _structure_html(structure: Mapping[str, Any]) -> str:
+    """The parameter structure (full or identical chains tied) and, for ``auto``, the F test, BIC
+    and cross-validation that chose it (:func:`structure_lines`)."""
+    lines = [ln for ln in structure_lines(dict(structure)) if ln]
+    return (f"<h2 id='structure'>{html.escape(lines[0])}</h2><ul>"
+            + "".join(f"<li>{html.escape(ln.strip())}</li>" for ln in lines[1:]) + "</ul>")
+
+
 def write_html_report(result: IdentificationResult, metrics: Any, path: str | Path, *,
                       images: Mapping[Any, str] | None = None, nominal: Any = None, prior: dict | None = None,
                       other_view: Any = None, selected: Any = None, units: Any = None,
-                      flags: Mapping[str, Any] | None = None, facts: Mapping[str, str] | None = None) -> Path:
+                      flags: Mapping[str, Any] | None = None, facts: Mapping[str, str] | None = None,
+                      structure: Mapping[str, Any] | None = None) -> Path:
     """One HTML file that needs nothing else: the :func:`verdict` first, then the fit, the
     parameters (flagged by ``flags``, :func:`dynid.pipeline.reporting.parameter_flags`), the
     validation table in the channels' ``units`` with the nominal model's errors (``nominal``,
     ``prior``) next to the identified model's, the held-out rows a row selection keeps
-    (``selected``), a redundant robot's other view (``other_view``), the ``images`` (PNG path ->
+    (``selected``), a redundant robot's other view (``other_view``), a parallel robot's parameter
+    structure and the evidence of its choice (``structure``, :mod:`dynid.pipeline.structure`), the ``images`` (PNG path ->
     title, embedded as base64 ``data:`` URIs) and the provenance (``facts``: date and machine)."""
     summ = result.summary()
     unit = lambda j: units[j] if units is not None else "N·m or N"  # noqa: E731
@@ -216,6 +253,7 @@ def write_html_report(result: IdentificationResult, metrics: Any, path: str | Pa
         f"<h1>dynid identification report ({html.escape(result.method)})</h1>"
         f"<p id='verdict' class='verdict{'' if good else ' bad'}'>{html.escape(line)}</p><p>{nav}</p>"
         f"<h2 id='fit'>Fit</h2><table>{info}</table>{chan_html}" + (f"<ul>{notes}</ul>" if notes else "")
+        + (_structure_html(structure) if structure is not None else "")
         + _params_html(result, flags)
         + f"<h2 id='validation'>{html.escape(metrics.heading())}</h2>"
         + "<table><tr><th>joint</th><th>unit</th><th>RMSE</th><th>rel RMSE %</th><th>R²</th>"

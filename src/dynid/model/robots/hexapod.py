@@ -215,8 +215,9 @@ def build(extras: object = None) -> Mechanism:
             "6-UPS hexapod modelled like PaLiDA (papers 002/004): 19 bodies, cardan ring + stator + slider per strut",
             "dimensions are our choice; body values reproduce the a priori p1..p10 of paper 002, Table 2",
             "14 friction terms: Coulomb + viscous per actuator, one Coulomb shared by all α and one by all β joints",
-            "by default each strut has its own parameters (88 rigid-body base parameters); identification.structure = "
-            "'paper' ties the six struts and fixes the symmetric bodies' zeros: the papers' 10 (Table 1)",
+            "each strut its own parameters: 88 rigid-body base parameters (identification.structure = 'full'); the six "
+            "struts tied: 23 ('identical_chains'; the default 'auto' ties them unless the training log rejects it); "
+            "'paper' also fixes the symmetric bodies' zeros: the papers' 10 (Table 1)",
         ),
     )
 
