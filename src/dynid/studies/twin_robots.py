@@ -37,7 +37,7 @@ import numpy as np
 from dynid._typing import FloatArray
 
 __all__ = ["PRIOR_FRACTION", "PRIOR_SEED", "STEWART", "PLANAR", "stewart_mjcf", "planar_mjcf", "prior_mjcf",
-           "inertial_data", "write_twins"]
+           "inertial_data", "parts", "write_twins"]
 
 PRIOR_FRACTION = 0.15
 """How far the prior is off: 15 % (issue 34 item 6)."""
@@ -63,7 +63,7 @@ STEWART = {
     "rod": {"mass": 0.5, "radius": 0.015, "fraction": 0.5},  # upper half
     "platform": {"mass": 4.0, "com": (0.012, -0.008, 0.025),
                  "inertia": (0.085, 0.090, 0.160, 0.004, -0.003, 0.002)},  # ixx iyy izz ixy ixz iyz about the COM
-    "slide": {"armature": 0.25, "damping": 6.0, "frictionloss": 1.0, "range": 0.12},
+    "slide": {"armature": 0.25, "damping": 6.0, "frictionloss": 1.0, "range": 0.15},
     "hinge_damping": 0.02,
 }
 """The Stewart platform's geometry [m, deg] and inertial data [kg, kg m^2]; slide terms in kg,
@@ -129,10 +129,45 @@ def stewart_points() -> tuple[FloatArray, FloatArray]:
     return B, P
 
 
+def _quat(R: FloatArray) -> FloatArray:
+    """Unit quaternion (w, x, y, z) of a rotation matrix (MJCF ``quat``)."""
+    w = np.sqrt(max(1.0 + np.trace(R), 0.0)) / 2.0
+    if w > 1e-6:
+        return np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)])
+    k = int(np.argmax(np.diag(R)))
+    i, j = (k + 1) % 3, (k + 2) % 3
+    q = np.empty(4)
+    q[1 + k] = np.sqrt(max(1.0 + R[k, k] - R[i, i] - R[j, j], 0.0)) / 2.0
+    q[0] = (R[j, i] - R[i, j]) / (4 * q[1 + k])
+    q[1 + i] = (R[i, k] + R[k, i]) / (4 * q[1 + k])
+    q[1 + j] = (R[j, k] + R[k, j]) / (4 * q[1 + k])
+    return q
+
+
+def stewart_leg_frames() -> FloatArray:
+    """Per leg the rotation (6, 3, 3) from its own frame to the world's at home: z along the leg
+    (base to platform), x horizontal (z_world x leg, normalized), y = z x x. In these frames the six
+    legs are the same part: joint axes, placements and inertial data equal, leg by leg."""
+    B, P = stewart_points()
+    out = np.empty((6, 3, 3))
+    for i in range(6):
+        z = (P[i] - B[i]) / np.linalg.norm(P[i] - B[i])
+        x = np.cross([0.0, 0.0, 1.0], z)
+        x /= np.linalg.norm(x)
+        out[i] = np.column_stack([x, np.cross(z, x), z])
+    return out
+
+
 def stewart_mjcf() -> str:
-    """The MJCF text of the 6-UPS Stewart platform (module docstring; :data:`STEWART`)."""
+    """The MJCF text of the 6-UPS Stewart platform (module docstring; :data:`STEWART`).
+
+    Each leg's bodies live in the leg's own frame (:func:`stewart_leg_frames`): universal joint
+    ``u<i>x`` then ``u<i>y`` about the frame's x and y, slide ``leg<i>`` along its z, the cylinder
+    and the rod uniform, axisymmetric about z; the six legs are identical parts, which a tool that
+    looks for identical chains can find. The platform body is world-aligned."""
     g = STEWART
     B, P = stewart_points()
+    R = stewart_leg_frames()
     C = np.array([0.0, 0.0, g["height"]])
     root = _header("twin_stewart", " dynid's MuJoCo twin: a 6-UPS Stewart platform (src/dynid/studies/twin_robots.py "
                    "writes this file; examples/mujoco_twins/README.md). ")
@@ -141,12 +176,11 @@ def stewart_mjcf() -> str:
     ET.SubElement(base, "inertial", pos="0 0 0", mass="5", diaginertia="0.2 0.2 0.4")
     sl = g["slide"]
     rods = []
+    z = np.array([0.0, 0.0, 1.0])
     for i in range(6):
         n = i + 1
-        d = P[i] - B[i]
-        L = float(np.linalg.norm(d))
-        u = d / L
-        ring = ET.SubElement(base, "body", name=f"ring{n}", pos=_v(B[i]))
+        L = float(np.linalg.norm(P[i] - B[i]))
+        ring = ET.SubElement(base, "body", name=f"ring{n}", pos=_v(B[i]), quat=_v(_quat(R[i])))
         ET.SubElement(ring, "joint", name=f"u{n}x", type="hinge", axis="1 0 0", damping=_f(g["hinge_damping"]))
         ET.SubElement(ring, "inertial", pos="0 0 0", mass=_f(g["ring"]["mass"]),
                       diaginertia=_v([g["ring"]["inertia"]] * 3))
@@ -154,17 +188,17 @@ def stewart_mjcf() -> str:
         ET.SubElement(cyl, "joint", name=f"u{n}y", type="hinge", axis="0 1 0", damping=_f(g["hinge_damping"]))
         c = g["cylinder"]
         lc = c["fraction"] * L
-        _inertial(cyl, c["mass"], 0.5 * lc * u, _rod_inertia(c["mass"], c["radius"], lc, u))
+        _inertial(cyl, c["mass"], 0.5 * lc * z, _rod_inertia(c["mass"], c["radius"], lc, z))
         rod = ET.SubElement(cyl, "body", name=f"rod{n}")
-        ET.SubElement(rod, "joint", name=f"leg{n}", type="slide", axis=_v(u), range=_v((-sl["range"], sl["range"])),
+        ET.SubElement(rod, "joint", name=f"leg{n}", type="slide", axis="0 0 1", range=_v((-sl["range"], sl["range"])),
                       armature=_f(sl["armature"]), damping=_f(sl["damping"]), frictionloss=_f(sl["frictionloss"]),
                       solreffriction=FRICTION_SOLREF)
         r = g["rod"]
         lr = r["fraction"] * L
-        _inertial(rod, r["mass"], (L - 0.5 * lr) * u, _rod_inertia(r["mass"], r["radius"], lr, u))
+        _inertial(rod, r["mass"], (L - 0.5 * lr) * z, _rod_inertia(r["mass"], r["radius"], lr, z))
         rods.append(rod)
     p = g["platform"]
-    plat = ET.SubElement(rods[0], "body", name="platform", pos=_v(C - B[0]))
+    plat = ET.SubElement(rods[0], "body", name="platform", pos=_v(R[0].T @ (C - B[0])), quat=_v(_quat(R[0].T)))
     ET.SubElement(plat, "joint", name="ball1", type="ball", pos=_v(P[0] - C))
     ixx, iyy, izz, ixy, ixz, iyz = p["inertia"]
     _inertial(plat, p["mass"], p["com"], np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]))
@@ -273,18 +307,39 @@ def inertial_data(text: str) -> dict[str, tuple[float, FloatArray, FloatArray]]:
                    _inertia_matrix(el)) for name, el in _moving_inertials(root)}
 
 
-def prior_signs(n_bodies: int, seed: int = PRIOR_SEED) -> FloatArray:
-    """The prior's signs (n_bodies, 7): per moving body, in file order, the signs of the mass,
-    the three principal second moments and the three COM shifts (NumPy's default generator
-    seeded with ``seed``)."""
-    return np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_bodies, 7))
+def parts(text: str) -> list[int]:
+    """Per moving body (file order) the index of its part: bodies with the same inertial data in
+    their own frames (mass, COM, inertia equal to 1e-9 relative) are copies of one part, numbered
+    in order of first appearance."""
+    data = list(inertial_data(text).values())
+    out: list[int] = []
+    firsts: list[int] = []
+    for m, c, I in data:
+        for k, f in enumerate(firsts):
+            m0, c0, I0 = data[f]
+            scale = max(abs(m0), np.abs(c0).max(), np.abs(I0).max())
+            if max(abs(m - m0), np.abs(c - c0).max(), np.abs(I - I0).max()) <= 1e-9 * scale:
+                out.append(k)
+                break
+        else:
+            out.append(len(firsts))
+            firsts.append(len(out) - 1)
+    return out
+
+
+def prior_signs(n_parts: int, seed: int = PRIOR_SEED) -> FloatArray:
+    """The prior's signs (n_parts, 7): per part (:func:`parts`), the signs of the mass, the three
+    principal second moments and the three COM shifts (NumPy's default generator seeded with
+    ``seed``)."""
+    return np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_parts, 7))
 
 
 def prior_mjcf(text: str, fraction: float = PRIOR_FRACTION, seed: int = PRIOR_SEED) -> str:
     """The prior of a robot: its MJCF ``text`` with every moving body's inertial data off by ``fraction``.
 
-    Per moving body (a body with a joint and a positive mass, in file order), with the signs
-    ``s`` of :func:`prior_signs`:
+    Per moving body (a body with a joint and a positive mass), with the signs ``s`` of
+    :func:`prior_signs` for its part (:func:`parts`: the six legs of the Stewart platform are one
+    part, each copy as far off as the others, as a CAD model's error is in the part):
 
     * mass :math:`m' = m (1 + f s_0)`;
     * second moments of the mass distribution about the COM,
@@ -301,7 +356,8 @@ def prior_mjcf(text: str, fraction: float = PRIOR_FRACTION, seed: int = PRIOR_SE
     """
     root = ET.fromstring(text)
     bodies = _moving_inertials(root)
-    signs = prior_signs(len(bodies), seed)
+    part = parts(text)
+    signs = prior_signs(max(part) + 1, seed)[part]
     for (_, el), s in zip(bodies, signs):
         m = float(el.get("mass"))
         c = np.array([float(v) for v in el.get("pos", "0 0 0").split()])
