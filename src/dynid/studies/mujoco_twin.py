@@ -45,7 +45,7 @@ from dynid._typing import FloatArray
 from dynid.studies.twin_robots import PLANAR, STEWART, planar_elbows, stewart_points
 
 __all__ = ["NOISE", "GAINS", "Twin", "load_twin", "stewart_reference", "planar_reference", "reference",
-           "simulate", "write_log", "inverse_dynamics_check"]
+           "simulate", "write_log", "inverse_dynamics_check", "validation_into_config", "held_out_errors"]
 
 RATE_HZ = 1000.0
 """Control and log rate."""
