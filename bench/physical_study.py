@@ -160,7 +160,17 @@ def _simulate(setup: dict, traj: dict, seed: int, folder: Path):
     return sim
 
 
+def _full(model: str, ident: dict) -> dict:
+    """A parallel robot's study keeps every body's own parameters (``structure = "full"``, the
+    recorded figures' model; the default ``auto`` may tie identical chains)."""
+    from dynid.config import RobotConfig
+    from dynid.pipeline.data import build_system
+
+    return ident if build_system(RobotConfig(model=model)).kind == "serial" else {"structure": "full", **ident}
+
+
 def _config(setup: dict, actuators, train: Path, valid: Path, ident: dict, processing: dict | None = None):
+    ident = _full(setup["model"], ident)
     doc = {
         "robot": {"model": setup["model"]},
         "data": {"file": str(train / "log.npz"), "time": {"column": "t", "unit": "s"},
@@ -444,7 +454,7 @@ def _exact_config(case: _Case, train: Path, valid: Path, ident: dict):
                  "effort": {"columns": [f"tau_{x}" for x in a], "kind": "torque", "unit": case.setup["effort_unit"]}},
         "validation": {"file": str(valid / "log.npz")},
         "processing": {"derivatives": "measured"},
-        "identification": ident,
+        "identification": _full(case.setup["model"], ident),
         "output": {"plots": False},
     }
     return parse_config(doc, train)

@@ -210,7 +210,7 @@ def _poor_logs(d, model: str, legs, noise: float = 0.02, perturbation: float = 0
         f'acceleration = {{ columns = {col("ddq")}, unit = "{unit}" }}\n'
         f'effort = {{ columns = {col("tau")}, unit = "{"N*m" if legs is None else "N"}", kind = "torque" }}\n\n'
         '[validation]\nfile = "valid.npz"\n\n[processing]\nderivatives = "measured"\ntrim_samples = 0\n\n'
-        '[identification]\nmethod = "ols"\n\n[output]\nplots = false\n')
+        '[identification]\nmethod = "ols"\nstructure = "full"\n\n[output]\nplots = false\n')
 
 
 def _standard_from_urdf(path, robot) -> np.ndarray:

@@ -282,8 +282,10 @@ def test_limits_come_from_the_description_and_absent_ones_are_not_checked(tmp_pa
     q[0, 3] = 250.0  # 4.4 rad as degrees: beyond too, no unit fits
     (alarm,) = limit_alarms(q, None, names, kinds, system, "data")
     assert "degrees" not in alarm.cause and "data.position.unit" in alarm.cause and "encoder offset" in alarm.cause
+    _, _, eff6 = actuator_limits(as_system(load_robot("builtin:cobot6r")))
+    assert np.all(np.isinf(eff6))  # a DH table whose rows name no effort limit has none
     _, _, eff6 = actuator_limits(as_system(load_robot("builtin:generic6r")))
-    assert np.all(np.isinf(eff6))  # a DH table has no effort column
+    np.testing.assert_array_equal(eff6, [300.0, 300.0, 150.0, 40.0, 40.0, 25.0])  # its rows' effort keys
 
 
 def test_mjcf_limits_of_a_mechanism_s_actuators(tmp_path):

@@ -48,7 +48,10 @@ def test_the_readme_quickstart_runs_as_written(tmp_path, monkeypatch, capsys):
     assert meta["warnings"] == []
     truth = json.loads((work / "sim" / "truth.json").read_text())["base_parameters"]
     result = json.loads((work / "id" / "result.json").read_text())
-    assert [p["name"] for p in result["params"]] == truth["names"]
+    # init models what the log and the description say: torques and a URDF without rotor inertia give
+    # no Ia (link-side torque sensors, README "Starting a config"); every other base parameter is the truth's
+    names = [p["name"] for p in result["params"]]
+    assert names == [n for n in truth["names"] if n in names] and set(truth["names"]) - set(names) <= {"Ia1", "Ia2", "Ia3"}
     assert result["validation"]["kind"] == "held-out"
     # the README's claim: the identified model predicts the held-out quarter better than the URDF's (4.6 % against
     # 10.7 % mean relative RMSE as shipped: the 10 % perturbation is far above the estimate's error, so any draw of

@@ -148,8 +148,11 @@ def test_errors_name_the_cause(mech):
 
     with pytest.raises(ModelError, match="under-actuated"):
         Mechanism(mech.pin_model, mech.closures, actuated=(0,), independent=mech.independent, q_guess=mech.q_ref)
-    with pytest.raises(ModelError, match="mobility 2"):
-        Mechanism(mech.pin_model, mech.closures, actuated=(0, 2, 4), q_guess=mech.q_ref)
+    # redundant actuation without independent coordinates: the best-conditioned 2 of the 3 actuated
+    # joints are chosen (issue 34, item 3), no longer refused
+    chosen = Mechanism(mech.pin_model, mech.closures, actuated=(0, 2, 4), q_guess=mech.q_ref)
+    assert len(chosen.independent.joints) == 2 and set(chosen.independent.joints) <= {0, 2, 4}
+    assert chosen.independent_choice
     with pytest.raises(ModelError, match="no loop closure"):
         Mechanism(mech.pin_model, (), actuated=(0, 2), independent=JointCoordinates((0, 2)))
     bad = dataclasses.replace(mech.closures[0], joint_b=42)
