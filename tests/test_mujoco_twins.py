@@ -154,18 +154,6 @@ def test_init_then_identify_on_mujoco_logs_reports_every_channel(newcomer, kind)
     assert np.all(prior > 1.5 * true), (prior, true)
 
 
-ITEM6 = pytest.mark.xfail(strict=False, reason=(
-    "issue 34 item 6, open: on 10 s logs the Stewart platform's 118 base parameters (full structure, its legs not "
-    "tied) are identified at 3.3-4.6x the true-parameter error; the planar robot at 1.06-1.65x depending on the draw "
-    "(30 s logs: 1.02-1.34x; bench/README.md)"))
-
-
-@pytest.mark.numerics
-@ITEM6
-@pytest.mark.parametrize("kind", ROBOTS)
-def test_item6_thresholds(newcomer, kind):
-    res, ref = newcomer[kind]["result"], newcomer[kind]["reference"]
-    ident = np.array(res["validation"]["rel_rmse_pct_per_joint"])
-    true, prior = np.array(ref["nominal"]), np.array(res["nominal_validation"]["rel_rmse_pct_per_joint"])
-    assert np.all(ident <= 1.25 * true), ident / true
-    assert np.all(prior >= 2.0 * ident), prior / ident
+# Issue 34 item 6's thresholds (1.25x the true-parameter error, 2x below the prior's, every channel)
+# are measured by bench/newcomer_twins.py at full size, not asserted here: they do not hold yet on
+# every channel (bench/README.md); a test that could not fail would hide that.
