@@ -84,4 +84,6 @@ def test_too_small_a_sample_is_doubled_until_the_regrouping_holds_on_fresh_state
     full = robot_base_parameters(robot)
     small = robot_base_parameters(robot, n_samples=2)
     assert small.n_samples > 2 and small.names == full.names
+    # K solves the same triangular system from two samples: each to eps x cond(R11) (~1e3 for the
+    # PUMA's base columns), so 1e-6 relative is a margin of 1e6 over the rounding
     np.testing.assert_allclose(small.K, full.K, rtol=1e-6, atol=1e-9 * np.abs(full.K).max())
