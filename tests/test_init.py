@@ -81,11 +81,19 @@ def test_init_then_identify_round_trip_recovers_the_robot(run, tmp_path, capsys)
     import json
 
     res = json.loads((out / "result.json").read_text())
-    # the model is right: the errors on the last quarter are the torque noise (n rows per joint,
-    # decimated: the RMSE's relative standard error is 1/sqrt(2n); 4.5 of them, 6 joints: a false
-    # alarm of 4e-5) and the viscous friction is the truth (4.5 std)
+    # the model is right: the errors on the last quarter are the torque noise through the parallel
+    # decimation's zero-phase filter (a serial arm: regressor and efforts filtered together), whose
+    # white-noise gain is the sum of squares of its impulse response (n rows per joint, decimated:
+    # the RMSE's relative standard error is 1/sqrt(2n); 4.5 of them, 6 joints: a false alarm of
+    # 4e-5) and the viscous friction is the truth (4.5 std)
+    from dynid.signals import decimation_filter, lowpass_sos
+
+    assert doc["processing"]["decimate_method"] == "parallel"
+    impulse = np.zeros(4001)
+    impulse[2000] = 1.0
+    gain = float(np.sum(lowpass_sos(impulse, decimation_filter(doc["processing"]["decimate"], FS)[0]) ** 2))
     n = res["validation"]["n_samples"]
-    np.testing.assert_allclose(res["validation"]["rmse_per_joint"], SIGMA, rtol=4.5 / np.sqrt(2 * n))
+    np.testing.assert_allclose(res["validation"]["rmse_per_joint"], SIGMA * np.sqrt(gain), rtol=4.5 / np.sqrt(2 * n))
     # the consistent fit sits on the boundary here (the description's bodies have singular
     # pseudo-inertias): no covariance; the same config unconstrained recovers the viscous friction
     # within its intervals
@@ -251,3 +259,39 @@ def test_parallel_robot_init_identify_and_the_array_api_agree(tmp_path):
     np.testing.assert_allclose(out.result.params, [p["value"] for p in res["params"]], rtol=1e-9, atol=1e-9 * std.max())
     # the last quarter repeats the periodic motion: said to be in-sample, by both
     assert out.validation.label == res["validation"]["kind"] == "in-sample"
+
+
+def test_motor_side_positions_in_one_file_and_efforts_in_another_with_a_drive_file(run, tmp_path, capsys):
+    """``--drive`` and ``--effort-log``: the same run written joint-side in one file, and motor-side
+    (positions x gear ratio) with the efforts in a second file, gives the same derived processing:
+    init maps the positions through the drive train before deriving it (the pipeline's mapping)."""
+    ds, joints = run
+    gears = [100.0, -100.0, 80.0, 50.0, 50.0, 40.0]
+    _csv(tmp_path / "joint.csv", ["t"] + [f"q_{j}" for j in joints] + [f"tau_{j}" for j in joints], [ds.t, ds.q, ds.tau])
+    _csv(tmp_path / "motor_positions.csv", list(joints), [ds.q * np.asarray(gears)])
+    _csv(tmp_path / "efforts.csv", list(joints), [ds.tau])
+    (tmp_path / "drive.toml").write_text(f"[robot]\ngear_ratios = {gears}\n")
+    ref, two = tmp_path / "ref.toml", tmp_path / "two.toml"
+    assert main(["init", ROBOT, str(tmp_path / "joint.csv"), "--out", str(ref)]) == 0
+    assert main(["init", ROBOT, str(tmp_path / "motor_positions.csv"), "--effort-log", str(tmp_path / "efforts.csv"),
+                 "--rate", str(FS), "--drive", str(tmp_path / "drive.toml"), "--out", str(two)]) == 0
+    a, b = tomllib.loads(ref.read_text()), tomllib.loads(two.read_text())
+    assert b["robot"]["gear_ratios"] == gears and b["data"]["position"]["side"] == "motor"
+    assert b["data"]["effort"]["file"] == "efforts.csv" and "kind" not in b["data"]["effort"]  # the name says efforts
+    assert b["data"]["effort"]["columns"] == list(joints)
+    for key in ("lowpass", "decimate", "decimate_method"):
+        assert b["processing"][key] == a["processing"][key], key
+    # the time grid is the same to rounding (a time column against --rate): the velocity noise too
+    np.testing.assert_allclose(b["processing"]["min_velocity"], a["processing"]["min_velocity"], rtol=0.02, atol=1e-9)
+    assert main(["identify", str(two), "--out", str(tmp_path / "out"), "-q"]) == 0
+    # refusals: an unknown drive key (with the nearest), efforts with other rows, two files and --validation
+    (tmp_path / "bad.toml").write_text("[robot]\ngear_ratio = [1, 1, 1, 1, 1, 1]\n")
+    capsys.readouterr()
+    args = ["init", ROBOT, str(tmp_path / "motor_positions.csv"), "--rate", str(FS), "--out", str(tmp_path / "x.toml")]
+    assert main(args + ["--effort-log", str(tmp_path / "efforts.csv"), "--drive", str(tmp_path / "bad.toml")]) == 2
+    assert "did you mean 'gear_ratios'" in _error(capsys)
+    _csv(tmp_path / "short.csv", list(joints), [ds.tau[:-5]])
+    assert main(args + ["--effort-log", str(tmp_path / "short.csv")]) == 2
+    assert "rows" in _error(capsys)
+    assert main(args + ["--effort-log", str(tmp_path / "efforts.csv"), "--validation", str(tmp_path / "joint.csv")]) == 2
+    assert "--effort-log" in _error(capsys) and not (tmp_path / "x.toml").exists()

@@ -137,3 +137,54 @@ def test_kuka_init_config_is_within_5_percent_of_the_documented_one(tmp_path):
     # measured: the largest ratio 1.02 (joints 4 and 6); the SDP's tolerance moves these figures by
     # far less than 0.1 % (its relative stopping tolerance 1e-8 times cond <= 1e4)
     assert np.all(ours <= 1.05 * best), (ours, best)
+
+
+@pytest.mark.realdata
+@pytest.mark.numerics
+def test_tx40_init_reads_a_drive_train_and_two_files_and_is_scored_like_for_like(tmp_path, capsys):
+    """Item 7 on the TX40 (FIGAROH's log: motor-side positions and motor currents in two files
+    without a time column, coupled wrist): ``dynid init`` with ``--effort-log``, ``--rate`` and
+    ``--drive`` (the drive train the URDF lacks) writes a config that ``identify`` runs; the
+    comparison with examples/tx40/identify.toml is like for like through ``predict
+    --processing-from``: both models on the rows held out by both (the last quarter), processed
+    one way. The figures are in the README (Starting a config); item 7's 5 % is not met on every
+    joint there, so it is not asserted."""
+    from pathlib import Path
+
+    urdf, pos, cur = (shared_file("tx40", f) for f in ("tx40_mdh_modified.urdf", "pos_read_data.csv", "curr_data.csv"))
+    repo = Path(__file__).resolve().parents[1]
+    cfg = tmp_path / "init.toml"
+    assert main(["init", str(urdf), str(pos), "--effort-log", str(cur), "--rate", "5000", "--drive",
+                 str(repo / "examples" / "tx40" / "drive.toml"), "--out", str(cfg)]) == 0
+    doc = tomllib.loads(cfg.read_text())
+    shipped = tomllib.loads((repo / "examples" / "tx40" / "identify.toml").read_text())
+    for key in ("gear_ratios", "couplings", "position_offset"):
+        assert doc["robot"][key] == shipped["robot"][key]
+    # motor encoders found from the range (joint 2 turns 32 x its joint's range); currents from the file's name
+    assert doc["data"]["position"]["side"] == "motor"
+    assert doc["data"]["effort"]["kind"] == "current" and Path(doc["data"]["effort"]["file"]).name == "curr_data.csv"
+    assert doc["robot"]["extras"] == ["Ia", "fv", "fc", "offset"]
+    # a serial arm: parallel decimation and the expected Coulomb force of a noisy velocity
+    assert doc["processing"]["decimate_method"] == "parallel" and doc["processing"]["lowpass"]["filter_effort"] is False
+    assert doc["identification"]["coulomb_smoothing"] == "auto"
+    cfg.write_text(cfg.read_text().replace("plots = true", "plots = false"))
+    assert main(["identify", str(cfg), "--out", str(tmp_path / "init"), "-q"]) == 0
+    text = (repo / "examples" / "tx40" / "identify.toml").read_text().replace("../../../shared/data/tx40", str(urdf.parent))
+    (tmp_path / "doc.toml").write_text(text + "\n[output]\nplots = false\n")
+    assert main(["identify", str(tmp_path / "doc.toml"), "--out", str(tmp_path / "doc"), "-q"]) == 0
+    held = doc["validation"]["rows"]
+    assert held[0] >= shipped["validation"]["rows"][0] and held[1] == 45000  # held out by both
+    (tmp_path / "held.toml").write_text(
+        "[data]\nsample_rate_hz = 5000.0\n" + f"rows = [{held[0]}, {held[1]}]\n"
+        + f"position = {{ file = \"{pos}\", columns = {json.dumps(shipped['data']['position']['columns'])}, unit = \"rad\", side = \"motor\" }}\n"
+        + f"effort = {{ file = \"{cur}\", columns = {json.dumps(shipped['data']['effort']['columns'])}, kind = \"current\", unit = \"A\" }}\n")
+    scores = {}
+    for model in ("init", "doc"):
+        for proc in ("init", "doc"):
+            out = tmp_path / f"{model}_on_{proc}"
+            assert main(["predict", str(tmp_path / model), str(tmp_path / "held.toml"), "--processing-from",
+                         str(tmp_path / proc), "--out", str(out), "--no-plots", "-q"]) == 0
+            scores[model, proc] = json.loads((out / "predict.json").read_text())["identified"]
+    for proc in ("init", "doc"):  # like for like: the same rows for both models
+        assert scores["init", proc]["n_samples"] == scores["doc", proc]["n_samples"]
+    print({k: np.round(v["rel_rmse_pct_per_joint"], 1).tolist() for k, v in scores.items()})

@@ -127,6 +127,41 @@ def test_predict_on_a_new_log(identified, capsys):
     assert "identified" in out.out and "nominal" in out.out
 
 
+def test_processing_from_scores_two_models_on_the_same_rows(identified, tmp_path, capsys):
+    """``--processing-from B``: A's model scored on the rows B's processing gives. Identity route:
+    A with its own processing named explicitly is A's own prediction; A with B's processing is
+    scored on B's rows (B: the same data, another cut-off and decimation) and B's model with
+    A's processing on A's rows."""
+    d, _, _ = identified
+    text = _identify_config(d, "wls").read_text()
+    other = tmp_path / "b.toml"
+    other.write_text(text.replace("cutoff_hz = 5.0", "cutoff_hz = 8.0").replace("decimate = 2", "decimate = 3")
+                     .replace("\"train.csv\"", f"\"{d / 'train.csv'}\"").replace("\"valid.csv\"", f"\"{d / 'valid.csv'}\""))
+    assert main(["identify", str(other), "--out", str(tmp_path / "b"), "-q"]) == 0
+    log = _log_config(d, "valid.csv")
+
+    def pred(result, name, *extra):
+        assert main(["predict", str(result), str(log), "--out", str(tmp_path / name), "--no-plots", "-q", *extra]) == 0, \
+            capsys.readouterr().err
+        return json.loads((tmp_path / name / "predict.json").read_text())
+
+    a_own, a_self = pred(d / "out", "a"), pred(d / "out", "a_self", "--processing-from", str(d / "out"))
+    # the same processing and model: the same computation, equal to rounding
+    np.testing.assert_allclose(a_self["identified"]["rmse_per_joint"], a_own["identified"]["rmse_per_joint"], rtol=1e-12)
+    b_own, a_on_b = pred(tmp_path / "b", "b_own"), pred(d / "out", "a_on_b", "--processing-from", str(tmp_path / "b"))
+    b_on_a = pred(tmp_path / "b", "b_on_a", "--processing-from", str(d / "out"))
+    assert a_on_b["identified"]["n_samples"] == b_own["identified"]["n_samples"] != a_own["identified"]["n_samples"]
+    assert b_on_a["identified"]["n_samples"] == a_own["identified"]["n_samples"]
+    # the measured efforts of those rows are B's: the nominal model's score is the same to rounding
+    np.testing.assert_allclose(a_on_b["nominal"]["rmse_per_joint"], b_own["nominal"]["rmse_per_joint"], rtol=1e-12)
+    assert any("scored with the processing of" in n for n in a_on_b["notes"])
+    # another robot's result is refused in one line
+    capsys.readouterr()
+    assert main(["predict", str(d / "out"), str(log), "--out", str(tmp_path / "x"), "--processing-from",
+                 str(tmp_path / "missing")]) == 2
+    assert capsys.readouterr().err.startswith("dynid: error:")
+
+
 def _error_line(capsys) -> str:
     err = capsys.readouterr().err
     lines = err.strip().splitlines()

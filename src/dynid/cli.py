@@ -432,7 +432,7 @@ def _cmd_init(args: argparse.Namespace) -> int:
         raise InputError(f"--rate: must be a positive number of Hz, got {args.rate!r}")
     cfg = write_starting_config(args.robot, args.log, args.out, force=args.force, actuated=names(args.actuated, "--actuated"),
                                 independent=names(args.independent, "--independent"), sample_rate_hz=args.rate,
-                                validation=args.validation)
+                                validation=args.validation, effort_log=args.effort_log, drive=args.drive)
     print(f"wrote {args.out}: {len(cfg.joints)} actuators, sampling rate {cfg.sample_rate_hz:.6g} Hz, "
           f"low-pass {cfg.cutoff_hz:g} Hz, method wls")
     guessed = [f"{w} of {j} ({m.column})" for j, p, e in zip(cfg.joints, cfg.position, cfg.effort)
@@ -449,8 +449,10 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     from dynid.pipeline.predict import load_saved, predict, write_prediction
 
     load_saved(args.result)  # a missing or older result is refused before the log is read
+    if args.processing_from is not None:
+        load_saved(args.processing_from)
     with _progress_bar(not args.quiet) as progress:
-        outcome = predict(args.result, args.log_config, progress)
+        outcome = predict(args.result, args.log_config, progress, processing_from=args.processing_from)
     written = write_prediction(outcome, args.out, plots=not args.no_plots)
     if not args.quiet:
         print(outcome.summary_text())
@@ -485,6 +487,11 @@ def build_parser() -> argparse.ArgumentParser:
     pn.add_argument("--validation", default=None, metavar="OTHER_LOG",
                     help="a second run of the robot (the same columns) to validate on: better than the last quarter of LOG")
     pn.add_argument("--rate", type=float, default=None, metavar="HZ", help="sampling rate of a log without a time column")
+    pn.add_argument("--effort-log", default=None, metavar="EFFORT_LOG",
+                    help="the efforts (torques or currents) in a second file with the same rows as LOG")
+    pn.add_argument("--drive", default=None, metavar="DRIVE.toml",
+                    help="the drive train the description lacks: a [robot] table with gear_ratios, couplings, "
+                         "drive_gains, position_offset, rotor_inertia (README, Configuration)")
     pn.add_argument("--actuated", default=None, metavar="J1,J2,...", help="parallel robots: the actuated joints, as for info")
     pn.add_argument("--independent", default=None, metavar="J1,J2,...", help="parallel robots: the independent coordinates' joints")
     pn.set_defaults(func=_cmd_init)
@@ -505,6 +512,9 @@ def build_parser() -> argparse.ArgumentParser:
     pp.add_argument("log_config", help="TOML with a [data] table naming the new log (identify's [data] keys) and "
                                        "optionally [robot] (checked against the result's)")
     pp.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    pp.add_argument("--processing-from", default=None, metavar="OTHER_RESULT",
+                    help="score on the rows another identification of the same robot processed (its filters, "
+                         "derivatives, decimation): two models compared like for like")
     pp.add_argument("--no-plots", action="store_true", help="no predict.png")
     pp.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
     pp.set_defaults(func=_cmd_predict)

@@ -231,10 +231,26 @@ def _hierarchical_curves(result: IdentificationResult, joints: tuple[str, ...]):
     return HierarchicalFriction(info["family"], info["model"], joints, tuple(fits), projection)
 
 
-def predict(result_path: str | Path, log_config: str | Path, progress: Progress = _no_progress) -> PredictOutcome:
-    """Score the saved model of ``result_path`` on the log of ``log_config`` (module docstring)."""
+def predict(result_path: str | Path, log_config: str | Path, progress: Progress = _no_progress, *,
+            processing_from: str | Path | None = None) -> PredictOutcome:
+    """Score the saved model of ``result_path`` on the log of ``log_config`` (module docstring).
+
+    ``processing_from``: another result of ``dynid identify`` on the same robot whose processing
+    (filters, derivatives, decimation, row selection) is used instead of this result's own: two
+    models identified with different processing are then scored on the same processed rows, by the
+    same metric (a comparison like for like; ``dynid predict --processing-from``). The model (its
+    parameters, base parameters and Coulomb law) stays this result's."""
     saved = load_saved(result_path)
     inp = saved.inputs
+    if processing_from is not None:
+        other = load_saved(processing_from)
+        if list(other.inputs["actuators"]) != list(inp["actuators"]):
+            raise InputError(f"--processing-from {processing_from}: identified on actuators {other.inputs['actuators']}, "
+                             f"the result on {inp['actuators']}")
+        if other.inputs["processing"].get("periodic") or inp["processing"].get("periodic"):
+            raise InputError(f"--processing-from {processing_from}: periodic processing (period averaging) is not "
+                             "exchangeable between results")
+        inp = {**inp, "processing": other.inputs["processing"]}
     # paths recorded relative (dynid demo: to the folder of result.json) are read from there
     robot = dict(inp["robot"])
     if not robot["model"].startswith("builtin:") and not Path(robot["model"]).is_absolute():
@@ -294,6 +310,8 @@ def predict(result_path: str | Path, log_config: str | Path, progress: Progress 
     comparable = not (raw.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     comparison = None if prior is None else prior_comparison(metrics, prior, comparable, "new-log")
     notes = []
+    if processing_from is not None:
+        notes.append(f"scored with the processing of {Path(processing_from).resolve()} (not this result's own)")
     learned = None
     if inp.get("learning") is not None:
         from dynid.pipeline.learning import load_networks

@@ -24,7 +24,7 @@ import numpy as np
 
 from dynid._typing import FloatArray
 from dynid.config import TIME_UNITS, RobotConfig, parse_config
-from dynid.errors import InputError
+from dynid.errors import ConfigError, InputError
 from dynid.io.readers import TableReader
 
 __all__ = ["StartingConfig", "starting_config", "write_starting_config"]
@@ -335,6 +335,43 @@ def derive_processing(t: FloatArray, q: FloatArray, tau: FloatArray, cutoff_hz: 
     return DerivedProcessing(sv, mv, se, steps, not has_steps, d, guard, reasons)
 
 
+DRIVE_KEYS = ("gear_ratios", "couplings", "drive_gains", "position_offset", "rotor_inertia")
+"""The keys of ``dynid init --drive FILE``'s ``[robot]`` table: the drive train a robot description
+(URDF, MJCF) does not hold, as ``[robot]`` of the config spells them (README, Configuration)."""
+
+
+def read_drive(path: str | Path) -> dict:
+    """The ``[robot]`` table of ``dynid init --drive FILE`` (:data:`DRIVE_KEYS` only), or a one-line error."""
+    from dynid.config._schema import read_toml
+
+    doc = read_toml(Path(path))
+    if set(doc) != {"robot"} or not isinstance(doc["robot"], dict):
+        raise ConfigError(f"--drive {path}: expected one [robot] table with the drive train ({', '.join(DRIVE_KEYS)}); "
+                          f"found {', '.join(sorted(doc)) or 'nothing'}")
+    unknown = [k for k in doc["robot"] if k not in DRIVE_KEYS]
+    if unknown:
+        k = unknown[0]
+        near = nearest(k, DRIVE_KEYS)
+        raise ConfigError(f"--drive {path}: [robot].{k} is not a drive-train key" + (f" (did you mean {near!r}?)" if near else "")
+                          + f"; known: {', '.join(DRIVE_KEYS)}")
+    return dict(doc["robot"])
+
+
+def _toml_value(v) -> str:
+    """A TOML literal of a drive-train value (numbers, lists, inline tables)."""
+    if isinstance(v, bool):
+        return str(v).lower()
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return _s(v)
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise ConfigError(f"--drive: value {v!r} of an unsupported type")
+
+
 def _osa_distance(a: str, b: str) -> int:
     """Edit distance with adjacent transpositions (optimal string alignment): a typo's distance."""
     d = [[i + j if i * j == 0 else 0 for j in range(len(b) + 1)] for i in range(len(a) + 1)]
@@ -375,7 +412,8 @@ def _structure_lines(system) -> list[str]:
 
 def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: Sequence[str] | None = None,
                     independent: Sequence[str] | None = None, sample_rate_hz: float | None = None,
-                    validation: str | Path | None = None) -> StartingConfig:
+                    validation: str | Path | None = None, effort_log: str | Path | None = None,
+                    drive: str | Path | None = None) -> StartingConfig:
     """The starting config of ``dynid init`` (nothing is written; see :func:`write_starting_config`).
 
     Processing defaults: the zero-phase Butterworth low-pass at 10 times the motion's bandwidth
@@ -384,14 +422,30 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
     Sec. 3: filtering the actuator forces biases the estimates through the discontinuous friction,
     and their noise is additive to the output); WLS (paper 001 Eqs. 10-16); the last quarter of
     the log held out.
+
+    ``effort_log``: the efforts in a second file with the same rows (a controller that writes
+    positions and currents apart); ``drive``: a TOML file with one ``[robot]`` table holding the
+    drive train the description lacks (:data:`DRIVE_KEYS`: gear ratios, couplings, drive gains,
+    encoder offsets, rotor inertias), copied into the config; the positions are then taken as
+    motor-side when they move further than a joint's limits allow, and the processing is derived
+    from the joint-side signals (the pipeline's own mapping).
     """
     from dynid.pipeline.data import build_system
 
     out = Path(out)
     folder = out.resolve().parent
     model = robot if robot.startswith("builtin:") else str(Path(robot).expanduser().resolve())
+    drive_table = read_drive(drive) if drive is not None else {}
     rcfg = RobotConfig(model=model, actuated=tuple(actuated) if actuated else None,
                        independent=tuple(independent) if independent else None)
+    if drive_table:
+        from dynid.config import _parse_robot
+
+        try:
+            parsed = _parse_robot({"model": model, **drive_table}, folder)
+        except ConfigError as exc:
+            raise ConfigError(f"--drive {drive}: {exc}") from None
+        rcfg = dataclasses.replace(parsed, actuated=rcfg.actuated, independent=rcfg.independent, extras_given=False)
     system = build_system(rcfg)
     joints, kinds = tuple(system.actuator_names), tuple(system.actuator_kinds())
     reader = TableReader(log)
@@ -414,9 +468,27 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
     position = _match([c for c in names if c != tcol], joints, "position")
     used = {m.column for m in position}
     rest = [c for c in names if c != tcol and c not in used]
-    torque, current = _match(rest, joints, "torque"), _match(rest, joints, "current")
     n_found = lambda ms: sum(m.column is not None for m in ms)  # noqa: E731
+    ereader, kind_how = None, ""
+    if effort_log is not None:
+        ereader = TableReader(effort_log)
+        ecolumns = _log_columns(ereader)
+        n_e = next(iter(ecolumns.values())).shape[0]
+        if n_e != n_rows:
+            raise InputError(f"--effort-log {ereader.path}: {n_e} rows, the log {reader.path.name} has {n_rows} (the "
+                             "two files must hold the same samples)")
+        rest = [c for c in ecolumns if c != _time_column(ecolumns)]
+    eff_columns = ecolumns if ereader is not None else columns
+    torque, current = _match(rest, joints, "torque"), _match(rest, joints, "current")
     effort, kind = (torque, "torque") if n_found(torque) >= n_found(current) else (current, "current")
+    if ereader is not None and n_found(effort) < len(joints):
+        # a file of efforts only: the joint's name alone names its effort; its kind from the file's name
+        effort = _match(rest, joints, "position")
+        words = set(_tokens(ereader.path.stem))
+        kind = "current" if words & _ROLES["current"] else "torque"
+        kind_how = (f"the file's name {ereader.path.name!r} says current" if kind == "current" else
+                    (f"the file's name {ereader.path.name!r} says torque" if words & _ROLES["torque"] else
+                     f"GUESSED: neither the columns nor the file's name {ereader.path.name!r} say current"))
 
     q_cols = [columns[m.column] for m in position if m.column is not None]
     band = motion_bandwidth_hz(np.column_stack(q_cols), fs) if q_cols else 0.0
@@ -426,12 +498,27 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
     serial = system.kind == "serial"
     projected = not serial and bool(getattr(system, "redundant", False))
     derived = None
-    if all(m.column is not None for m in position + effort):
+    complete = all(m.column is not None for m in position + effort)
+    if complete and not drive_table:
         t_s = (columns[tcol] * TIME_UNITS[tunit]) if tcol is not None else np.arange(n_rows) / fs
         rows = slice(0, n_rows if validation is not None else split)
         derived = derive_processing(t_s[rows], np.column_stack([columns[m.column] for m in position])[rows],
-                                    np.column_stack([columns[m.column] for m in effort])[rows], cutoff,
+                                    np.column_stack([eff_columns[m.column] for m in effort])[rows], cutoff,
                                     parallel=not serial, projected=projected)
+    side, side_how = "joint", ""
+    if drive_table.get("gear_ratios") and q_cols and len(q_cols) == len(joints):
+        from dynid.pipeline.diagnostics import actuator_limits
+
+        lo, hi, _ = actuator_limits(system)
+        span = np.ptp(np.column_stack([columns[m.column] for m in position]), axis=0)
+        beyond = [j for j in range(len(joints)) if np.isfinite(hi[j] - lo[j]) and span[j] > 1.5 * (hi[j] - lo[j])]
+        side = "motor" if beyond else "joint"
+        side_how = (f"motor-side: {', '.join(joints[j] for j in beyond)} move(s) over more than 1.5 x the joint's range "
+                    "(encoders on the motors, before the gears)" if beyond else
+                    "joint-side: every position stays within its joint's range (set side = \"motor\" for motor encoders)")
+    if validation is not None and ereader is not None:
+        raise InputError("--validation with --effort-log: a validation run in two files is not read by init; give "
+                         "the validation run's [validation] by hand (README, Configuration), or one file per run")
     vlog = None
     if validation is not None:
         vreader = TableReader(validation)
@@ -457,7 +544,7 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
 
     units = {"revolute": "rad", "prismatic": "m"}
     degrees = [j for j, k, m in zip(joints, kinds, position)
-               if k == "revolute" and m.column is not None and np.ptp(columns[m.column]) > 2 * math.tau]
+               if k == "revolute" and m.column is not None and np.ptp(columns[m.column]) > 2 * math.tau and side == "joint"]
     lines = [
         f"# dynid identify config written by `dynid init {robot} {reader.path.name}`.",
         "# Check every line marked GUESSED or UNMATCHED, then run: dynid identify "
@@ -492,8 +579,13 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
         chart = [system.model.pin_model.names[j + 1] for j in system.model.independent.joints]
         lines += [f"# independent = [{', '.join(_s(a) for a in chart)}]   # {system.model.independent_choice};",
                   "#   identify chooses again over the training log; uncomment (or name others) to fix them"]
+    if drive_table:
+        lines.append(f"# the drive train, from --drive {Path(drive).name}:")
+        lines += [f"{k} = {_toml_value(drive_table[k])}" for k in DRIVE_KEYS if k in drive_table]
+    else:
+        lines.append("# gear_ratios = [...]; couplings; drive_gains; position_offset: for motor-side logs (README, "
+                     "Configuration; dynid init --drive)")
     lines += [
-        "# gear_ratios = [...]; couplings; drive_gains; position_offset: for motor-side logs (README, Configuration)",
         "",
         ("[data]                                         # the training log" if vlog is not None else
          "[data]                                         # the training log: the first three quarters"),
@@ -506,22 +598,29 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
     else:
         lines += [f"sample_rate_hz = {fs!r}                 # from --rate (the log has no time column)"]
     lines += ([] if vlog is not None else [f"rows = [0, {split}]"]) + [
-              f"position = {{ columns = {col_list(position, 'position')} }}   # SI: "
-              + ", ".join(sorted({units[k] for k in kinds})) + " (else unit = ...)"]
+              (f"position = {{ columns = {col_list(position, 'position')}, side = \"motor\" }}   # rad at the motor"
+               if side == "motor" else
+               f"position = {{ columns = {col_list(position, 'position')} }}   # SI: "
+               + ", ".join(sorted({units[k] for k in kinds})) + " (else unit = ...)")]
+    if side_how:
+        lines.append(f"# {side_how}")
     lines += ["# position columns:"] + how(position)
     if degrees:
         lines.append(f"# WARNING: {', '.join(degrees)} span more than two turns: degrees? then set unit = \"deg\"")
+    efile = f"file = {_s(_rel(ereader.path.resolve(), folder))}, " if ereader is not None else ""
+    if kind_how:
+        lines.append(f"# effort kind: {kind_how}")
     if kind == "current":
-        lines += [f"effort = {{ columns = {col_list(effort, 'effort')}, kind = \"current\", unit = \"A\" }}",
+        lines += [f"effort = {{ {efile}columns = {col_list(effort, 'effort')}, kind = \"current\", unit = \"A\" }}",
                   "# motor currents: without robot.drive_gains (N*m/A) identify estimates them from the prior (the",
                   "# nominal model's torques fitted to the currents, with intervals) and uses them when each is known to",
                   "# 10 %: parameters, comparison with the prior and model.urdf then in N*m; otherwise the parameters",
                   "# absorb the gains (said in the summary). A known-payload experiment measures the gains better."]
     else:
-        lines += [f"effort = {{ columns = {col_list(effort, 'effort')} }}   # SI: "
+        lines += [f"effort = {{ {efile}columns = {col_list(effort, 'effort')} }}   # SI: "
                   + ", ".join(sorted({'revolute': 'N*m', 'prismatic': 'N'}[k] for k in set(kinds)))]
     lines += ["# effort columns:"] + how(effort)
-    left = [c for c in names if c != tcol and c not in used and c not in {m.column for m in effort}]
+    left = [c for c in names if c != tcol and c not in used and (ereader is not None or c not in {m.column for m in effort})]
     if left:
         lines.append(f"# columns not used: {', '.join(left[:30])}{' ...' if len(left) > 30 else ''}")
     if vlog is not None:
@@ -531,20 +630,44 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
         val = ["[validation]                                   # held out, never used for training: the last quarter",
                f"rows = [{split}, {n_rows}]                        # or --validation OTHER_LOG (a run with other motion "
                "is better than a tail of the same run)"]
+    if drive_table and complete:
+        # the processing is derived from the joint-side signals: the pipeline's own reading and mapping
+        # through the drive train (gear ratios, couplings, offsets) of the config written so far
+        import tomllib
+
+        from dynid.pipeline.data import read_log, to_actuator_space
+
+        part = parse_config(tomllib.loads("\n".join(lines + ["", *val])), folder)
+        joint_side, _ = to_actuator_space(read_log(part.data, system.n_actuators, tuple(joints), "data", {}), system, "data")
+        band = motion_bandwidth_hz(np.asarray(joint_side.q), fs)
+        cutoff = _round2(min(max(10.0 * band, MIN_CUTOFF_HZ), cap))
+        derived = derive_processing(np.asarray(joint_side.t), np.asarray(joint_side.q), np.asarray(joint_side.tau), cutoff,
+                                    parallel=not serial, projected=projected)
     lines += ["", *val, "", "[processing]",
               "resample = \"auto\"                              # irregular timestamps resampled at the median rate"]
     fe = derived.filter_effort if derived is not None else False
+    parallel_decimation = serial and derived is not None and derived.decimate > 1
+    if parallel_decimation:
+        fe = False  # the parallel decimation filters the efforts, with the regressor (below)
     lines += [
         f"lowpass = {{ cutoff_hz = {cutoff!r}, order = 4, filter_effort = {str(fe).lower()} }}",
         f"# cut-off: 10 x the motion's bandwidth ({band:.3g} Hz: 99 % of the position power below it), within",
         f"# [{MIN_CUTOFF_HZ:g} Hz, fs/5 = {cap:.4g} Hz] (0.4 x Nyquist {fs / 2:.4g} Hz); paper 001 Sec. 3 asks for 10 x the position",
         "# loop's bandwidth: raise it if you know that.",
     ]
-    if derived is not None:
+    if parallel_decimation:
+        lines.append("# filter_effort = false: the efforts are filtered by the parallel decimation below, with the regressor; "
+                     f"on their own they would be {str(derived.filter_effort).lower()}: "
+                     + derived.reasons["filter_effort"].split(": ", 1)[1])
+    elif derived is not None:
         lines.append(f"# filter_effort = {derived.reasons['filter_effort']}")
     lines.append("derivatives = \"central\"                        # velocities and accelerations of the filtered positions")
     if derived is not None:
         lines += [f"decimate = {derived.decimate}", f"# {derived.reasons['decimate']}"]
+        if parallel_decimation:
+            lines += ["decimate_method = \"parallel\"                 # regressor and efforts filtered together, then decimated",
+                      "# (Gautier's parallel filtering, paper 001 Sec. 3): the same filter on both sides of the equation,",
+                      "# so the efforts' noise goes while their Coulomb steps stay matched by the regressor's"]
         mv = [_sig2(x) for x in derived.min_velocity]
         if any(x > 0 for x in mv):
             lines += [f"min_velocity = [{', '.join(repr(x) for x in mv)}]   # " + ", ".join(sorted({units[k] for k in kinds})) + "/s",
@@ -560,6 +683,8 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
               "method = \"wls\"                                 # weighted least squares, per-joint noise (paper 001 Eqs. 10-16)",
               *_structure_lines(system)]
     if serial:
+        lines += ["coulomb_smoothing = \"auto\"                     # Coulomb terms as erf(v / (sqrt(2) w)), w the velocity noise",
+                  "# the processing leaves: the expected friction of a noisy velocity, 0 at rest instead of +-fc at random"]
         lines.append("physical_consistency = true                    # a model a simulator can use (LMI, Wensing 2017); on the "
                      "real KUKA log the unconstrained fit does not generalize to another run (README)")
     lines += ["", "[output]", "plots = true", ""]
