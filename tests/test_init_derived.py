@@ -141,14 +141,13 @@ def test_kuka_init_config_is_within_5_percent_of_the_documented_one(tmp_path):
 
 @pytest.mark.realdata
 @pytest.mark.numerics
-def test_tx40_init_reads_a_drive_train_and_two_files_and_is_scored_like_for_like(tmp_path, capsys):
+def test_tx40_init_reads_a_drive_train_and_two_files_and_is_within_5_percent_like_for_like(tmp_path):
     """Item 7 on the TX40 (FIGAROH's log: motor-side positions and motor currents in two files
     without a time column, coupled wrist): ``dynid init`` with ``--effort-log``, ``--rate`` and
-    ``--drive`` (the drive train the URDF lacks) writes a config that ``identify`` runs; the
-    comparison with examples/tx40/identify.toml is like for like through ``predict
-    --processing-from``: both models on the rows held out by both (the last quarter), processed
-    one way. The figures are in the README (Starting a config); item 7's 5 % is not met on every
-    joint there, so it is not asserted."""
+    ``--drive`` (the drive train the URDF lacks), no edits, against examples/tx40/identify.toml
+    (FIGAROH's processing) on the same data: both trained on init's training rows and scored on
+    the last quarter through one processing at a time (``predict --processing-from``: the same
+    rows, the same metric), each configuration's processing in turn."""
     from pathlib import Path
 
     urdf, pos, cur = (shared_file("tx40", f) for f in ("tx40_mdh_modified.urdf", "pos_read_data.csv", "curr_data.csv"))
@@ -157,7 +156,8 @@ def test_tx40_init_reads_a_drive_train_and_two_files_and_is_scored_like_for_like
     assert main(["init", str(urdf), str(pos), "--effort-log", str(cur), "--rate", "5000", "--drive",
                  str(repo / "examples" / "tx40" / "drive.toml"), "--out", str(cfg)]) == 0
     doc = tomllib.loads(cfg.read_text())
-    shipped = tomllib.loads((repo / "examples" / "tx40" / "identify.toml").read_text())
+    shipped_text = (repo / "examples" / "tx40" / "identify.toml").read_text()
+    shipped = tomllib.loads(shipped_text)
     for key in ("gear_ratios", "couplings", "position_offset"):
         assert doc["robot"][key] == shipped["robot"][key]
     # motor encoders found from the range (joint 2 turns 32 x its joint's range); currents from the file's name
@@ -169,11 +169,14 @@ def test_tx40_init_reads_a_drive_train_and_two_files_and_is_scored_like_for_like
     assert doc["identification"]["coulomb_smoothing"] == "auto"
     cfg.write_text(cfg.read_text().replace("plots = true", "plots = false"))
     assert main(["identify", str(cfg), "--out", str(tmp_path / "init"), "-q"]) == 0
-    text = (repo / "examples" / "tx40" / "identify.toml").read_text().replace("../../../shared/data/tx40", str(urdf.parent))
+    train, held = doc["data"]["rows"], doc["validation"]["rows"]
+    assert held == [train[1], 45000]
+    text = (shipped_text.replace("../../../shared/data/tx40", str(urdf.parent))
+            .replace("rows = [0, 24750]", f"rows = [{train[0]}, {train[1]}]")
+            .replace("rows = [29250, 45000]", f"rows = [{held[0]}, {held[1]}]"))
+    assert tomllib.loads(text)["data"]["rows"] == train and tomllib.loads(text)["validation"]["rows"] == held
     (tmp_path / "doc.toml").write_text(text + "\n[output]\nplots = false\n")
     assert main(["identify", str(tmp_path / "doc.toml"), "--out", str(tmp_path / "doc"), "-q"]) == 0
-    held = doc["validation"]["rows"]
-    assert held[0] >= shipped["validation"]["rows"][0] and held[1] == 45000  # held out by both
     (tmp_path / "held.toml").write_text(
         "[data]\nsample_rate_hz = 5000.0\n" + f"rows = [{held[0]}, {held[1]}]\n"
         + f"position = {{ file = \"{pos}\", columns = {json.dumps(shipped['data']['position']['columns'])}, unit = \"rad\", side = \"motor\" }}\n"
@@ -185,6 +188,10 @@ def test_tx40_init_reads_a_drive_train_and_two_files_and_is_scored_like_for_like
             assert main(["predict", str(tmp_path / model), str(tmp_path / "held.toml"), "--processing-from",
                          str(tmp_path / proc), "--out", str(out), "--no-plots", "-q"]) == 0
             scores[model, proc] = json.loads((out / "predict.json").read_text())["identified"]
-    for proc in ("init", "doc"):  # like for like: the same rows for both models
-        assert scores["init", proc]["n_samples"] == scores["doc", proc]["n_samples"]
-    print({k: np.round(v["rel_rmse_pct_per_joint"], 1).tolist() for k, v in scores.items()})
+    for proc in ("init", "doc"):
+        ours, best = (np.array(scores[m, proc]["rel_rmse_pct_per_joint"]) for m in ("init", "doc"))
+        assert scores["init", proc]["n_samples"] == scores["doc", proc]["n_samples"]  # the same rows
+        # measured: the largest ratio 1.021 (joints 1, 2 and 4 on the documented processing's rows); the
+        # estimates move with the solvers' tolerances by far less than 0.1 % (the SDP's relative
+        # tolerance 1e-8 times the condition number 3e3)
+        assert np.all(ours <= 1.05 * best), (proc, ours, best)

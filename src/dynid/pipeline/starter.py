@@ -184,24 +184,47 @@ def _time_unit(name: str, t: FloatArray) -> tuple[str, str, float]:
     return "s", f"GUESSED: seconds (no unit gives a rate in {PLAUSIBLE_RATE_HZ[0]:g}-{PLAUSIBLE_RATE_HZ[1]:g} Hz; check it)", 1.0 / med
 
 
-def motion_bandwidth_hz(q: FloatArray, fs: float, fraction: float = 0.99) -> float:
-    """The frequency below which ``fraction`` of the power of the (linearly detrended, Hann
-    windowed) positions lies, the largest over the columns."""
+def motion_bandwidth_hz(q: FloatArray, fs: float, fraction: float = 0.99, *, derivative: int = 0) -> float:
+    r"""The frequency below which ``fraction`` of the power of the (linearly detrended, Hann
+    windowed) positions lies, the largest over the columns.
+
+    ``derivative = 1``: of the velocities' power, read from the positions' periodogram times
+    :math:`(2 \pi f)^2` (the derivative's spectrum) over the bins where the motion stands above
+    the position noise: more than :data:`SIGNAL_OVER_FLOOR` times the floor, the mean periodogram
+    above ``fs / 4`` (white noise's level; a noise bin's periodogram is exponential, so one
+    passes 30 x its mean with probability ``e^-30``). Without that selection the noise, weighted by
+    ``f^2``, would decide the band."""
     n = q.shape[0]
     if n < 8:
         return 0.0
     x = np.arange(n)
+    f = np.fft.rfftfreq(n, 1.0 / fs)
     out = 0.0
     for col in q.T:
         c = np.polyfit(x, col, 1)
         y = (col - np.polyval(c, x)) * np.hanning(n)
         p = np.abs(np.fft.rfft(y)) ** 2
         p[0] = 0.0
+        if derivative:
+            floor = float(np.mean(p[f > fs / 4.0])) if np.any(f > fs / 4.0) else 0.0
+            p = np.where(p > SIGNAL_OVER_FLOOR * floor, p * f ** (2 * derivative), 0.0)
         if p.sum() <= 0:
             continue
         k = int(np.searchsorted(np.cumsum(p) / p.sum(), fraction))
-        out = max(out, float(np.fft.rfftfreq(n, 1.0 / fs)[min(k, p.size - 1)]))
+        out = max(out, float(f[min(k, p.size - 1)]))
     return out
+
+
+SIGNAL_OVER_FLOOR = 30.0
+"""A periodogram bin counts as motion in :func:`motion_bandwidth_hz` (``derivative = 1``) when it
+exceeds the position noise's mean level by this factor."""
+
+
+def _cutoff(q: FloatArray, fs: float) -> tuple[float, float, float]:
+    """The positions' and the velocities' bandwidths (:func:`motion_bandwidth_hz`) and init's cut-off:
+    10 x the larger, within [:data:`MIN_CUTOFF_HZ`, fs / 5], rounded to 2 significant digits."""
+    band, vband = motion_bandwidth_hz(q, fs), motion_bandwidth_hz(q, fs, derivative=1)
+    return band, vband, _round2(min(max(10.0 * max(band, vband), MIN_CUTOFF_HZ), fs / 5.0))
 
 
 def _round2(x: float) -> float:
@@ -491,9 +514,8 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
                      f"GUESSED: neither the columns nor the file's name {ereader.path.name!r} say current"))
 
     q_cols = [columns[m.column] for m in position if m.column is not None]
-    band = motion_bandwidth_hz(np.column_stack(q_cols), fs) if q_cols else 0.0
     cap = fs / 5.0
-    cutoff = _round2(min(max(10.0 * band, MIN_CUTOFF_HZ), cap))
+    band, vband, cutoff = _cutoff(np.column_stack(q_cols), fs) if q_cols else (0.0, 0.0, _round2(min(MIN_CUTOFF_HZ, cap)))
     split = n_rows - n_rows // 4
     serial = system.kind == "serial"
     projected = not serial and bool(getattr(system, "redundant", False))
@@ -639,8 +661,7 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
 
         part = parse_config(tomllib.loads("\n".join(lines + ["", *val])), folder)
         joint_side, _ = to_actuator_space(read_log(part.data, system.n_actuators, tuple(joints), "data", {}), system, "data")
-        band = motion_bandwidth_hz(np.asarray(joint_side.q), fs)
-        cutoff = _round2(min(max(10.0 * band, MIN_CUTOFF_HZ), cap))
+        band, vband, cutoff = _cutoff(np.asarray(joint_side.q), fs)
         derived = derive_processing(np.asarray(joint_side.t), np.asarray(joint_side.q), np.asarray(joint_side.tau), cutoff,
                                     parallel=not serial, projected=projected)
     lines += ["", *val, "", "[processing]",
@@ -651,9 +672,10 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
         fe = False  # the parallel decimation filters the efforts, with the regressor (below)
     lines += [
         f"lowpass = {{ cutoff_hz = {cutoff!r}, order = 4, filter_effort = {str(fe).lower()} }}",
-        f"# cut-off: 10 x the motion's bandwidth ({band:.3g} Hz: 99 % of the position power below it), within",
-        f"# [{MIN_CUTOFF_HZ:g} Hz, fs/5 = {cap:.4g} Hz] (0.4 x Nyquist {fs / 2:.4g} Hz); paper 001 Sec. 3 asks for 10 x the position",
-        "# loop's bandwidth: raise it if you know that.",
+        f"# cut-off: 10 x the motion's bandwidth ({max(band, vband):.3g} Hz: 99 % of the velocity power below it, {band:.3g} Hz",
+        f"# of the position power), within [{MIN_CUTOFF_HZ:g} Hz, fs/5 = {cap:.4g} Hz] (0.4 x Nyquist {fs / 2:.4g} Hz); paper 001",
+        "# Sec. 3 asks for 10 x the position loop's bandwidth, which the motion's velocities stand in for (the",
+        "# regressor is made of velocities and accelerations): raise it if you know the loop's.",
     ]
     if parallel_decimation:
         lines.append("# filter_effort = false: the efforts are filtered by the parallel decimation below, with the regressor; "
