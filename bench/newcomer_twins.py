@@ -71,13 +71,16 @@ def init(robot: Path, train: Path, valid: Path, cfg: Path, cwd: Path) -> str:
     return "dynid init, validation put into the config by the harness (no --validation flag yet)"
 
 
-def run_robot(kind: str, duration: float, folder: Path) -> dict:
+def run_robot(kind: str, duration: float, folder: Path, draw: int = 0) -> dict:
+    from dynid.studies import draw_seed
+
     folder.mkdir(parents=True, exist_ok=True)
     truth, prior = TWINS / f"{kind}.xml", TWINS / f"{kind}_prior.xml"
     logs, sim_s = {}, {}
     for name, (f0, seed) in EXPERIMENTS.items():
         t0 = time.perf_counter()
-        log = simulate(truth, prior, duration, f0, seed)
+        s = draw_seed(seed, draw)  # draw 0: the recorded experiment; others: other trajectories and noise
+        log = simulate(truth, prior, duration, f0, s, noise_seed=draw_seed(seed + 1, draw))
         sim_s[name] = time.perf_counter() - t0
         logs[name] = write_log(log, folder / f"{kind}_{name}.csv")
     out = {}
@@ -120,8 +123,10 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="10 s logs (the tests' size) instead of 30 s")
     ap.add_argument("--out", default=None, help="keep the logs, configs and results in this folder")
     ap.add_argument("--robots", default="stewart,planar")
+    ap.add_argument("--draw", type=int, default=0, help="another draw of the trajectories and noise (0: the recorded one)")
+    ap.add_argument("--duration", type=float, default=None, help="log length in s (default 30; --quick 10)")
     args = ap.parse_args(argv)
-    duration = 10.0 if args.quick else 30.0
+    duration = args.duration if args.duration else (10.0 if args.quick else 30.0)
     from _util import print_machine
 
     print_machine()
@@ -129,8 +134,8 @@ def main(argv=None) -> int:
         base = Path(args.out) if args.out else Path(tmp)
         every = True
         for kind in args.robots.split(","):
-            row = run_robot(kind, duration, base / kind)
-            print(f"\n{kind}: {duration:g} s logs at 1 kHz (train f0 {EXPERIMENTS['train'][0]} Hz, validation f0 "
+            row = run_robot(kind, duration, base / kind, args.draw)
+            print(f"\n{kind}: draw {args.draw}, {duration:g} s logs at 1 kHz (train f0 {EXPERIMENTS['train'][0]} Hz, validation f0 "
                   f"{EXPERIMENTS['valid'][0]} Hz); {row['init']}; simulate {sum(row['simulate_s'].values()):.0f} s, "
                   f"identify {row['identify_s']:.0f} s")
             lines, ok = table(row["channels"], row["identified"], row["true"], row["prior"])
