@@ -60,13 +60,14 @@ def test_init_then_identify_round_trip_recovers_the_robot(run, tmp_path, capsys)
     assert text.count("matched by name") == 12 and "GUESSED by index" not in text
     assert "# columns not used: temperature" in text
     assert "# sampling rate 200 Hz" in text
-    # the held-out rows: the last quarter; the cut-off: 10 x the motion's bandwidth (the motion is
-    # 0.1-0.5 Hz, and the Hann window of a 40 s log smears it by 2 bins of 0.025 Hz), at least 5 Hz
+    # the held-out rows: the last quarter; the cut-off: 20 x the velocities' bandwidth (the motion is
+    # 0.1-0.5 Hz, the velocities' power is mostly the top harmonics', and the Hann window of a 40 s
+    # log smears it by 2 bins of 0.025 Hz: 20 x 0.45-0.55 Hz), at least 5 Hz
     assert doc["data"]["rows"] == [0, 6000] and doc["validation"]["rows"] == [6000, 8000]
     lp = doc["processing"]["lowpass"]
     # the truth has Coulomb friction (fc 0.6-8 N*m against 0.3 N*m noise): its steps are seen, the
     # efforts stay unfiltered
-    assert 5.0 <= lp["cutoff_hz"] <= 5.5 and lp["filter_effort"] is False
+    assert 9.0 <= lp["cutoff_hz"] <= 11.0 and lp["filter_effort"] is False
     assert "the efforts step at the velocity reversals" in text
     # decimated to the band the low-pass keeps: floor(200 / (4 x cut-off))
     assert doc["processing"]["decimate"] == int(FS // (4 * lp["cutoff_hz"]))
@@ -81,19 +82,37 @@ def test_init_then_identify_round_trip_recovers_the_robot(run, tmp_path, capsys)
     import json
 
     res = json.loads((out / "result.json").read_text())
-    # the model is right: the errors on the last quarter are the torque noise through the parallel
-    # decimation's zero-phase filter (a serial arm: regressor and efforts filtered together), whose
-    # white-noise gain is the sum of squares of its impulse response (n rows per joint, decimated:
-    # the RMSE's relative standard error is 1/sqrt(2n); 4.5 of them, 6 joints: a false alarm of
-    # 4e-5) and the viscous friction is the truth (4.5 std)
-    from dynid.signals import decimation_filter, lowpass_sos
+    # the model is right: on the held-out quarter it predicts as well as the truth (the same
+    # description with the simulated viscous friction, 0.5, as its nominal values: its
+    # `nominal_validation` is the truth's error on the same processed rows). The identified model's
+    # excess over the truth is the estimation error, a share p / N of the noise power (p = 61
+    # parameters against 6 x 1400 training rows: under 1 %, i.e. 0.4 % of the RMSE); 5 % is a
+    # margin over that and over the LMI's boundary solution. A reversal that falls on a kept sample
+    # costs both models up to 2 fc on that row, so the truth, not the bare noise level, is the
+    # reference. The truth's own error is the filtered torque noise plus such rows.
+    import re
+    from importlib.resources import files
 
     assert doc["processing"]["decimate_method"] == "parallel"
+    truth_file = tmp_path / "truth.toml"
+    truth_file.write_text(re.sub(r"(?m)^fv = .*$", "fv = 0.5", (files("dynid.model") / "robots" / "generic6r.toml").read_text()))
+    cfg_truth = tmp_path / "truth_id.toml"
+    cfg_truth.write_text(text.replace(f'model = "{ROBOT}"', f'model = "{truth_file}"'))
+    assert main(["identify", str(cfg_truth), "--out", str(tmp_path / "truth_out"), "-q"]) == 0
+    res_t = json.loads((tmp_path / "truth_out" / "result.json").read_text())
+    ident, true = np.array(res["validation"]["rmse_per_joint"]), np.array(res_t["nominal_validation"]["rmse_per_joint"])
+    assert res_t["validation"]["n_samples"] == res["validation"]["n_samples"]
+    assert np.all(ident <= 1.05 * true), (ident, true)
+    # and the truth itself is at the filtered noise level on most joints: its RMSE at least the noise
+    # through the parallel decimation's filter (white-noise gain: the sum of squares of its impulse
+    # response; n rows: a relative standard error 1/sqrt(2n), 4.5 of them)
+    from dynid.signals import decimation_filter, lowpass_sos
+
     impulse = np.zeros(4001)
     impulse[2000] = 1.0
     gain = float(np.sum(lowpass_sos(impulse, decimation_filter(doc["processing"]["decimate"], FS)[0]) ** 2))
     n = res["validation"]["n_samples"]
-    np.testing.assert_allclose(res["validation"]["rmse_per_joint"], SIGMA * np.sqrt(gain), rtol=4.5 / np.sqrt(2 * n))
+    assert np.all(true >= SIGMA * np.sqrt(gain) * (1 - 4.5 / np.sqrt(2 * n))), (true, SIGMA * np.sqrt(gain))
     # the consistent fit sits on the boundary here (the description's bodies have singular
     # pseudo-inertias): no covariance; the same config unconstrained recovers the viscous friction
     # within its intervals
@@ -166,8 +185,8 @@ def test_a_log_without_time_needs_rate_and_a_parallel_robot_gets_its_actuators(t
     assert doc["data"]["position"]["columns"] == ["q_qa1", "q_qa2", "q_qa3"]
     assert "extras" not in doc["robot"]  # a mechanism keeps its description's joint terms
     # the motion is 0.5 Hz, seen through the Hann window of an 8 s log (2 bins of 0.125 Hz): a cut-off
-    # of 5 to 7.5 Hz at 500 Hz; logged at 15 Hz the cut-off stays under 0.4 x Nyquist
-    assert 5.0 <= doc["processing"]["lowpass"]["cutoff_hz"] <= 7.5
+    # of 20 x 0.5-0.75 Hz at 500 Hz; logged at 15 Hz the cut-off stays under 0.4 x Nyquist
+    assert 10.0 <= doc["processing"]["lowpass"]["cutoff_hz"] <= 15.0
     assert main(["init", "builtin:shang2dof", str(tmp_path / "log.csv"), "--out", str(cfg), "--rate", "15", "--force"]) == 0
     assert tomllib.loads(cfg.read_text())["processing"]["lowpass"]["cutoff_hz"] == 3.0
 

@@ -26,7 +26,7 @@ from dynid._typing import FloatArray
 from dynid.config import TIME_UNITS, RobotConfig, parse_config
 from dynid.errors import ConfigError, InputError
 from dynid.io.readers import TableReader
-from dynid.pipeline.processing_choice import (MIN_CUTOFF_HZ, NOISE_SIGMAS, STEP_RATIO, DerivedProcessing,  # noqa: F401
+from dynid.pipeline.processing_choice import (BAND_FACTOR, MIN_CUTOFF_HZ, NOISE_SIGMAS, STEP_RATIO, DerivedProcessing,  # noqa: F401
                                              cutoff_for, derive_processing, motion_bandwidth_hz, round2)
 
 __all__ = ["StartingConfig", "starting_config", "write_starting_config"]
@@ -506,10 +506,11 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
         fe = False  # the parallel decimation filters the efforts, with the regressor (below)
     lines += [
         f"lowpass = {{ cutoff_hz = {cutoff!r}, order = 4, filter_effort = {str(fe).lower()} }}",
-        f"# cut-off: 10 x the motion's bandwidth ({max(band, vband):.3g} Hz: 99 % of the velocity power below it, {band:.3g} Hz",
+        f"# cut-off: {BAND_FACTOR:g} x the motion's bandwidth ({max(band, vband):.3g} Hz: 99 % of the velocity power below it, "
+        f"{band:.3g} Hz",
         f"# of the position power), within [{MIN_CUTOFF_HZ:g} Hz, fs/5 = {cap:.4g} Hz] (0.4 x Nyquist {fs / 2:.4g} Hz); paper 001",
-        "# Sec. 3 asks for 10 x the position loop's bandwidth, which the motion's velocities stand in for (the",
-        "# regressor is made of velocities and accelerations): raise it if you know the loop's.",
+        "# Sec. 3 asks for more than 10 x the position loop's bandwidth, which the motion's velocities stand in for",
+        "# (the regressor is made of velocities and accelerations): set it from the loop's if you know it.",
     ]
     if parallel_decimation:
         lines.append("# filter_effort = false: the efforts are filtered by the parallel decimation below, with the regressor; "
