@@ -49,6 +49,7 @@ from dynid.io.output import staged_output
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System, as_system
 from dynid.pipeline import stribeck
+from dynid.pipeline import experiments as _experiments
 from dynid.pipeline.covariance import block_builder, with_covariance
 from dynid.pipeline.data import (
     build_system,
@@ -579,6 +580,10 @@ class IdentifyOutcome:
                 lines += ["nominal model, the same view", o.nominal.table()]
         if self.learning is not None:
             lines += self.learning.summary_lines()
+        prov = self.result.provenance
+        if "experiments" in prov or "validation_logs" in prov:
+            lines += _experiments.summary_lines(prov.get("experiments", []), prov.get("validation_logs"),
+                                                prov.get("validation_pooled"))
         if self.data_path is not None:
             lines += ["", f"Data path: {self.data_path['mode']} ({self.data_path['reason']})"]
         if self.warnings:
@@ -1295,7 +1300,16 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     readers = dict(readers or {})
     from dynid.pipeline import streaming
 
+    several = len(cfg.training_logs) > 1
+    _experiments.check_several(cfg, structure_decided=auto is not None)
+    for i, spec in enumerate(cfg.training_logs[1:], start=1):
+        check_units(spec, kinds, names, f"data[{i}]")
+    for i, spec in enumerate(cfg.validation_logs[1:], start=1):
+        check_units(spec, kinds, names, f"validation[{i}]")
     streams, data_path = streaming.plan(cfg, system, readers)
+    if streams is not None and several:
+        raise ConfigError(f"data: {len(cfg.training_logs)} [[data]] experiments, but the training log is streamed "
+                          f"({data_path.get('reason')}); several experiments are held in memory, one at a time")
     if streams is not None:
         if cfg.identification.structure == "auto":  # no decision on a stream (below): the full model
             cfg0, cfg = _explicit_structure(cfg0, "full", None), _explicit_structure(cfg, "full", None)
@@ -1342,6 +1356,9 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
             with_gains = dataclasses.replace(cfg0, robot=dataclasses.replace(cfg0.robot, drive_gains=tuple(est["value"])))
             return _identify(with_gains, progress, readers, jobs, gains=est)
         gains = est  # reported, not used
+    if several and raw_train.meta["effort_kind"] == "current" and cfg0.robot.drive_gains is None:
+        raise ConfigError("robot.drive_gains: several [[data]] experiments measure currents; give the drive gains "
+                          "(they are estimated from one log only)")
     smoothing = _coulomb_smoothing(icfg.coulomb_smoothing, train_a, pcfg, system)
     if smoothing is not None:
         system = system.with_coulomb_width(smoothing["width"])
@@ -1381,6 +1398,9 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
         result, fj, worst = _stribeck_fit(cfg, system, base, train, force_model, periodic, progress, meta)
     elif icfg.method in ("iv", "didim"):
         result, worst = _control_loop(cfg, system, base, train, force_model, parallel, meta, progress)
+    elif several:
+        result, worst = _several(cfg, system, base, train, steps, raw_train.meta, force_model, parallel, meta, progress,
+                                 names, readers)
     else:
         blocks = block_builder(icfg.covariance, base.names, channels, n_eff)
         problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
@@ -1423,6 +1443,9 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     scored = score_held_out(cfg0, cfg, system, base, result, force_model, pcfg, held_out, valid_a, fj, periodic,
                             parallel, progress)
     metrics, prior, other, selected, full = scored
+    if several or len(cfg.validation_logs) > 1:
+        result = _per_log_validation(cfg, system, base, result, force_model, pcfg, metrics, parallel, names, readers,
+                                     progress)
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     learned = None
@@ -1446,6 +1469,52 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
                            other_view=other, selected=selected, full_rate=full, learning=learned,
                            units=effort_units(system, force_model, raw_train.meta["effort_kind"]), prediction=prediction,
                            data_path={**data_path, "training_samples": train.n_samples}, structure=structure)
+
+
+def _several(cfg: Config, system: System, base: BaseParameters, train: Dataset, steps, raw_meta, force_model, parallel,
+             meta, progress, names, readers) -> tuple[IdentificationResult, float]:
+    """The ``[[data]]`` experiments, each processed and compressed on its own, their factors stacked
+    (:mod:`dynid.pipeline.experiments`); the configured estimator (OLS or WLS) on the stacked factors."""
+    pcfg, icfg = cfg.processing, cfg.identification
+    worst = [0.0]
+
+    def compress(ds: Dataset) -> RegressionProblem:
+        problem, w = _compress(system, base, ds, force_model=force_model, min_velocity=pcfg.min_velocity,
+                               parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress, meta=meta,
+                               cross=False, periodic=None, min_velocity_passive=pcfg.min_velocity_passive,
+                               reversal_guard=pcfg.reversal_guard_s())
+        worst[0] = max(worst[0], w)
+        return problem
+
+    def read(spec, label: str):
+        raw = read_log(spec, system.n_actuators, names, label, readers)
+        a, _ = to_actuator_space(raw, system, label)
+        ds, st = preprocess(a, pcfg, label)
+        check_joint_motion(ds, system, icfg.min_joint_motion, label)
+        return ds, st, raw.meta
+
+    first = _experiments.Experiment(0, cfg.training_logs[0], train, compress(train), dict(raw_meta), steps)
+    exps = _experiments.build_experiments(cfg, first, compress, read)
+    stacked = _experiments.stack(exps)
+    nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
+    estimator = configured_estimator(icfg, steps, stacked.channel_names, tuple(names), nominal)
+    return _experiments.collapse(estimator.fit(stacked), stacked, exps), worst[0]
+
+
+def _per_log_validation(cfg: Config, system: System, base: BaseParameters, result: IdentificationResult, force_model,
+                        pcfg, first: ValidationMetrics, parallel, names, readers, progress) -> IdentificationResult:
+    """A held-out table per ``[[validation]]`` log (each processed on its own) and the pooled one."""
+    per_log = [_experiments.validation_record("validation[0]", cfg.validation_logs[0], first)]
+    for i, spec in enumerate(cfg.validation_logs[1:], start=1):
+        label = f"validation[{i}]"
+        raw = read_log(spec, system.n_actuators, names, label, readers)
+        a, _ = to_actuator_space(raw, system, label)
+        ds, _ = preprocess(a, pcfg, label)
+        m = validate(result, system, base, ds, force_model=force_model, parallel_decimate=parallel,
+                     chunk_size=cfg.identification.chunk_size, progress=progress)
+        per_log.append(_experiments.validation_record(label, spec, m))
+    pooled = _experiments.pooled_validation(per_log, first.channel_names)
+    return result.with_provenance(validation_logs=per_log, validation_pooled=pooled)
 
 
 def _chart_from_log(cfg0: Config, cfg: Config, system: System, train: Dataset,
