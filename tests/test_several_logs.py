@@ -60,10 +60,10 @@ def logs(tmp_path_factory):
     return d, truth, names
 
 
-def _table(path) -> dict:
+def _table(path, measured: bool = True) -> dict:
     sig = lambda p: {"columns": [f"{p}_{j}" for j in JOINTS]}  # noqa: E731
-    return {"file": str(path), "time": {"column": "t"}, "position": sig("q"), "velocity": sig("dq"),
-            "acceleration": sig("ddq"), "effort": sig("tau")}
+    states = {"velocity": sig("dq"), "acceleration": sig("ddq")} if measured else {}
+    return {"file": str(path), "time": {"column": "t"}, "position": sig("q"), **states, "effort": sig("tau")}
 
 
 def _doc(d, **identification) -> dict:
@@ -74,7 +74,125 @@ def _doc(d, **identification) -> dict:
             "identification": {"method": "wls", **identification}, "output": {"plots": False}}
 
 
-def test_smoke(logs):
-    d, truth, _ = logs
-    out = identify(parse_config(_doc(d), d))
-    print(out.summary_text())
+def _rows(cfg, base, cols):
+    """Dense base-regressor rows (n, joints, p) and efforts (n, joints) of a log, straight from the model."""
+    system = build_system(cfg.robot)
+    q, dq, ddq, tau = (np.column_stack([cols[f"{p}_{j}"] for j in JOINTS]) for p in ("q", "dq", "ddq", "tau"))
+    r = system.rows(None)(q, dq, ddq, tau, 0)
+    return base.regressor(r.W), r.y
+
+
+@pytest.mark.numerics
+def test_several_logs_are_the_wls_of_their_stacked_rows_and_cover_the_truth(logs, tmp_path):
+    d, truth, cols = logs
+    cfg = parse_config(_doc(d), d)
+    out = identify(cfg)
+    res = out.result
+    # independent route: dense rows of each log, pooled OLS, a noise variance per (log, joint) from its
+    # residuals (dof: rows - parameters acting on the joint), then the weighted solve of everything stacked
+    blocks = [_rows(cfg, out.base, cols[n]) for n in ("a", "b")]
+    A = np.vstack([W[:, j, :] for W, _ in blocks for j in range(3)])
+    y = np.concatenate([Y[:, j] for _, Y in blocks for j in range(3)])
+    beta_ols = np.linalg.lstsq(A, y, rcond=None)[0]
+    w = []
+    for W, Y in blocks:
+        for j in range(3):
+            Wj = W[:, j, :]
+            rank = np.count_nonzero(np.linalg.norm(Wj, axis=0) > 1e-10 * np.linalg.norm(Wj, axis=0).max())
+            w.append(np.full(len(Y), 1.0 / np.sqrt(np.sum((Y[:, j] - Wj @ beta_ols) ** 2) / (len(Y) - rank))))
+    w = np.concatenate(w)
+    beta = np.linalg.lstsq(A * w[:, None], y * w, rcond=None)[0]
+    # two solves of the same weighted problem differ by ~cond * eps relative to |beta| (backward-stable QR)
+    cond = np.linalg.cond(A * w[:, None])
+    assert np.linalg.norm(res.params - beta) <= 1e3 * cond * np.finfo(float).eps * np.linalg.norm(beta)
+    # the weights: each log's noise level, not one per joint for both (0.02 and 0.4 N*m; 1001 rows a joint, a
+    # relative std of 1/sqrt(2 n) = 2.2 %, and the model's small mismatch near velocity reversals: 60 % margin)
+    exps = res.provenance["experiments"]
+    assert [e["payload"] for e in exps] == [None, False]
+    for e, sigma in zip(exps, SIGMAS):
+        np.testing.assert_allclose(e["noise_std"], sigma, rtol=0.6)
+        assert e["rows_used"] == [1001] * 3 and e["rate_hz"] == pytest.approx(200.0)
+    assert exps[1]["noise_std"][0] > 5 * exps[0]["noise_std"][0]
+    # truth: Bonferroni family of 99.9 % for all base parameters (exact states, white noise: normal z-scores)
+    names = truth["base_parameters"]["names"]
+    assert tuple(names) == tuple(res.names)
+    z = (res.params - np.asarray(truth["base_parameters"]["true_values"])) / res.bse
+    assert np.max(np.abs(z)) < stats.norm.ppf(1 - 0.0005 / len(z)), dict(zip(names, np.round(z, 2)))
+    # outside the 95 % intervals: at most the binomial 99.9 % quantile of p draws at 5 %
+    assert np.sum(np.abs(z) > 1.96) <= stats.binom.ppf(0.999, len(z), 0.05)
+    # result.json and summary.txt carry the experiments and the per-log validation tables
+    from dynid.pipeline.identification import write_outputs
+    import json
+
+    write_outputs(out, tmp_path / "out")
+    doc = json.loads((tmp_path / "out" / "result.json").read_text())
+    prov = doc["result"]["provenance"] if "result" in doc else doc["provenance"]
+    assert [Path(e["files"][0]).name for e in prov["experiments"]] == ["a.npz", "b.npz"]
+    assert [v["label"] for v in prov["validation_logs"]] == ["validation[0]", "validation[1]"]
+    summary = (tmp_path / "out" / "summary.txt").read_text()
+    assert "Experiments ([[data]])" in summary and "validation[1]" in summary and "pooled" in summary
+
+
+@pytest.mark.numerics
+def test_per_log_validation_tables_and_the_pooled_one(logs):
+    d, _, cols = logs
+    cfg = parse_config(_doc(d), d)
+    out = identify(cfg)
+    res = out.result
+    per_log, pooled = res.provenance["validation_logs"], res.provenance["validation_pooled"]
+    errs = []
+    for v, n in zip(per_log, ("va", "vb")):  # each log's table = its own dense residuals
+        W, Y = _rows(cfg, out.base, cols[n])
+        e = Y - np.einsum("njp,p->nj", W, res.params)
+        errs.append(e)
+        np.testing.assert_allclose(v["rmse"], np.sqrt(np.mean(e**2, axis=0)), rtol=1e-9)
+        assert v["rows"] == [len(e)] * 3
+    # pooled: the sum of squared errors over both logs' rows; RMSE^2 = row-weighted mean of the logs' MSEs
+    np.testing.assert_allclose(pooled["rmse"], np.sqrt(np.mean(np.vstack(errs) ** 2, axis=0)), rtol=1e-9)
+    n = np.array([v["rows"] for v in per_log], float)
+    mse = np.array([v["rmse"] for v in per_log]) ** 2
+    np.testing.assert_allclose(np.square(pooled["rmse"]), (n * mse).sum(0) / n.sum(0), rtol=1e-12)
+    # the noisy log's held-out error is its noise (0.4 N*m), the clean one's 0.02: the tables differ
+    assert np.all(np.array(per_log[1]["rmse"]) > 5 * np.array(per_log[0]["rmse"]))
+
+
+@pytest.mark.numerics
+def test_a_filter_across_the_join_of_concatenated_logs_changes_the_estimate(logs, tmp_path):
+    """The naive route: the two logs concatenated by hand (b's time following a's) and differentiated and
+    low-passed as one log: the filter runs across the join, where the positions jump."""
+    d, _, cols = logs
+    a, b = cols["a"], cols["b"]
+    dt = a["t"][1] - a["t"][0]
+    joined = {k: np.concatenate([a[k], b[k] + (a["t"][-1] + dt - b["t"][0]) if k == "t" else b[k]]) for k in a}
+    from dynid._files import save_npz
+
+    save_npz(tmp_path / "joined.npz", joined)
+    processing = {"derivatives": "central", "lowpass": {"cutoff_hz": 10.0}, "trim_samples": 10}
+    doc = {**_doc(d), "processing": processing, "data": [_table(d / "a.npz", False), _table(d / "b.npz", False)],
+           "validation": _table(d / "va.npz", False)}
+    several = identify(parse_config(doc, d)).result
+    single = identify(parse_config({**doc, "data": _table(tmp_path / "joined.npz", False)}, d)).result
+    # the join: the positions jump by |q_b(0) - q_a(end)|; differentiated and filtered across it, the
+    # accelerations there are spikes no motion had: the estimates differ by many standard errors
+    jump = np.abs([b[f"q_{j}"][0] - a[f"q_{j}"][-1] for j in JOINTS]).max()
+    assert jump > 0.05
+    z = np.abs(single.params - several.params) / several.bse
+    assert z.max() > 10, z
+
+
+def test_methods_that_cannot_stack_experiments_refuse_them(logs, tmp_path):
+    d, _, _ = logs
+    for ident, word in (({"method": "iv"}, "method = 'iv'"), ({"method": "ml"}, "method = 'ml'"),
+                        ({"method": "gm"}, "method = 'gm'"), ({"method": "ols", "covariance": "hac"}, "covariance")):
+        with pytest.raises(ConfigError, match=word) as e:
+            identify(parse_config(_doc(d, **ident), d))
+        assert "\n" not in str(e.value) and "[[data]] experiments" in str(e.value)
+    doc = _doc(d)
+    doc["processing"] = {**doc["processing"], "periodic": {"period_s": 5.0}}
+    with pytest.raises(ConfigError, match="processing.periodic"):
+        identify(parse_config(doc, d))
+    # a single [data] table in an array keeps the single-log path (no experiments in the result)
+    one = _doc(d)
+    one["data"], one["validation"] = one["data"][:1], one["validation"][:1]
+    res = identify(parse_config(one, d)).result
+    assert "experiments" not in res.provenance

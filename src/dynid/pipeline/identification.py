@@ -1286,6 +1286,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
                          "reason": f"identification.structure = {cfg.identification.structure!r}",
                          **({"chains": [[list(c) for c in g] for g in system.reduction.chains]}
                             if system.reduction is not None else {})}
+    _experiments.check_several(cfg, structure_decided=auto is not None)  # before the methods' own checks
     force_model = _check_config(cfg, system)
     icfg, pcfg = cfg.identification, cfg.processing
     if cfg.learning is not None:
@@ -1301,7 +1302,6 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     from dynid.pipeline import streaming
 
     several = len(cfg.training_logs) > 1
-    _experiments.check_several(cfg, structure_decided=auto is not None)
     for i, spec in enumerate(cfg.training_logs[1:], start=1):
         check_units(spec, kinds, names, f"data[{i}]")
     for i, spec in enumerate(cfg.validation_logs[1:], start=1):
