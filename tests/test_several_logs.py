@@ -196,3 +196,53 @@ def test_methods_that_cannot_stack_experiments_refuse_them(logs, tmp_path):
     one["data"], one["validation"] = one["data"][:1], one["validation"][:1]
     res = identify(parse_config(one, d)).result
     assert "experiments" not in res.provenance
+
+
+def test_the_several_logs_example_runs_as_the_readme_says(tmp_path):
+    """README "Several logs in one identification": the three commands, as written there, in a copy of the folder."""
+    import json
+    import shutil
+
+    from conftest import run_dynid
+
+    ex = tmp_path / "several_logs"
+    shutil.copytree(ROOT / "examples" / "several_logs", ex)
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("## Several logs in one identification"):]
+    block = section[section.index("```bash") + 7:section.index("```", section.index("```bash") + 7)]
+    commands = [line.split("#")[0].split()[1:] for line in block.strip().splitlines() if line.startswith("dynid ")]
+    assert len(commands) == 3
+    for args in commands:
+        p = run_dynid(args, ex)
+        assert p.returncode == 0, p.stderr
+    doc = json.loads((ex / "id" / "result.json").read_text())
+    prov = doc["result"]["provenance"] if "result" in doc else doc["provenance"]
+    clean, noisy = (np.array(e["noise_std"]) for e in prov["experiments"])
+    # the noisy run adds 1.0 N*m of white noise, low-passed at 15 Hz of a 50 Hz band: about 1.0^2 * 15/50 = 0.3
+    # N^2 m^2 more variance than the clean run (a factor 2 either way: the two motions' own processing errors
+    # and the filter's transition band)
+    extra = noisy**2 - clean**2
+    assert np.all((extra > 0.15) & (extra < 0.6)), extra
+    per_log, pooled = prov["validation_logs"], prov["validation_pooled"]
+    n = np.array([v["rows"] for v in per_log], float)
+    np.testing.assert_allclose(np.square(pooled["rmse"]),
+                               (n * np.square([v["rmse"] for v in per_log])).sum(0) / n.sum(0), rtol=1e-12)
+    summary = (ex / "id" / "summary.txt").read_text()
+    assert "Held-out error per validation log" in summary and "the identified model beats the nominal model" in summary
+
+
+def test_the_cli_refuses_in_one_line(logs, tmp_path):
+    from conftest import run_dynid
+
+    d, _, _ = logs
+    sig = lambda p: "{ columns = [" + ", ".join(f'"{p}_{j}"' for j in JOINTS) + "] }"  # noqa: E731
+    table = lambda n: (f'file = "{d / n}"\ntime = {{ column = "t" }}\nposition = {sig("q")}\n'  # noqa: E731
+                       f'velocity = {sig("dq")}\nacceleration = {sig("ddq")}\neffort = {sig("tau")}\n')
+    text = (f'[robot]\nmodel = "{URDF}"\nrotor_inertia = [0.05, 0.04, 0.02]\n\n[[data]]\n{table("a.npz")}\n'
+            f'[[data]]\n{table("b.npz")}\n[validation]\n{table("va.npz")}\n'
+            '[processing]\nderivatives = "measured"\ntrim_samples = 0\n\n[identification]\nmethod = "didim"\n')
+    (tmp_path / "c.toml").write_text(text)
+    p = run_dynid(["identify", str(tmp_path / "c.toml"), "--out", str(tmp_path / "id")], tmp_path)
+    assert p.returncode == 2 and p.stderr.startswith("dynid: error: data: 2 [[data]] experiments, but "
+                                                     "identification.method = 'didim'"), p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1 and not (tmp_path / "id").exists()
