@@ -131,6 +131,20 @@ def test_several_logs_are_the_wls_of_their_stacked_rows_and_cover_the_truth(logs
     assert [v["label"] for v in prov["validation_logs"]] == ["validation[0]", "validation[1]"]
     summary = (tmp_path / "out" / "summary.txt").read_text()
     assert "Experiments ([[data]])" in summary and "validation[1]" in summary and "pooled" in summary
+    # dynid predict with the two validation logs as [[data]]: each scored on its own as identify scored it
+    from dynid.pipeline.predict import predict_logs, write_predictions
+
+    sig = lambda p: "{ columns = [" + ", ".join(f'"{p}_{j}"' for j in JOINTS) + "] }"  # noqa: E731
+    (tmp_path / "logs.toml").write_text("".join(
+        f'[[data]]\nfile = "{d / n}"\ntime = {{ column = "t" }}\nposition = {sig("q")}\nvelocity = {sig("dq")}\n'
+        f'acceleration = {sig("ddq")}\neffort = {sig("tau")}\n\n' for n in ("va.npz", "vb.npz")))
+    outcomes, per_log, pooled = predict_logs(tmp_path / "out", tmp_path / "logs.toml")
+    for mine, theirs in zip(per_log, prov["validation_logs"]):
+        np.testing.assert_allclose(mine["rmse"], theirs["rmse"], rtol=1e-9)  # the same model, rows and processing
+    np.testing.assert_allclose(pooled["rmse"], prov["validation_pooled"]["rmse"], rtol=1e-9)
+    written = write_predictions(outcomes, per_log, pooled, tmp_path / "pred", plots=False)
+    assert written == ["predict.json", "summary.txt"]
+    assert "pooled" in (tmp_path / "pred" / "summary.txt").read_text()
 
 
 @pytest.mark.numerics
@@ -229,6 +243,8 @@ def test_the_several_logs_example_runs_as_the_readme_says(tmp_path):
                                (n * np.square([v["rmse"] for v in per_log])).sum(0) / n.sum(0), rtol=1e-12)
     summary = (ex / "id" / "summary.txt").read_text()
     assert "Held-out error per validation log" in summary and "the identified model beats the nominal model" in summary
+    report = (ex / "id" / "report.html").read_text()
+    assert "Experiments ([[data]])" in report and "<td>validation[1]</td>" in report and "pooled" in report
 
 
 def test_the_cli_refuses_in_one_line(logs, tmp_path):

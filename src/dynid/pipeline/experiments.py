@@ -173,7 +173,7 @@ def validation_record(label: str, spec: DataConfig, metrics) -> dict[str, Any]:
 def summary_lines(records: list[dict[str, Any]], per_log: list[dict[str, Any]] | None,
                   pooled: dict[str, Any] | None) -> list[str]:
     """summary.txt's per-experiment and per-validation-log tables."""
-    out = ["", "Experiments ([[data]])"]
+    out = ["", "Experiments ([[data]])"] if records else []
     for r in records:
         out.append(f"  data[{r['index']}] {', '.join(Path(f).name for f in r['files'])}: {r['samples_processed']} samples "
                    f"at {r['rate_hz']:.6g} Hz, rows used {r['rows_used']}, noise std "
