@@ -7,7 +7,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import platform
-import time
 from typing import Any
 import numpy as np
 from dynid import __version__
