@@ -5,10 +5,13 @@ several [[data]] experiments are refused for them (:func:`dynid.pipeline.experim
 :mod:`dynid.pipeline.identification`."""
 
 from __future__ import annotations
+
 import dataclasses
 from collections.abc import Iterator
 from typing import Any
+
 import numpy as np
+
 from dynid._typing import FloatArray
 from dynid.config import Config
 from dynid.dataset import Dataset
@@ -17,8 +20,8 @@ from dynid.estimation import IdentificationResult, ProblemBuilder
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System
 from dynid.pipeline import stribeck
-from dynid.pipeline.rows import Progress, _no_progress, Chunk, _chunks, row_mask, _compress
 from dynid.pipeline.data import (configured_estimator, ml_covariances, preprocess, reversal_keep, velocity_mask, velocity_noise_std)
+from dynid.pipeline.rows import Progress, _no_progress, Chunk, _chunks, row_mask, _compress
 from dynid.signals import padlen_for
 
 

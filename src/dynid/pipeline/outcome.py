@@ -4,11 +4,14 @@
 Re-exported by :mod:`dynid.pipeline.identification`."""
 
 from __future__ import annotations
+
 import dataclasses
 import functools
 import platform
 from typing import Any
+
 import numpy as np
+
 from dynid import __version__
 from dynid._typing import FloatArray
 from dynid.config import Config

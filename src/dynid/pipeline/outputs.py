@@ -3,10 +3,13 @@
 Re-exported by :mod:`dynid.pipeline.identification`."""
 
 from __future__ import annotations
+
 import csv
 from pathlib import Path
 from typing import Any
+
 import numpy as np
+
 from dynid._files import TIMING_FILE, write_timing
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
@@ -14,8 +17,8 @@ from dynid.estimation.validation import ValidationMetrics, prior_comparison
 from dynid.io.output import staged_output
 from dynid.model.system import as_system
 from dynid.pipeline import stribeck
-from dynid.pipeline.reporting import parameter_flags, run_facts
 from dynid.pipeline.outcome import FullRate, IdentifyOutcome, SelectedRows
+from dynid.pipeline.reporting import parameter_flags, run_facts
 
 
 OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",

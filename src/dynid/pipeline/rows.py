@@ -4,10 +4,13 @@ and the per-channel QR factors (:func:`build_problem`, :func:`_compress`) that e
 (:mod:`dynid.pipeline.experiments`). Re-exported by :mod:`dynid.pipeline.identification`."""
 
 from __future__ import annotations
+
 import dataclasses
 from collections.abc import Callable, Iterator
 from typing import Any
+
 import numpy as np
+
 from dynid._typing import FloatArray
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, IdentifiabilityError, InputError
