@@ -6,12 +6,12 @@ compressed on its own into per-channel QR factors (:class:`~dynid.estimation.pro
 No log is ever concatenated raw with another, so no filter runs across the join of two logs.
 
 The experiments enter the estimator as *stacked factors*: the problem whose channels are the pairs
-(experiment, channel), ``"<i>:<channel>"``. Weighted least squares on it is Gautier's WLS (Gautier &
-Poignet 2001; FIGAROH, paper 001 Eq. 15-16: weights 1/sigma^2 of each block of equations, sigma^2 from the
-OLS residuals of that block) with the blocks of equations being one channel of one experiment: a noise
-variance per (experiment, channel), so a noisy log weighs less than a clean one. The OLS whose residuals give
-the variances is the pooled one over every experiment (an experiment alone need not excite every base
-parameter). The estimate is then mapped back to the robot's channels (:func:`collapse`): the per-experiment
+(experiment, channel), ``"<i>:<channel>"``. Weighted least squares on it is Gautier's WLS as paper 001 writes
+it (Shang, Cong, Kong 2009, Eqs. 14-16: sigma_j = ||rho_j|| / sqrt(r_j - p_j) from the least-squares residual
+of each block j of equations, rows weighted by G = diag(1/sigma_j), the LS of the weighted system) with the
+blocks being one channel of one experiment: a noise variance per (experiment, channel), so a noisy log weighs
+less than a clean one. The residuals are those of the OLS fit pooled over every experiment (an experiment
+alone need not excite every base parameter), p_j the parameters acting on the channel. The estimate is then mapped back to the robot's channels (:func:`collapse`): the per-experiment
 noise levels stay in ``provenance["experiments"]``.
 
 Methods that cannot take several experiments yet refuse them (:func:`check_several`)."""
