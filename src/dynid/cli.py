@@ -446,11 +446,21 @@ def _cmd_init(args: argparse.Namespace) -> int:
 
 def _cmd_predict(args: argparse.Namespace) -> int:
     _check_out(args.out)
-    from dynid.pipeline.predict import load_saved, predict, write_prediction
+    from dynid.pipeline.predict import load_saved, log_count, predict, predict_logs, write_prediction, write_predictions
 
     load_saved(args.result)  # a missing or older result is refused before the log is read
     if args.processing_from is not None:
         load_saved(args.processing_from)
+    if log_count(args.log_config) > 1:  # [[data]]: each log scored on its own, and the pooled table
+        if args.processing_from is not None:
+            raise InputError("--processing-from with several [[data]] logs: score them one log config at a time")
+        with _progress_bar(not args.quiet) as progress:
+            outcomes, per_log, pooled = predict_logs(args.result, args.log_config, progress)
+        written = write_predictions(outcomes, per_log, pooled, args.out, plots=not args.no_plots)
+        if not args.quiet:
+            print((Path(args.out) / "summary.txt").read_text())
+        print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+        return EXIT_OK
     with _progress_bar(not args.quiet) as progress:
         outcome = predict(args.result, args.log_config, progress, processing_from=args.processing_from)
     written = write_prediction(outcome, args.out, plots=not args.no_plots)

@@ -126,6 +126,7 @@ class DataConfig:
     header: bool = True  # CSV: False reads a headerless file whose columns are named by index (0, 1, ...)
     topic: str | None = None  # ROS bags: the JointState topic of every signal without its own topic
     bag: bool = False  # file is a ROS bag (dynid.io.bags): columns are joint names, time the messages' stamps
+    payload: bool | None = None  # [[data]] payload = true|false: the experiment carries the payload (None: not said)
 
     def files(self) -> tuple[Path, ...]:
         """Every file this spec reads."""
@@ -336,6 +337,20 @@ class Config:
     source: Path | None = None
     learning: Any = None  # dynid.learning.LearningConfig: [learning] (config/learning.py), None without
     raw: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    # [[data]] / [[validation]] (arrays of tables): every experiment, ``data`` / ``validation`` their first;
+    # empty with a single [data] / [validation] table (dynid.pipeline.experiments)
+    experiments: tuple[DataConfig, ...] = ()
+    validations: tuple[DataConfig, ...] = ()
+
+    @property
+    def training_logs(self) -> tuple[DataConfig, ...]:
+        """Every training experiment: the [[data]] entries, or the single [data]."""
+        return self.experiments or (self.data,)
+
+    @property
+    def validation_logs(self) -> tuple[DataConfig, ...]:
+        """Every held-out log: the [[validation]] entries, or the single [validation]."""
+        return self.validations or (self.validation,)
 
 
 # ---------------------------------------------------------------------- parsing
@@ -819,11 +834,88 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
     doc = _table(dict(doc), "config", {"robot", "data", "validation", "processing", "identification", "output", "learning",
                                        "data_root"}, {"robot", "data", "validation"})
     data_base = data_root(doc, base_dir)
-    data_t = _table(doc["data"], "data", _DATA_KEYS)
-    val_t = doc["validation"]
-    if not isinstance(val_t, dict):
-        raise ConfigError("validation: expected a table")
-    _reject_unknown(val_t, "validation", _DATA_KEYS)
+    data_list, val_list = _tables_or_array(doc["data"], "data"), _tables_or_array(doc["validation"], "validation")
+    many = isinstance(doc["data"], list) or isinstance(doc["validation"], list)
+    method = doc.get("identification", {}).get("method") if isinstance(doc.get("identification"), dict) else None
+    if len(data_list) > 1 and method in ("iv", "didim", "ml", "gm"):  # before the methods' own checks
+        raise ConfigError(f"data: {len(data_list)} [[data]] experiments, but identification.method = {method!r} (only "
+                          "'ols' and 'wls' stack experiments' factors; iv/didim run the control loop over one log, ml "
+                          "cuts one log's filter, gm needs one log's cross-channel factor); give one [data] table")
+    payloads = []
+    for i, t in enumerate(data_list):
+        where = f"data[{i}]" if isinstance(doc["data"], list) else "data"
+        payloads.append(_bool(t.pop("payload"), f"{where}.payload") if "payload" in t else None)
+    experiments = tuple(dataclasses.replace(_parse_data(t, f"data[{i}]", data_base), payload=pl)
+                        for i, (t, pl) in enumerate(zip(data_list, payloads))) if many else ()
+    validations = tuple(_validation_spec(data_list[0], v, data_base, f"validation[{i}]")
+                        for i, v in enumerate(val_list)) if many else ()
+    if many:
+        for i, v in enumerate(validations):
+            for j, d in enumerate(experiments):
+                _check_held_out_windows(d, v, f"data[{j}]", f"validation[{i}]")
+    data, validation = _validation_pair(data_list[0], val_list[0], data_base)
+    if payloads[0] is not None:
+        data = dataclasses.replace(data, payload=payloads[0])
+    out_t = _table(doc.get("output", {}), "output", {"plots"})
+    processing = _parse_processing(doc.get("processing", {}))
+    for label, spec in (("data", data), ("validation", validation), *((f"data[{i}]", d) for i, d in enumerate(experiments)),
+                        *((f"validation[{i}]", d) for i, d in enumerate(validations))):
+        given = [k for k in ("velocity", "acceleration") if getattr(spec, k) is not None]
+        if given and processing.derivatives != "measured":
+            raise ConfigError(f"{label}.{given[0]} columns are given but processing.derivatives = "
+                              f"{processing.derivatives!r} differentiates the positions and would ignore them: "
+                              "set processing.derivatives = 'measured' or drop them")
+    return Config(
+        robot=_parse_robot(doc["robot"], base_dir),
+        data=data,
+        validation=validation,
+        processing=processing,
+        identification=_parse_identification(doc.get("identification", {}), base_dir),
+        output=OutputConfig(plots=_bool(out_t.get("plots", True), "output.plots")),
+        source=source,
+        raw=doc,
+        learning=_learning(doc.get("learning")),
+        experiments=experiments,
+        validations=validations,
+    )
+
+
+def _tables_or_array(v: Any, where: str) -> list[dict[str, Any]]:
+    """``[where]`` (one table) or ``[[where]]`` (a non-empty array of tables), as a list of copies."""
+    if isinstance(v, list):
+        if not v:
+            raise ConfigError(f"{where}: an empty array; give at least one [[{where}]] table")
+        for i, t in enumerate(v):
+            if not isinstance(t, dict):
+                raise ConfigError(f"{where}[{i}]: expected a table, got {type(t).__name__}")
+        return [dict(t) for t in v]
+    if not isinstance(v, dict):
+        raise ConfigError(f"{where}: expected a table, got {type(v).__name__}")
+    return [dict(v)]
+
+
+def _validation_spec(data_t: Mapping[str, Any], val_t: Mapping[str, Any], data_base: Path, where: str) -> DataConfig:
+    """A held-out log's spec: its keys over the (first) training table's, as for a single [validation]."""
+    return _parse_data(_inherit(dict(data_t), dict(val_t), data_base, where), where, data_base)
+
+
+def _check_held_out_windows(data: DataConfig, validation: DataConfig, dl: str, vl: str) -> None:
+    """A held-out log reading a training file holds out other samples."""
+    if set(validation.files()) != set(data.files()):
+        return
+    if validation.rows is None and validation.time_window is None:
+        raise ConfigError(f"{vl}: uses the training file of {dl} without 'rows' or 'time_window'; hold out samples")
+    if data.rows is None and data.time_window is None:
+        raise ConfigError(f"{dl}: training uses the whole file that {vl} also reads; set rows or time_window")
+    if (data.rows is None) != (validation.rows is None):
+        raise ConfigError(f"{dl} and {vl} windows must both be 'rows' or both 'time_window'")
+    a, b = (data.rows, validation.rows) if data.rows is not None else (data.time_window, validation.time_window)
+    if a[0] < b[1] and b[0] < a[1]:
+        raise ConfigError(f"{vl} window {list(b)} overlaps the training window {list(a)} of {dl}")
+
+
+def _inherit(data_t: dict[str, Any], val_t: dict[str, Any], data_base: Path, where: str = "validation") -> dict[str, Any]:
+    _reject_unknown(val_t, where, _DATA_KEYS)
     inherited = {k: v for k, v in data_t.items() if k not in ("rows", "time_window")}
     # A time source given in [validation] replaces the inherited one (time column or rate).
     if "sample_rate_hz" in val_t:
@@ -845,8 +937,15 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
                 for key in ("position", "effort", "velocity"):
                     if isinstance(inherited.get(key), dict):
                         inherited[key] = {k: v for k, v in inherited[key].items() if k != "topic"}
+    return {**inherited, **val_t}
+
+
+def _validation_pair(data_t: dict[str, Any], val_t: dict[str, Any], data_base: Path) -> tuple[DataConfig, DataConfig]:
+    """The single [data] / [validation] pair (with [[...]] arrays: their first entries)."""
+    data_t = _table(data_t, "data", _DATA_KEYS)
+    merged = _inherit(data_t, val_t, data_base)
     data = _parse_data(data_t, "data", data_base)
-    validation = _parse_data({**inherited, **val_t}, "validation", data_base)
+    validation = _parse_data(merged, "validation", data_base)
     if set(validation.files()) == set(data.files()):
         if validation.rows is None and validation.time_window is None:
             raise ConfigError("validation: uses the training file without 'rows' or 'time_window'; hold out samples")
@@ -857,25 +956,7 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
         a, b = (data.rows, validation.rows) if data.rows is not None else (data.time_window, validation.time_window)
         if a[0] < b[1] and b[0] < a[1]:
             raise ConfigError(f"validation window {list(b)} overlaps the training window {list(a)}")
-    out_t = _table(doc.get("output", {}), "output", {"plots"})
-    processing = _parse_processing(doc.get("processing", {}))
-    for label, spec in (("data", data), ("validation", validation)):
-        given = [k for k in ("velocity", "acceleration") if getattr(spec, k) is not None]
-        if given and processing.derivatives != "measured":
-            raise ConfigError(f"{label}.{given[0]} columns are given but processing.derivatives = "
-                              f"{processing.derivatives!r} differentiates the positions and would ignore them: "
-                              "set processing.derivatives = 'measured' or drop them")
-    return Config(
-        robot=_parse_robot(doc["robot"], base_dir),
-        data=data,
-        validation=validation,
-        processing=processing,
-        identification=_parse_identification(doc.get("identification", {}), base_dir),
-        output=OutputConfig(plots=_bool(out_t.get("plots", True), "output.plots")),
-        source=source,
-        raw=doc,
-        learning=_learning(doc.get("learning")),
-    )
+    return data, validation
 
 
 def data_root(doc: Mapping[str, Any], base_dir: Path) -> Path:

@@ -22,285 +22,51 @@ forces, or motor positions and currents through a drive train. Steps:
    ``[identification]`` (or the Stribeck fit, or maximum likelihood with the filter cut-off,
    paper 004 Eq. 24), validation on held-out data processed identically (with a row selection
    also on the held-out rows it keeps, :class:`SelectedRows`), the output files.
+
+The concerns live in their own modules, re-exported here: the rows and their compression
+(:mod:`dynid.pipeline.rows`), several ``[[data]]`` experiments stacked as factors
+(:mod:`dynid.pipeline.experiments`), the estimators that are not one compressed problem
+(:mod:`dynid.pipeline.methods`), the outcome (:mod:`dynid.pipeline.outcome`) and the files
+(:mod:`dynid.pipeline.outputs`).
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import functools
-import platform
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from dynid import __version__
-from dynid._files import TIMING_FILE, write_timing
 from dynid._typing import FloatArray
 from dynid.config import Config
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError, IdentifiabilityError, InputError, ModelError
-from dynid.estimation import IdentificationResult, ProblemBuilder, RegressionProblem
+from dynid.errors import ConfigError, InputError
+from dynid.estimation import IdentificationResult, RegressionProblem
 from dynid.estimation.validation import ValidationMetrics, motion_overlap, prior_comparison
-from dynid.io.output import staged_output
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System, as_system
 from dynid.pipeline import stribeck
+from dynid.pipeline import experiments as _experiments
 from dynid.pipeline.covariance import block_builder, with_covariance
-from dynid.pipeline.data import (
-    build_system,
-    check_held_out,
-    check_joint_motion,
-    check_units,
-    configured_estimator,
-    ml_covariances,
-    preprocess,
-    read_log,
-    reversal_keep,
-    to_actuator_space,
-    velocity_mask,
-    velocity_noise_std,
-)
-from dynid.pipeline.reporting import effort_units, file_sha256, git_commit, parameter_flags, run_facts
-from dynid.signals import decimation_filter, padlen_for
+from dynid.pipeline.rows import (  # noqa: F401  (re-exported)
+    Progress, _no_progress, Chunk, _chunks, CHUNK_BYTES, _parallel_chunks, row_mask, build_problem, _compress)
+from dynid.pipeline.methods import (  # noqa: F401  (re-exported)
+    _maximum_likelihood, ML_TIME_CANDIDATES, _acceleration_columns, _interp_rows, ML_INERTIA_POINTS_PER_CUTOFF_PERIOD, ML_INERTIA_MAX_FLOATS, _maximum_likelihood_time, _stribeck_fit, _control_loop, _coulomb_smoothing, _hierarchical_fit)
+from dynid.pipeline.drive_gains import (  # noqa: F401  (re-exported)
+    GAIN_REL_STD, GAIN_BLOCKS, estimate_drive_gains)
+from dynid.pipeline.outcome import (  # noqa: F401  (re-exported: the names other modules import from here)
+    RowSelection, SelectedRows, OtherView, _other_view, FullRate, IdentifyOutcome, _versions)
+from dynid.pipeline.outputs import (  # noqa: F401
+    OUTPUT_FILES, write_outputs, ONE_OF_MANY, standard_vector, export_model, export_warnings, _nominal_dict, _selected_dict, _full_rate_dict, write_files)
+from dynid.pipeline.data import (build_system, check_held_out, check_joint_motion, check_units, configured_estimator, preprocess, read_log, to_actuator_space)
+from dynid.pipeline.reporting import effort_units, file_sha256
 
 __all__ = ["Chunk", "FullRate", "Progress", "ValidationMetrics", "IdentifyOutcome", "RowSelection", "SelectedRows", "build_problem",
            "prior_comparison", "row_mask", "validate", "validate_with_prior", "identify", "write_outputs",
            "write_files", "OUTPUT_FILES"]
-
-Progress = Callable[[str, int, int], None]
-"""``progress(task, done, total)``: called as long work advances (the CLI draws a bar)."""
-
-def _no_progress(task: str, done: int, total: int) -> None:
-    return None
-
-
-@dataclasses.dataclass(frozen=True)
-class Chunk:
-    """Base-regressor rows of a chunk: ``W`` (n, n_ch, r), measured outputs ``y`` (n, n_ch), the
-    actuator velocities ``dq`` (n, n_a) (row selection, Stribeck friction) and the inconsistency of
-    redundant actuator positions (n,)."""
-
-    W: FloatArray
-    y: FloatArray
-    dq: FloatArray
-    inconsistency: FloatArray
-    joint_dq: FloatArray | None = None  # velocities of all joints of a mechanism (passive row selection)
-    reversal: np.ndarray | None = None  # (n, n_a) rows farther than processing.reversal_guard from a reversal
-    Ga: FloatArray | None = None  # (n, n_a, n_u) a redundant mechanism's actuator velocity map
-    tau: FloatArray | None = None  # (n, n_a) measured actuator forces (with Ga: the other view of the outputs)
-
-
-def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, *, parallel_decimate: int = 1,
-            chunk_size: int = 20000, progress: Progress = _no_progress, task: str = "compress",
-            periodic=None, reversal_guard: float | None = None,
-            min_velocity: tuple[float, ...] | None = None, keep: np.ndarray | None = None,
-            joint_q: FloatArray | None = None) -> Iterator[Chunk]:
-    """Yield the rows of ``ds`` chunk by chunk, at full rate or parallel-decimated.
-
-    Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
-    regressor and each measured output are low-passed by the same zero-phase filter and one
-    sample in ``k`` is kept, so forces and model see identical filtering even where the
-    regressor is non-smooth (Coulomb ``sign`` columns). The rows are streamed through the filter
-    (:func:`_parallel_chunks`): the backward pass of a chunk runs 15 filter time constants past it,
-    which makes the result equal to whole-signal filtering to ~1e-12 without ever holding the full
-    regressor. Full-rate chunks hold at most :data:`CHUNK_BYTES` of regressor rows (fewer rows than
-    ``chunk_size`` where the rows are wide). ``periodic`` with ``domain = "pose"``: the whole averaged period
-    at once through the platform pose (paper 004 §3.3).
-
-    ``reversal_guard`` [s]: each chunk carries :func:`~dynid.pipeline.data.reversal_keep` of its
-    rows, computed on the whole log (a reversal near a chunk boundary counts on both sides), around
-    the reversals and the samples slower than ``min_velocity``. ``keep`` (n, n_a): a row selection
-    decided beforehand, carried the same way instead (maximum likelihood keeps one selection for
-    every candidate cut-off).
-
-    ``joint_q`` (n, n_v): all joint positions of a mechanism where known (a simulated motion,
-    :mod:`dynid.pipeline.control_loop`), the starting points of its position solve.
-    """
-    if periodic is not None and periodic.domain == "pose":
-        if reversal_guard is not None:
-            raise ConfigError("processing.reversal_guard applies to the time-domain processing, not to processing.periodic")
-        r, dq = system.pose_rows(ds.q, ds.tau, 1.0 / float(np.median(np.diff(ds.t))), periodic.cutoff_hz, force_model)
-        progress(task, ds.n_samples, ds.n_samples)
-        yield Chunk(base.regressor(r.W), r.y, dq, r.inconsistency, r.joint_dq)
-        return
-    if ds.dq is None or ds.ddq is None:
-        raise InputError("the dataset has no velocities/accelerations; preprocess it first")
-    n = ds.n_samples
-    size = max(1, int(chunk_size) if system.max_chunk is None else min(int(chunk_size), system.max_chunk))
-    rows = system.rows(force_model)
-    guard = None if reversal_guard is None else reversal_keep(ds.dq, ds.t, reversal_guard, min_velocity)
-    if keep is not None:
-        guard = np.asarray(keep, dtype=bool)
-    if parallel_decimate <= 1:
-        n_ch = len(system.channel_names(force_model))
-        size = min(size, max(512, CHUNK_BYTES // (8 * n_ch * (base.n_standard + base.n_base))))  # bounded memory
-        for a in range(0, n, size):
-            b = min(a + size, n)
-            r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
-            yield Chunk(base.regressor(r.W), r.y, ds.dq[a:b], r.inconsistency, r.joint_dq,
-                        None if guard is None else guard[a:b], r.Ga, None if r.Ga is None else ds.tau[a:b])
-            progress(task, b, n)
-        return
-    k = parallel_decimate
-    sos, margin = decimation_filter(k, ds.fs)
-    if n <= 2 * k:
-        raise InputError(f"{n} samples are too few to decimate by {k}")
-    yield from _parallel_chunks(system, base, ds, force_model, k, sos, margin, size, rows, guard, joint_q,
-                                progress, task)
-
-
-CHUNK_BYTES = 8 * 2**20
-"""Bytes of full-rate regressor rows parallel decimation computes at once (:func:`_parallel_chunks`);
-the rows it holds, ``out_rows + margin`` of the packed columns, follow from it."""
-
-
-def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, k: int,
-                     sos: FloatArray, margin: int, size: int, rows, guard: np.ndarray | None,
-                     joint_q: FloatArray | None, progress: Progress, task: str) -> Iterator[Chunk]:
-    """The parallel-decimated chunks of :func:`_chunks`, streamed (:class:`~dynid.signals.streamed.StreamedDecimation`):
-    the base-regressor rows, outputs and velocities are computed in blocks of about
-    :data:`CHUNK_BYTES`, packed side by side as the columns of one signal, low-passed and decimated
-    together; the whole-window full-rate regressor ``(n, n_ch, r)`` is never held, only a window
-    of ``out_rows + margin`` rows. Equal to the whole-signal filtering to rounding (the module
-    docstring of :mod:`dynid.signals.streamed` bounds the difference). The quantities that are not
-    filtered (position inconsistency, a redundant mechanism's ``G_a``, the row selection ``guard``)
-    are taken at the kept rows."""
-    from dynid.signals.streamed import StreamedDecimation
-
-    n = ds.n_samples
-    n_ch, r, n_std = len(system.channel_names(force_model)), base.n_base, base.n_standard
-    block = min(size, max(4 * k, CHUNK_BYTES // (8 * n_ch * (n_std + r))))
-    block = max(block, min(n, 3 * (2 * sos.shape[0] + 1) + 1))  # the first block holds the odd extension
-    packed = None  # (start, stop) of each field in the packed columns
-    stream = None
-    n_out = -(-n // k)
-    sampled: dict[str, np.ndarray] = {}
-
-    def take(name: str, a: int, values: np.ndarray | None) -> None:
-        if values is None:
-            return
-        if name not in sampled:
-            sampled[name] = np.empty((n_out,) + values.shape[1:], dtype=values.dtype)
-        first = -(-a // k) * k
-        sampled[name][first // k:first // k + len(values[first - a::k])] = values[first - a::k]
-
-    for a in range(0, n, block):
-        b = min(a + block, n)
-        rr = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
-        fields = {"W": base.regressor(rr.W), "y": rr.y, "dq": ds.dq[a:b], "joint_dq": rr.joint_dq,
-                  "tau": None if rr.Ga is None else ds.tau[a:b]}
-        fields = {key: np.asarray(v, dtype=float).reshape(b - a, -1) for key, v in fields.items() if v is not None}
-        if packed is None:
-            edges = np.cumsum([0] + [v.shape[1] for v in fields.values()])
-            packed = {key: (int(edges[i]), int(edges[i + 1])) for i, key in enumerate(fields)}
-            row_bytes = 8 * int(edges[-1])
-            out_rows = max(margin, min(size, CHUNK_BYTES // row_bytes))
-            stream = StreamedDecimation(sos, n, k, margin, out_rows)
-        x = np.concatenate(list(fields.values()), axis=1)
-        take("inconsistency", a, rr.inconsistency)
-        take("Ga", a, rr.Ga)
-        take("guard", a, None if guard is None else guard[a:b])
-        del rr, fields
-        for s, e, out in stream.feed(x):
-            i0, i1 = s // k, s // k + out.shape[0]
-            cut = {key: out[:, lo:hi] for key, (lo, hi) in packed.items()}
-            yield Chunk(cut["W"].reshape(-1, n_ch, r), cut["y"], cut["dq"], sampled["inconsistency"][i0:i1],
-                        cut.get("joint_dq"), sampled["guard"][i0:i1] if "guard" in sampled else None,
-                        sampled["Ga"][i0:i1] if "Ga" in sampled else None, cut.get("tau"))
-            progress(task, e, n)
-        del x
-
-
-def row_mask(system: System, force_model: str | None, dq: FloatArray, min_velocity: tuple[float, ...] | None,
-             joint_dq: FloatArray | None = None,
-             min_velocity_passive: float | None = None, reversal: np.ndarray | None = None) -> FloatArray | None:
-    """Rows kept by ``processing.min_velocity`` (None: all): per actuator equation where the
-    equations are the actuators' own, else (projected equations of a redundant mechanism) the
-    whole samples in which every actuator is at least that fast, broadcast to the channels. A full noise covariance across channels (Gauss–Markov) takes per-equation rows:
-    each sample is whitened with the covariance of the channels it keeps.
-
-    ``min_velocity_passive`` (mechanisms): the whole samples in which a passive joint with Coulomb
-    friction (:meth:`~dynid.model.system.ClosedLoopSystem.passive_friction_joints`) is slower are
-    left out too: its friction reaches every equation through the loops, and where it sticks or
-    reverses its force is whatever holds it, which no friction model describes.
-
-    ``reversal`` (n, n_a): the rows farther than ``processing.reversal_guard`` from a reversal of
-    each actuator (:attr:`Chunk.reversal`), combined with ``min_velocity`` by the same rule."""
-    mask = velocity_mask(dq, min_velocity)
-    if reversal is not None:
-        mask = reversal if mask is None else mask & reversal
-    if mask is not None and not system.channels_are_actuators(force_model):
-        mask = mask.all(axis=1)
-    if min_velocity_passive is None or joint_dq is None:
-        return mask
-    joints = list(system.passive_friction_joints())
-    moving = np.all(np.abs(joint_dq[:, joints]) >= min_velocity_passive, axis=1)
-    if mask is None:
-        return moving
-    return mask & (moving[:, None] if mask.ndim == 2 else moving)
-
-
-def build_problem(robot, base: BaseParameters, ds: Dataset, *, force_model: str | None = None,
-                  min_velocity: tuple[float, ...] | None = None, parallel_decimate: int = 1, chunk_size: int = 20000,
-                  progress: Progress = _no_progress, meta: dict[str, Any] | None = None, cross: bool = False,
-                  periodic=None, min_velocity_passive: float | None = None,
-                  reversal_guard: float | None = None) -> RegressionProblem:
-    """Compress a processed actuator-space dataset chunk by chunk (never the full regressor).
-
-    ``robot``: a :class:`~dynid.model.system.System` or a model. ``min_velocity`` drops the rows
-    where an actuator's (filtered) velocity is below the threshold [rad/s or m/s]: Coulomb friction
-    is ill-defined there (:func:`row_mask`); ``reversal_guard`` [s] drops the rows that close to a
-    reversal of the actuator (:func:`~dynid.pipeline.data.reversal_keep`).
-    """
-    return _compress(as_system(robot), base, ds, force_model=force_model, min_velocity=min_velocity,
-                     parallel_decimate=parallel_decimate, chunk_size=chunk_size, progress=progress, meta=meta,
-                     cross=cross, periodic=periodic, min_velocity_passive=min_velocity_passive,
-                     reversal_guard=reversal_guard)[0]
-
-
-def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model, min_velocity, parallel_decimate,
-              chunk_size, progress, meta, cross, periodic, min_velocity_passive=None,
-              blocks=None, reversal_guard: float | None = None,
-              keep: np.ndarray | None = None, source: Iterator[Chunk] | None = None,
-              check: bool = True) -> tuple[RegressionProblem, float]:
-    """:func:`build_problem` and the largest inconsistency of redundant actuator positions; ``check``:
-    refuse a row selection that leaves no more equations than base parameters (off for a segment of
-    the log, :func:`_decide_structure`); ``blocks``
-    (a :class:`~dynid.estimation.block_covariance.BlockBuilder`) also gets every chunk and its rows.
-    ``source``: the chunks themselves (the streamed identification, :mod:`dynid.pipeline.streaming`;
-    ``ds`` is then unused)."""
-    builder = ProblemBuilder(base.names, system.channel_names(force_model), cross=cross)
-    worst = 0.0
-    if source is None:
-        source = _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
-                         progress=progress, periodic=periodic, reversal_guard=reversal_guard,
-                         min_velocity=min_velocity, keep=keep)
-    for c in source:
-        mask = row_mask(system, force_model, c.dq, min_velocity, joint_dq=c.joint_dq,
-                        min_velocity_passive=min_velocity_passive, reversal=c.reversal)
-        if mask is not None and mask.ndim == 1:
-            builder.add(c.W[mask], c.y[mask])
-        else:
-            builder.add(c.W, c.y, mask)
-        if blocks is not None:
-            blocks.add(c.W, c.y, mask)
-        worst = max(worst, float(c.inconsistency.max(initial=0.0)))
-        del c  # the next chunk's rows are built without this one's alive beside them
-    problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta or {})
-    selection = [k for k, v in (("min_velocity", min_velocity), ("min_velocity_passive", min_velocity_passive),
-                                ("reversal_guard", reversal_guard)) if v is not None]
-    if check and selection and problem.n_total <= base.n_base:
-        rule = "whole samples (every actuator)" if not system.channels_are_actuators(force_model) else "per equation"
-        raise IdentifiabilityError(
-            f"data: the row selection ({', '.join('processing.' + k for k in selection)}; {rule}) keeps "
-            f"{problem.n_total} equations for {base.n_base} base parameters; lower the thresholds or record a "
-            "motion with fewer slow stretches and reversals")
-    return problem, worst
-
 
 def validate(result: IdentificationResult, robot, base: BaseParameters, ds: Dataset, *,
              force_model: str | None = None, parallel_decimate: int = 1, chunk_size: int = 20000,
@@ -383,254 +149,6 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
             nominal=None if nominal is None else ValidationMetrics.of(names, t, measured, np.concatenate(prior), src,
                                                                       kept=mask))
     return metrics, nominal_metrics, other, selected
-
-
-@dataclasses.dataclass(frozen=True)
-class RowSelection:
-    """The training's row selection (``processing.min_velocity``, ``min_velocity_passive``,
-    ``reversal_guard`` in seconds) as :func:`row_mask` applies it (per equation, Gauss–Markov
-    included); ``rule`` says it in words."""
-
-    min_velocity: tuple[float, ...] | None
-    min_velocity_passive: float | None
-    reversal_guard: float | None
-    rule: str
-
-
-@dataclasses.dataclass(frozen=True)
-class SelectedRows:
-    """The held-out errors on the rows the training's row selection keeps (applied to the
-    processed held-out log exactly as to the training log), for the identified model and, on
-    the same rows, the nominal one: how well the model predicts where it claims to be valid.
-    The all-row errors stay the headline; these do not replace them. ``prior``: the
-    :func:`~dynid.estimation.validation.prior_comparison` of the two (set by :func:`identify`)."""
-
-    rule: str
-    metrics: ValidationMetrics
-    nominal: ValidationMetrics | None = None
-    prior: dict[str, Any] | None = None
-
-    def heading(self) -> str:
-        rows = ", ".join(f"{c} {int(k)}" for c, k in zip(self.metrics.channel_names, self.metrics.rows_per_channel))
-        return (f"On the {self.metrics.label} rows the training's row selection keeps ({self.rule}): {rows} of "
-                f"{self.metrics.n_samples} rows")
-
-
-@dataclasses.dataclass(frozen=True)
-class OtherView:
-    """A redundantly actuated robot's held-out errors in the other form of its equations (issue 18
-    item 5): per actuator when the identification used the projected equations, projected when it
-    used actuator forces under a distribution. ``label`` says which, and what it assumes."""
-
-    label: str
-    metrics: ValidationMetrics
-    nominal: ValidationMetrics | None = None
-
-
-def _other_view(Ga: FloatArray, tau: FloatArray, predicted: FloatArray, prior: FloatArray | None,
-                force_model: str | None) -> tuple[FloatArray, FloatArray, FloatArray | None]:
-    """(measured, predicted, nominal-predicted) in the other form: projected outputs y (n, n_u) ->
-    actuator forces (G_a^T)^+ y (minimum norm); actuator forces f (n, n_a) -> G_a^T f, which is the
-    projected model exactly for every distribution (G_a^T (G_a^T)^+ = I; an actuator's local terms
-    project onto themselves)."""
-    if force_model == "projected":
-        D = np.linalg.pinv(Ga.transpose(0, 2, 1))  # (n, n_a, n_u)
-        def f(y):
-            return np.einsum("nau,nu->na", D, y)
-        return tau, f(predicted), None if prior is None else f(prior)
-
-    def g(x):
-        return np.einsum("nau,na->nu", Ga, x)
-    return g(tau), g(predicted), None if prior is None else g(prior)
-
-
-@dataclasses.dataclass(frozen=True)
-class FullRate:
-    """The held-out errors at the log's own rate when the processing decimates: the same
-    low-pass and derivatives, no decimation (neither ``decimate_method = "samples"`` nor
-    ``"parallel"``), every held-out row after the filter's trim, the measured outputs as logged
-    (``filter_effort`` as configured). The decimated scores are what the fit saw; these are what a
-    tool that predicts every logged sample is compared with (FIGAROH publishes its TX40 figures
-    so). ``prior``: the :func:`~dynid.estimation.validation.prior_comparison` of the two."""
-
-    metrics: ValidationMetrics
-    nominal: ValidationMetrics | None = None
-    prior: dict[str, Any] | None = None
-    decimate: int = 1
-
-    def heading(self) -> str:
-        return (f"Validation at the log's full rate (no decimation; the fit used 1 sample in {self.decimate}): "
-                f"{self.metrics.n_samples} samples")
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class IdentifyOutcome:
-    config: Config
-    robot: Any  # the RobotModel or Mechanism identified
-    base: BaseParameters
-    result: IdentificationResult
-    validation: ValidationMetrics
-    train: Dataset
-    held_out: Dataset
-    notes: tuple[str, ...]
-    raw_train: Dataset | None = None  # the training log before processing (for the processing plot)
-    elapsed_s: float = float("nan")  # wall-clock time of the identification (timing.json)
-    nominal_validation: ValidationMetrics | None = None  # the nominal (CAD) model on the same held-out rows
-    prior: dict[str, Any] | None = None  # prior_comparison of the two
-    system: Any = None  # the System identified (its parameters: the model's, or reduced by identification.structure)
-    other_view: OtherView | None = None  # redundant mechanisms: the held-out errors in the other form of the equations
-    selected: SelectedRows | None = None  # with a row selection: the errors on the held-out rows it keeps
-    full_rate: FullRate | None = None  # with decimation: the held-out errors at every logged sample
-    learning: Any = None  # [learning]: dynid.pipeline.learning.LearningOutcome (the residual network)
-    units: tuple[str, ...] = ()  # unit of each output channel, from the log (effort_units)
-    prediction: dict[str, Any] | None = None  # what dynid predict needs (result.json "prediction_inputs")
-    structure: dict[str, Any] | None = None  # parallel robots: the parameter structure and, for "auto", its evidence
-    # which path ran (result.json "data_path"): "in-memory", or "streamed" (dynid.pipeline.streaming: then
-    # train, held_out and raw_train are None and the validation metrics keep no arrays)
-    data_path: dict[str, Any] | None = None
-    # the report's figures, under way beside the run (dynid.report.worker; plots only)
-    jobs: Any = dataclasses.field(default=None, repr=False, compare=False)
-    # a streamed run with plots: (raw, processed) training signals for plot_processing, thinned and with Welch
-    # spectra (dynid.pipeline.stream_plots.StreamedSignals); the validation figure's series are in validation.thinned
-    streamed_plots: tuple[Any, Any] | None = None
-    # what the log looks like against the description and the nominal model: units, sign, column order
-    # (dynid.pipeline.diagnostics.Alarm; console, summary.txt, result.json "warnings")
-    warnings: tuple[Any, ...] = ()
-
-    @property
-    def n_train(self) -> int:
-        """Processed training samples."""
-        return self.train.n_samples if self.train is not None else int(self.data_path["training_samples"])
-
-    @functools.cached_property
-    def flags(self) -> dict[str, Any]:
-        """:func:`~dynid.pipeline.reporting.parameter_flags` of the result (computed once: the
-        physical-consistency check, a semidefinite program, runs with the report only)."""
-        system = self.system if self.system is not None else as_system(self.robot)
-        return parameter_flags(self.result, self.base, system, physical=self.config.output.plots)
-
-    def robot_line(self) -> str:
-        """The robot identified: its name and its description's file (or ``builtin:<name>``)."""
-        source = getattr(self.robot, "source", "") or str(self.config.robot.model)
-        return f"Robot: {self.robot.name} ({source})"
-
-    def flags_line(self) -> str:
-        """How many parameters are flagged (paper 000 Sec. 6.2), and how many of them are
-        physically inconsistent, as the report counts them (:func:`parameter_flags`)."""
-        f = self.flags
-        n = len(self.result.names)
-        above, undet = list(f.get("rel_std_above", ())), list(f.get("undetermined", ()))
-        phys = f.get("physical") or {}
-        inconsistent = list(phys.get("parameters", ())) if phys.get("checked") else []
-        flagged = dict.fromkeys([*above, *undet, *inconsistent])
-        if not f.get("assessed", True):
-            head = f"Flagged parameters: relative standard deviations not assessed ({f.get('reason')})"
-        else:
-            head = (f"Flagged parameters: {len(flagged)} of {n} ({len(above)} with relative standard deviation >= "
-                    f"{f['rel_std_limit_pct']:g} %, {len(undet)} undetermined")
-            head += (f", {len(inconsistent)} physically inconsistent)" if phys.get("checked") else ")")
-            if flagged:
-                head += ": " + ", ".join(flagged)
-        if phys.get("checked"):
-            head += ("; the base parameters are physically consistent" if phys.get("feasible") else
-                     f"; the base parameters are physically INCONSISTENT ({len(phys.get('violated', ()))} constraint(s) "
-                     "violated)")
-        else:
-            head += f"; physical consistency not checked: {phys.get('reason', 'no check')}"
-        return head
-
-    def summary_text(self) -> str:
-        v = self.validation
-        lines = [
-            self.robot_line(),
-            "",
-            str(self.result.summary()),
-            "",
-            self.flags_line(),
-            "",
-            v.heading(),
-            v.table(),
-        ]
-        if self.nominal_validation is not None and self.prior is not None:
-            lines += ["", "Nominal model (the robot description's parameters: the prior) on the same data",
-                      self.nominal_validation.table(), "", self.prior["verdict"]]
-            if self.warnings:
-                lines.append(f"(not to be trusted before the {len(self.warnings)} warning"
-                             f"{'s' if len(self.warnings) > 1 else ''} at the end are resolved: a linear fit absorbs a "
-                             "wrong unit, sign or column order into its parameters)")
-        sel = self.selected
-        if sel is not None:
-            lines += ["", sel.heading(), sel.metrics.table()]
-            if sel.nominal is not None:
-                lines += ["nominal model, the same rows", sel.nominal.table()]
-                if sel.prior is not None:
-                    lines += ["", sel.prior["verdict"]]
-        fr = self.full_rate
-        if fr is not None:
-            lines += ["", fr.heading(), fr.metrics.table()]
-            if fr.nominal is not None:
-                lines += ["nominal model, the same samples", fr.nominal.table()]
-                if fr.prior is not None:
-                    lines += ["", fr.prior["verdict"]]
-        o = self.other_view
-        if o is not None:
-            lines += ["", f"The same predictions {o.label}", o.metrics.table()]
-            if o.nominal is not None:
-                lines += ["nominal model, the same view", o.nominal.table()]
-        if self.learning is not None:
-            lines += self.learning.summary_lines()
-        if self.data_path is not None:
-            lines += ["", f"Data path: {self.data_path['mode']} ({self.data_path['reason']})"]
-        if self.warnings:
-            lines += ["", f"{len(self.warnings)} warning{'s' if len(self.warnings) > 1 else ''} about the logs "
-                          "(dynid.pipeline.diagnostics):"] + [str(w) for w in self.warnings]
-        if self.structure is not None:
-            from dynid.report.html import structure_lines
-
-            lines += structure_lines(self.structure)
-        return "\n".join(lines)
-
-    def _repr_html_(self) -> str:
-        """A notebook's view: the estimates with their standard deviations
-        (:meth:`IdentificationResult.summary`), and the held-out errors of the identified model
-        beside the nominal model's on the same rows, with the verdict of :func:`prior_comparison`."""
-        import html
-
-        v, nom = self.validation, self.nominal_validation
-        head = ["channel", "RMSE", "rel RMSE %", "R^2"] + (["nominal RMSE", "nominal rel RMSE %"] if nom is not None else [])
-        rows = []
-        for j, c in enumerate(v.channel_names):
-            cells = [c, f"{v.rmse[j]:.4g}", f"{v.rel_rmse_pct[j]:.3g}", f"{v.r2[j]:.4f}"]
-            if nom is not None:
-                cells += [f"{nom.rmse[j]:.4g}", f"{nom.rel_rmse_pct[j]:.3g}"]
-            rows.append("<tr>" + "".join(f"<td>{html.escape(x)}</td>" for x in cells) + "</tr>")
-        table = ("<table><thead><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr></thead><tbody>"
-                 + "".join(rows) + "</tbody></table>")
-        verdict = f"<p>{html.escape(self.prior['verdict'])}</p>" if self.prior is not None else ""
-        return (f"<div class='dynid-outcome'>{self.result.summary().as_html()}"
-                f"<h4>{html.escape(v.heading())}</h4>{table}{verdict}</div>")
-
-
-def _versions() -> dict[str, str]:
-    from importlib import metadata
-
-    import numpy
-    import pinocchio
-    import scipy
-
-    try:
-        cvxpy = metadata.version("cvxpy")
-    except metadata.PackageNotFoundError:
-        cvxpy = "not installed"
-    return {
-        "dynid": __version__,
-        "git_commit": git_commit() or "not a git checkout",
-        "python": platform.python_version(),
-        "numpy": numpy.__version__,
-        "scipy": scipy.__version__,
-        "pinocchio": pinocchio.__version__,
-        "cvxpy": cvxpy,
-    }
 
 
 def identify(cfg: Config, progress: Progress = _no_progress, *, readers: dict | None = None,
@@ -740,353 +258,6 @@ def _check_config(cfg: Config, system: System) -> str | None:
     return force_model
 
 
-def _maximum_likelihood(cfg: Config, system: System, base: BaseParameters, train_a: Dataset, force_model: str | None,
-                        progress: Progress, meta: dict):
-    """Maximum likelihood with the filter cut-off (paper 004 Eq. 24): the averaged period is
-    filtered at every candidate cut-off (actuator positions, or the platform pose after one
-    forward kinematics), each gives a Gauss–Markov problem and the residual of the actuator
-    positions. Returns the result, the periodic processing at the chosen cut-off and the
-    largest inconsistency."""
-    from dynid.estimation.likelihood import CutoffFamily, MaximumLikelihood, cutoff_candidates
-    from dynid.signals.periodic import fourier_filter
-
-    pc, icfg = cfg.processing.periodic, cfg.identification
-    if pc is None:
-        raise ConfigError("identification.method = 'ml' estimates the cut-off of the frequency-domain filter: "
-                          "it needs [processing.periodic] (period averaging, paper 004 §3)")
-    if pc.filter_effort:
-        raise ConfigError("identification.method = 'ml' models the efforts as measured: set "
-                          "processing.periodic.filter_effort = false (paper 004 §3.3)")
-    if not system.channels_are_actuators(force_model):
-        raise ConfigError("identification.method = 'ml' models the measured actuator forces with one noise covariance; "
-                          "the projected equations G_a^T tau_a of a redundantly actuated mechanism weight them by the "
-                          "configuration: choose identification.force_model = 'min_norm' or 'min_norm_local_friction'")
-    channels = system.channel_names(force_model)
-    avg, steps = preprocess(train_a, cfg.processing, "data", filter_positions=False)
-    meta["processing"] = steps
-    cov_e, cov_d = ml_covariances(icfg, steps, tuple(channels), tuple(system.actuator_names))
-    fs = 1.0 / float(np.median(np.diff(avg.t)))
-    low, high = icfg.cutoff_range_hz or (0.5 * pc.cutoff_hz, 2.0 * pc.cutoff_hz)
-    cutoffs = cutoff_candidates(pc.period_s, fs, low, min(high, 0.5 * fs * (1 - 1e-9)))
-    pose = system.platform_pose(avg.q) if pc.domain == "pose" else None
-    worst = [0.0]
-
-    def build(fc: float):
-        progress("cut-off search", cutoffs.index(fc), len(cutoffs))
-        builder = ProblemBuilder(base.names, tuple(channels), cross=True)
-        if pose is not None:
-            r, _, q_f = system.pose_rows(avg.q, avg.tau, fs, fc, force_model, pose=pose, positions=True)
-            builder.add(base.regressor(r.W), r.y)
-        else:
-            q_f, dq, ddq = fourier_filter(avg.q, fs, fc)
-            for c in _chunks(system, base, avg.replace(q=q_f, dq=dq, ddq=ddq), force_model, chunk_size=icfg.chunk_size):
-                builder.add(c.W, c.y)
-                worst[0] = max(worst[0], float(c.inconsistency.max(initial=0.0)))
-        problem = builder.build(expressions=base.expressions(), standard=system.standard_map(base), meta=meta)
-        return problem, avg.q - q_f
-
-    result = MaximumLikelihood(noise_covariance=cov_e, position_covariance=cov_d).fit(
-        CutoffFamily(cutoffs, build, 1.0 / pc.period_s))
-    progress("cut-off search", len(cutoffs), len(cutoffs))
-    return result, dataclasses.replace(pc, cutoff_hz=result.solver["cutoff_hz"]), worst[0]
-
-
-ML_TIME_CANDIDATES = 13  # logarithmic grid over the searched range: neighbours 12 % apart at the default 4:1
-
-
-def _acceleration_columns(system: System, base: BaseParameters, ds: Dataset, force_model: str | None,
-                          stride: int, chunk_size: int) -> tuple[FloatArray, FloatArray]:
-    """``(t, A)``: the derivative of the base regressor in the actuator accelerations,
-    :math:`A_j = \\partial W/\\partial\\ddot q_{a,j}`, shape (m, n_ch, n_a, p), at every ``stride``-th
-    sample of ``ds`` (and the last), and their times. The model is affine in the accelerations, so
-    :math:`A_j` is the difference of the regressors with the acceleration of actuator ``j`` raised
-    by one unit (exact, not a finite-difference step); :math:`M_a = A \\beta` is the actuator-space
-    inertia matrix of the parameters :math:`\\beta`."""
-    idx = np.unique(np.r_[np.arange(0, ds.n_samples, stride), ds.n_samples - 1])
-    sub = Dataset(t=ds.t[idx], q=ds.q[idx], tau=ds.tau[idx], dq=ds.dq[idx], ddq=ds.ddq[idx], names=ds.names)
-
-    def regressor(ddq: FloatArray) -> FloatArray:
-        part = dataclasses.replace(sub, ddq=ddq)
-        return np.concatenate([c.W for c in _chunks(system, base, part, force_model, chunk_size=chunk_size)])
-
-    W0 = regressor(sub.ddq)
-    A = np.empty((idx.size, W0.shape[1], sub.q.shape[1], W0.shape[2]))
-    for j in range(sub.q.shape[1]):
-        ddq = sub.ddq.copy()
-        ddq[:, j] += 1.0
-        A[:, :, j, :] = regressor(ddq) - W0
-    return sub.t, A
-
-
-def _interp_rows(t: FloatArray, tk: FloatArray, Mk: FloatArray) -> FloatArray:
-    """``Mk`` (m, ...) known at the times ``tk``, linearly interpolated to the times ``t``."""
-    i = np.clip(np.searchsorted(tk, t) - 1, 0, tk.size - 2)
-    w = np.clip((t - tk[i]) / (tk[i + 1] - tk[i]), 0.0, 1.0).reshape((-1,) + (1,) * (Mk.ndim - 1))
-    return (1.0 - w) * Mk[i] + w * Mk[i + 1]
-
-
-ML_INERTIA_POINTS_PER_CUTOFF_PERIOD = 10  # M_a(q) evaluated 10 times per period of processing.lowpass.cutoff_hz
-ML_INERTIA_MAX_FLOATS = 25_000_000  # at most this many numbers of d W / d qdd held (200 MB): a sparser grid beyond
-
-
-def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, train_a: Dataset,
-                             force_model: str | None, progress: Progress, meta: dict):
-    """Maximum likelihood with the cut-off of the zero-phase Butterworth low-pass (paper 004 Eq. 24
-    in the time domain; :mod:`dynid.estimation.likelihood`). Every candidate cut-off keeps the same
-    samples: the ends trimmed for the lowest one, and the row selection (``min_velocity``,
-    ``reversal_guard``; ``"auto"`` is the settling time of the *lowest* candidate, the longest
-    smear) decided once on the log filtered at ``processing.lowpass``. Returns the result, the
-    processing at the chosen cut-off (with that trim and a guard in seconds) and the largest
-    inconsistency.
-
-    The force residual's covariance at each candidate is :math:`\\Sigma_{\\eta\\eta}` plus the
-    encoder noise that the filter and the differences carry into the accelerations,
-    :math:`g_2(f_c) M_a(q_k) \\Sigma_{\\delta\\delta} M_a(q_k)^T` (:mod:`dynid.estimation.likelihood`):
-    :math:`M_a` of the pilot estimate, Gauss–Markov with :math:`\\Sigma_{\\eta\\eta}` on the log
-    filtered at ``processing.lowpass`` (the same rows), evaluated every
-    ``fs / (10 cutoff_hz)`` samples and interpolated between them; the estimate at each candidate is
-    corrected for the share of that noise in the normal matrix (errors in the variables), from
-    :math:`\\partial W/\\partial\\ddot q_a` at the same samples.
-
-    With ``identification.coulomb_smoothing = "auto"`` each candidate's Coulomb columns use the
-    smooth sign with the velocity noise *that candidate's* low-pass leaves
-    (:func:`~dynid.pipeline.data.velocity_noise_std` at its cut-off): a wider filter leaves less
-    noise and a sharper sign. The widths at the chosen cut-off are ``solver["coulomb_width"]``."""
-    from dynid.estimation.generalized import gls_solve
-    from dynid.estimation.likelihood import CandidateBuilder, CutoffFamily, MaximumLikelihood, log_cutoff_grid, \
-        processing_noise_gains
-    from dynid.signals import zero_phase_settling_time
-
-    pcfg, icfg = cfg.processing, cfg.identification
-    lp = pcfg.lowpass
-    if lp is None:
-        raise ConfigError("identification.method = 'ml' estimates the cut-off of the position filter: set "
-                          "processing.lowpass (time domain) or [processing.periodic] (paper 004 §3)")
-    if lp.filter_effort:
-        raise ConfigError("identification.method = 'ml' models the efforts as measured: set "
-                          "processing.lowpass.filter_effort = false (paper 004 §3.3)")
-    if pcfg.derivatives != "central":
-        raise ConfigError("identification.method = 'ml' differentiates the filtered positions: "
-                          "processing.derivatives must be 'central'")
-    if pcfg.decimate > 1:
-        raise ConfigError("identification.method = 'ml' in the time domain scores every sample: "
-                          "processing.decimate must be 1")
-    if pcfg.min_velocity_passive is not None:
-        raise ConfigError("identification.method = 'ml' keeps one row selection for every cut-off; "
-                          "processing.min_velocity_passive depends on the filtered passive joints: leave it out")
-    if not system.channels_are_actuators(force_model):
-        raise ConfigError("identification.method = 'ml' models the measured actuator forces with one noise covariance; "
-                          "the projected equations G_a^T tau_a of a redundantly actuated mechanism weight them by the "
-                          "configuration: choose identification.force_model = 'min_norm' or 'min_norm_local_friction'")
-    for key in ("noise_covariance", "position_covariance"):
-        if getattr(icfg, key) == "periodic":
-            raise ConfigError(f"identification.{key}: without [processing.periodic] there is no period averaging to "
-                              "estimate it from; give it as a matrix (time-domain maximum likelihood)")
-    channels = system.channel_names(force_model)
-    cov_e, cov_d = ml_covariances(icfg, [], tuple(channels), tuple(system.actuator_names))
-    fs = 1.0 / float(np.median(np.diff(train_a.t))) if train_a.is_uniform() else (
-        float(pcfg.resample) if isinstance(pcfg.resample, float) else train_a.fs)
-    low, high = icfg.cutoff_range_hz or (0.5 * lp.cutoff_hz, 2.0 * lp.cutoff_hz)
-    high = min(high, 0.5 * fs * (1 - 1e-9))
-    cutoffs = log_cutoff_grid(low, high, ML_TIME_CANDIDATES)
-    trim = pcfg.trim_samples if pcfg.trim_samples is not None else padlen_for(lp.order, low, fs)
-    fixed = dataclasses.replace(pcfg, trim_samples=trim)
-    raw, _ = preprocess(train_a, dataclasses.replace(fixed, lowpass=None), "data")
-    ref, steps = preprocess(train_a, fixed, "data")
-    guard = None
-    if pcfg.reversal_guard is not None:
-        guard = zero_phase_settling_time(lp.order, low) if pcfg.reversal_guard == "auto" else float(pcfg.reversal_guard)
-        keep = reversal_keep(ref.dq, ref.t, guard, pcfg.min_velocity)
-    else:
-        keep = velocity_mask(ref.dq, pcfg.min_velocity)
-    if keep is not None and keep.ndim == 1:
-        keep = np.broadcast_to(keep[:, None], ref.dq.shape)
-    meta["processing"] = steps
-    # the pilot estimate for M_a(q): Gauss-Markov with Sigma_eta at the configured cut-off, same rows
-    progress("pilot estimate", 0, 1)
-    pilot_problem, w0 = _compress(system, base, ref, force_model=force_model, min_velocity=None, parallel_decimate=1,
-                                  chunk_size=icfg.chunk_size, progress=_no_progress, meta=meta, cross=True,
-                                  periodic=None, keep=keep)
-    try:
-        pilot, pilot_from = gls_solve(pilot_problem, cov_e).beta, f"Gauss-Markov with Sigma_eta at {lp.cutoff_hz:g} Hz"
-    except IdentifiabilityError:  # the configured cut-off does not identify every parameter: the description's
-        pilot, pilot_from = base.from_standard(system.nominal_parameters()), "the robot description's parameters"
-    per_sample = len(channels) * system.n_actuators * base.n_base
-    stride = max(1, int(fs / (ML_INERTIA_POINTS_PER_CUTOFF_PERIOD * lp.cutoff_hz)),
-                 -(-ref.n_samples * per_sample // ML_INERTIA_MAX_FLOATS))
-    tk, Ak = _acceleration_columns(system, base, ref, force_model, stride, icfg.chunk_size)
-    Mk = Ak @ pilot  # M_a(q) of the pilot estimate
-    Bk = np.einsum("kij,jl,kml->kim", Mk, cov_d, Mk)  # M_a Sigma_dd M_a^T at those samples
-    progress("pilot estimate", 1, 1)
-    worst = [w0]
-
-    auto_width = icfg.coulomb_smoothing == "auto"
-
-    def build(fc: float):
-        progress("cut-off search", cutoffs.index(fc), len(cutoffs))
-        at = dataclasses.replace(fixed, lowpass=dataclasses.replace(lp, cutoff_hz=fc))
-        ds, _ = preprocess(train_a, at, "data")
-        g2 = processing_noise_gains(lp.order, fc, fs).acceleration
-        cb = CandidateBuilder(base.names, channels, cov_e)
-        sys_fc = system.with_coulomb_width(velocity_noise_std(train_a, pcfg, cutoff_hz=fc)) if auto_width else system
-        a = 0
-        for c in _chunks(sys_fc, base, ds, force_model, chunk_size=icfg.chunk_size, keep=keep):
-            b = a + c.y.shape[0]
-            cb.add(c.W, c.y, c.reversal, g2 * _interp_rows(ds.t[a:b], tk, Bk),
-                   (_interp_rows(ds.t[a:b], tk, Ak), g2 * cov_d))
-            worst[0] = max(worst[0], float(c.inconsistency.max(initial=0.0)))
-            a = b
-        cand = cb.build(raw.q - ds.q, keep, expressions=base.expressions(), standard=system.standard_map(base),
-                        meta=meta)
-        return cand
-
-    result = MaximumLikelihood(noise_covariance=cov_e, position_covariance=cov_d).fit(
-        CutoffFamily(cutoffs, build, None))
-    progress("cut-off search", len(cutoffs), len(cutoffs))
-    fc = result.solver["cutoff_hz"]
-    at_fc = dataclasses.replace(fixed, lowpass=dataclasses.replace(lp, cutoff_hz=fc),
-                                reversal_guard=guard if guard is not None else pcfg.reversal_guard)
-    result = dataclasses.replace(result, solver={**result.solver, "trim_samples": int(trim),
-                                                 "reversal_guard_s": guard,
-                                                 "propagation": {"pilot": pilot_from, "pilot_params": [float(x) for x in pilot],
-                                                                 "inertia_every_samples": stride,
-                                                                 "acceleration_noise_gain": processing_noise_gains(
-                                                                     lp.order, fc, fs).acceleration},
-                                                 "rows_kept_per_actuator": None if keep is None else keep.sum(axis=0).tolist()})
-    if auto_width:
-        result = dataclasses.replace(result, solver={**result.solver, "coulomb_width": [
-            float(w) for w in velocity_noise_std(train_a, pcfg, cutoff_hz=fc)]})
-    return result, at_fc, worst[0]
-
-
-def _stribeck_fit(cfg: Config, system: System, base: BaseParameters, train: Dataset, force_model: str | None,
-                  periodic, progress: Progress, meta: dict):
-    """The Stribeck fit on at most ``max_samples`` rows spread over the processed log (the pose
-    domain's rows come from the whole period, then are thinned)."""
-    icfg, pcfg = cfg.identification, cfg.processing
-    fj = stribeck.friction_joints(system, base)
-    pose = periodic is not None and periodic.domain == "pose"
-    rows = train if pose else stribeck.subsample(train, icfg.max_samples)
-    chunks = list(_chunks(system, base, rows, force_model, chunk_size=icfg.chunk_size, progress=progress,
-                          task="Stribeck rows", periodic=periodic))
-    W, y, dq = (np.concatenate([getattr(c, a) for c in chunks]) for a in ("W", "y", "dq"))
-    jdq = np.concatenate([c.joint_dq for c in chunks]) if chunks[0].joint_dq is not None else None
-    if pose:
-        idx = stribeck.sample_indices(W.shape[0], icfg.max_samples)
-        W, y, dq, jdq = W[idx], y[idx], dq[idx], (None if jdq is None else jdq[idx])
-    worst = max(float(c.inconsistency.max(initial=0.0)) for c in chunks)
-    guard = pcfg.reversal_guard_s()
-    reversal = None
-    if guard is not None:  # on the whole processed log, then at the rows the fit uses
-        reversal = reversal_keep(train.dq, train.t, guard, pcfg.min_velocity)
-        if rows is not train:
-            reversal = reversal[stribeck.sample_indices(train.n_samples, icfg.max_samples)]
-    mask = row_mask(system, force_model, dq, pcfg.min_velocity, joint_dq=jdq,
-                    min_velocity_passive=pcfg.min_velocity_passive, reversal=reversal)
-    if mask is not None and mask.ndim == 1:
-        mask = np.broadcast_to(mask[:, None], y.shape)
-    sp = stribeck.sample_problem(W, y, dq, mask, fj, base, system.channel_names(force_model),
-                                 system.standard_map(base), meta)
-    progress("Stribeck fit", 0, 1)
-    result = stribeck.describe(stribeck.estimator(cfg).fit(sp), base, fj, W.shape[0], train.n_samples,
-                               pcfg.min_velocity)
-    progress("Stribeck fit", 1, 1)
-    return result, fj, worst
-
-
-def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Dataset, force_model: str | None,
-                  parallel: int, meta: dict, progress: Progress) -> tuple[IdentificationResult, float]:
-    """IDIM-IV / DIDIM (:mod:`dynid.pipeline.control_loop`) from the WLS estimate or the nominal model."""
-    from dynid.pipeline.control_loop import control_loop_estimate
-
-    icfg, pcfg = cfg.identification, cfg.processing
-    start, worst = None, 0.0
-    if icfg.start == "wls":
-        problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
-                                   parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress,
-                                   meta=meta, cross=False, periodic=None, min_velocity_passive=pcfg.min_velocity_passive,
-                                   reversal_guard=pcfg.reversal_guard_s())
-        from dynid.estimation import WLS
-
-        start = WLS().fit(problem)
-
-    def chunks(ds: Dataset, joint_q=None, rows_system: System | None = None) -> Iterator[Chunk]:
-        # only the measured rows are selected (the replays reuse their masks): no guard on the replays;
-        # rows_system: DIDIM's replay rows with the replay's regularized Coulomb law (control_loop)
-        guard = pcfg.reversal_guard_s() if ds is train else None
-        return _chunks(rows_system or system, base, ds, force_model, parallel_decimate=parallel, chunk_size=icfg.chunk_size,
-                       reversal_guard=guard, min_velocity=pcfg.min_velocity, joint_q=joint_q)
-
-    def mask_of(c: Chunk):
-        return row_mask(system, force_model, c.dq, pcfg.min_velocity, joint_dq=c.joint_dq,
-                        min_velocity_passive=pcfg.min_velocity_passive, reversal=c.reversal)
-
-    selects = pcfg.selects_rows
-    result = control_loop_estimate(cfg, system, base, train, force_model, start, chunks, mask_of if selects else None,
-                                   meta, progress)
-    return result, worst
-
-
-def _coulomb_smoothing(spec, train_a: Dataset, pcfg, system) -> dict[str, Any] | None:
-    """``identification.coulomb_smoothing``: None ("none"), or the widths per actuator and where
-    they come from ("auto": :func:`~dynid.pipeline.data.velocity_noise_std` of the training log)."""
-    if spec == "none":
-        return None
-    if spec == "auto":
-        width = velocity_noise_std(train_a, pcfg)
-        return {"kind": "erf", "width": [float(w) for w in width],
-                "source": "auto: velocity-noise std of the training log after the processing"}
-    if len(spec) != system.n_actuators:
-        raise ConfigError(f"identification.coulomb_smoothing: {len(spec)} widths for {system.n_actuators} actuators "
-                          f"({', '.join(system.actuator_names)})")
-    return {"kind": "erf", "width": [float(w) for w in spec], "source": "given"}
-
-
-def _hierarchical_fit(cfg: Config, system: System, base: BaseParameters, train: Dataset, steps, channels, names,
-                      progress: Progress, meta: dict, original: System | None = None):
-    """:func:`dynid.pipeline.hierarchical.hierarchical_fit` on every processed training row (the
-    friction-free regressor: ``[robot]`` without the friction extras, a mechanism without its
-    actuated joints' friction terms, see :func:`_identify`; ``original``: the mechanism's system
-    before, for the names of the terms the curves replace)."""
-    from dynid.pipeline import hierarchical
-
-    icfg, pcfg = cfg.identification, cfg.processing
-    force_model = system.force_model(icfg.force_model)
-    chunks = list(_chunks(system, base, train, force_model, chunk_size=icfg.chunk_size, progress=progress,
-                          task="hierarchical rows", reversal_guard=pcfg.reversal_guard_s(),
-                          min_velocity=pcfg.min_velocity))
-    W, y, dq = (np.concatenate([getattr(c, a) for c in chunks]) for a in ("W", "y", "dq"))
-    rev = None if chunks[0].reversal is None else np.concatenate([c.reversal for c in chunks])
-    jdq = None if chunks[0].joint_dq is None else np.concatenate([c.joint_dq for c in chunks])
-    Ga = None if chunks[0].Ga is None else np.concatenate([c.Ga for c in chunks])
-    mask = row_mask(system, force_model, dq, pcfg.min_velocity, joint_dq=jdq,
-                    min_velocity_passive=pcfg.min_velocity_passive, reversal=rev)
-    if mask is not None and mask.ndim == 1:  # whole samples (projected equations, passive joints)
-        mask = np.broadcast_to(mask[:, None], y.shape)
-    worst = max(float(c.inconsistency.max(initial=0.0)) for c in chunks)
-    mechanism = None
-    if system.kind != "serial":
-        replaced, passive = hierarchical.replaced_terms(system, original)
-        mechanism = {
-            "choice": ("nonlinear curves on the actuated joints (their linear friction terms "
-                       f"{', '.join(replaced) or 'none'} replaced); the passive joints' friction "
-                       f"({', '.join(passive) or 'none'}) kept as linear columns of the rigid-body step"),
-            "curves_on": list(system.actuator_names), "replaced_linear_terms": replaced,
-            "passive_linear_terms": passive, "force_model": force_model or "actuator forces (non-redundant)"}
-    prior = None
-    if icfg.friction_prior is not None:
-        prior = hierarchical.read_prior(icfg.friction_prior, icfg.friction_model, tuple(system.actuator_names))
-    nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
-    estimator = configured_estimator(icfg, steps, channels, names, nominal)
-    result, fr = hierarchical.hierarchical_fit(
-        W, y, dq, mask, family=icfg.friction_model, joints=tuple(system.actuator_names), estimator=estimator,
-        names=base.names, channels=channels,
-        build_kwargs={"expressions": base.expressions(), "standard": system.standard_map(base), "meta": meta},
-        prior=prior, prior_source=None if icfg.friction_prior is None else str(icfg.friction_prior), progress=progress,
-        projection=hierarchical.projection_kind(system, force_model), Ga=Ga, mechanism=mechanism)
-    return result, fr, worst
-
-
 def _hierarchical_prior(cfg0: Config, result: IdentificationResult, force_model: str | None, held_out: Dataset,
                         held_full: Dataset | None, rows_rule, parallel: int, progress: Progress, periodic=None):
     """The nominal model of a hierarchical run as the robot description gives it, *with* its
@@ -1154,101 +325,6 @@ def _with_row_selection(result: IdentificationResult, pcfg, system: System, forc
     return result
 
 
-GAIN_REL_STD = 0.10
-"""The largest relative standard error of an estimated drive gain that :func:`identify` uses: a
-motor whose torques the nominal model barely predicts (a wrist whose currents are mostly
-friction) has a gain the prior does not decide; then no gain is used (unit gains, said so).
-10 %: a CAD prior is itself typically 10-15 % off, so a gain known to 10 % adds no more to the
-comparison with the prior than the prior's own error."""
-
-GAIN_BLOCKS = 20
-"""Contiguous blocks of the training rows over which :func:`estimate_drive_gains` repeats its
-fit: the spread of the block estimates gives the interval (it sees the prior's systematic error
-as it varies along the log, which the residuals' white-noise variance would not)."""
-
-
-def estimate_drive_gains(system: System, base: BaseParameters, train: Dataset, force_model: str | None, *,
-                         parallel_decimate: int = 1, chunk_size: int = 20000) -> dict[str, Any]:
-    r"""The motors' current-to-torque gains :math:`K` from the prior (issue 34, item 8).
-
-    With efforts logged as motor currents and no ``robot.drive_gains`` the parameters would absorb
-    the gains. The nominal model's torques explain the currents up to them: per actuator equation
-    :math:`j`,
-
-    .. math:: \tau^{nom}_j = \sum_m C_{mj} k_m i_m - f_{v,j}\,\dot q_j - f_{c,j}\,\mathrm{sign}(\dot q_j) - c_j,
-
-    with :math:`\tau^{nom} = W\beta_{nom}` the description's rigid-body torques, :math:`C` the
-    coupling matrix (identity without couplings), and viscous, Coulomb friction and an offset
-    per actuator as nuisance terms where the description has no friction for that joint (a
-    description rarely has the friction the currents carry; where it has, its torques include it).
-    One least-squares fit over all rows (``train`` processed with unit gains, so its efforts are
-    :math:`C^T i`); the interval of each :math:`k_m` from the fits on :data:`GAIN_BLOCKS`
-    contiguous blocks (standard error of the block mean). The prior's own error enters as bias:
-    a description 10 % off in mass gives gains about 10 % off, which the identification then
-    carries; a known-payload experiment removes it (README).
-    """
-    if not system.channels_are_actuators(force_model):
-        raise ConfigError("drive gains from the prior: the equations are projected (redundant actuation); give "
-                          "robot.drive_gains")
-    tr = system.transmission
-    n = system.n_actuators
-    C = np.eye(n) if tr is None else np.asarray(tr.matrix, dtype=float)
-    nominal = base.from_standard(system.nominal_parameters())
-    ys, ts, vs = [], [], []
-    for c in _chunks(system, base, train, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
-                     task="drive gains"):
-        ys.append(c.y)
-        ts.append(c.W @ nominal)
-        vs.append(c.dq)
-    u, tau, dq = np.concatenate(ys), np.concatenate(ts), np.concatenate(vs)
-    cur = np.linalg.solve(C.T, u.T).T  # the currents (the efforts are C^T i at unit gains)
-    rows = u.shape[0]
-    # friction as a nuisance only where the description has none (where it has some, its torques
-    # include it, and a free friction term would trade with the gain of a friction-dominated joint)
-    free = np.ones(n, dtype=bool)
-    try:
-        idx = system.model.layout.extra_index
-        std_nom = np.asarray(system.nominal_parameters(), float)
-        for key in ("fv", "fc"):
-            if key in idx:
-                free &= std_nom[idx[key]] == 0
-    except (AttributeError, KeyError, IndexError, TypeError):
-        pass
-
-    def fit(sl: slice) -> FloatArray:
-        m = cur[sl].shape[0]
-        A = np.zeros((m * n, n + 3 * n))
-        for j in range(n):
-            r = slice(j * m, (j + 1) * m)
-            A[r, :n] = cur[sl] * C[:, j]
-            if free[j]:
-                A[r, n + j] = -dq[sl, j]
-                A[r, 2 * n + j] = -np.sign(dq[sl, j])
-            A[r, 3 * n + j] = -1.0
-        b = tau[sl].T.reshape(-1)
-        scale = np.linalg.norm(A, axis=0)
-        scale[scale == 0] = 1.0
-        x = np.linalg.lstsq(A / scale, b, rcond=None)[0] / scale
-        return x[:n]
-
-    k = fit(slice(0, rows))
-    nb = min(GAIN_BLOCKS, rows // max(4 * n, 10))
-    if nb >= 4:
-        edges = np.linspace(0, rows, nb + 1).astype(int)
-        kb = np.array([fit(slice(a, b)) for a, b in zip(edges[:-1], edges[1:])])
-        std = kb.std(axis=0, ddof=1) / np.sqrt(nb)
-    else:
-        std = np.full(n, np.nan)
-    if not np.all(np.isfinite(k)) or np.any(k <= 0):
-        bad = [f"{nm} {x:.3g}" for nm, x in zip(system.actuator_names, k) if not (np.isfinite(x) and x > 0)]
-        raise InputError(f"drive gains from the prior: {', '.join(bad)} (not positive): the currents do not follow the "
-                         "nominal model's torques (a sign flipped, columns swapped, or a joint that does not move); "
-                         "give robot.drive_gains")
-    return {"value": k.tolist(), "std": std.tolist(), "blocks": int(nb), "rows": int(rows),
-            "source": "prior: the nominal model's torques fitted to the currents (with friction and offset as "
-                      "nuisance terms), interval from contiguous blocks"}
-
-
 def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs: Any = None,
               gains: dict[str, Any] | None = None) -> IdentifyOutcome:
     cfg0 = cfg
@@ -1281,6 +357,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
                          "reason": f"identification.structure = {cfg.identification.structure!r}",
                          **({"chains": [[list(c) for c in g] for g in system.reduction.chains]}
                             if system.reduction is not None else {})}
+    _experiments.check_several(cfg, structure_decided=auto is not None)  # before the methods' own checks
     force_model = _check_config(cfg, system)
     icfg, pcfg = cfg.identification, cfg.processing
     if cfg.learning is not None:
@@ -1295,7 +372,15 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     readers = dict(readers or {})
     from dynid.pipeline import streaming
 
+    several = len(cfg.training_logs) > 1
+    for i, spec in enumerate(cfg.training_logs[1:], start=1):
+        check_units(spec, kinds, names, f"data[{i}]")
+    for i, spec in enumerate(cfg.validation_logs[1:], start=1):
+        check_units(spec, kinds, names, f"validation[{i}]")
     streams, data_path = streaming.plan(cfg, system, readers)
+    if streams is not None and several:
+        raise ConfigError(f"data: {len(cfg.training_logs)} [[data]] experiments, but the training log is streamed "
+                          f"({data_path.get('reason')}); several experiments are held in memory, one at a time")
     if streams is not None:
         if cfg.identification.structure == "auto":  # no decision on a stream (below): the full model
             cfg0, cfg = _explicit_structure(cfg0, "full", None), _explicit_structure(cfg, "full", None)
@@ -1342,6 +427,9 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
             with_gains = dataclasses.replace(cfg0, robot=dataclasses.replace(cfg0.robot, drive_gains=tuple(est["value"])))
             return _identify(with_gains, progress, readers, jobs, gains=est)
         gains = est  # reported, not used
+    if several and raw_train.meta["effort_kind"] == "current" and cfg0.robot.drive_gains is None:
+        raise ConfigError("robot.drive_gains: several [[data]] experiments measure currents; give the drive gains "
+                          "(they are estimated from one log only)")
     smoothing = _coulomb_smoothing(icfg.coulomb_smoothing, train_a, pcfg, system)
     if smoothing is not None:
         system = system.with_coulomb_width(smoothing["width"])
@@ -1381,6 +469,9 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
         result, fj, worst = _stribeck_fit(cfg, system, base, train, force_model, periodic, progress, meta)
     elif icfg.method in ("iv", "didim"):
         result, worst = _control_loop(cfg, system, base, train, force_model, parallel, meta, progress)
+    elif several:
+        result, worst = _several(cfg, system, base, train, steps, raw_train.meta, force_model, parallel, meta, progress,
+                                 names, readers)
     else:
         blocks = block_builder(icfg.covariance, base.names, channels, n_eff)
         problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
@@ -1423,6 +514,9 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     scored = score_held_out(cfg0, cfg, system, base, result, force_model, pcfg, held_out, valid_a, fj, periodic,
                             parallel, progress)
     metrics, prior, other, selected, full = scored
+    if several or len(cfg.validation_logs) > 1:
+        result = _per_log_validation(cfg, system, base, result, force_model, pcfg, metrics, parallel, names, readers,
+                                     progress)
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     learned = None
@@ -1446,6 +540,52 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
                            other_view=other, selected=selected, full_rate=full, learning=learned,
                            units=effort_units(system, force_model, raw_train.meta["effort_kind"]), prediction=prediction,
                            data_path={**data_path, "training_samples": train.n_samples}, structure=structure)
+
+
+def _several(cfg: Config, system: System, base: BaseParameters, train: Dataset, steps, raw_meta, force_model, parallel,
+             meta, progress, names, readers) -> tuple[IdentificationResult, float]:
+    """The ``[[data]]`` experiments, each processed and compressed on its own, their factors stacked
+    (:mod:`dynid.pipeline.experiments`); the configured estimator (OLS or WLS) on the stacked factors."""
+    pcfg, icfg = cfg.processing, cfg.identification
+    worst = [0.0]
+
+    def compress(ds: Dataset) -> RegressionProblem:
+        problem, w = _compress(system, base, ds, force_model=force_model, min_velocity=pcfg.min_velocity,
+                               parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress, meta=meta,
+                               cross=False, periodic=None, min_velocity_passive=pcfg.min_velocity_passive,
+                               reversal_guard=pcfg.reversal_guard_s())
+        worst[0] = max(worst[0], w)
+        return problem
+
+    def read(spec, label: str):
+        raw = read_log(spec, system.n_actuators, names, label, readers)
+        a, _ = to_actuator_space(raw, system, label)
+        ds, st = preprocess(a, pcfg, label)
+        check_joint_motion(ds, system, icfg.min_joint_motion, label)
+        return ds, st, raw.meta
+
+    first = _experiments.Experiment(0, cfg.training_logs[0], train, compress(train), dict(raw_meta), steps)
+    exps = _experiments.build_experiments(cfg, first, compress, read)
+    stacked = _experiments.stack(exps)
+    nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
+    estimator = configured_estimator(icfg, steps, stacked.channel_names, tuple(names), nominal)
+    return _experiments.collapse(estimator.fit(stacked), stacked, exps), worst[0]
+
+
+def _per_log_validation(cfg: Config, system: System, base: BaseParameters, result: IdentificationResult, force_model,
+                        pcfg, first: ValidationMetrics, parallel, names, readers, progress) -> IdentificationResult:
+    """A held-out table per ``[[validation]]`` log (each processed on its own) and the pooled one."""
+    per_log = [_experiments.validation_record("validation[0]", cfg.validation_logs[0], first)]
+    for i, spec in enumerate(cfg.validation_logs[1:], start=1):
+        label = f"validation[{i}]"
+        raw = read_log(spec, system.n_actuators, names, label, readers)
+        a, _ = to_actuator_space(raw, system, label)
+        ds, _ = preprocess(a, pcfg, label)
+        m = validate(result, system, base, ds, force_model=force_model, parallel_decimate=parallel,
+                     chunk_size=cfg.identification.chunk_size, progress=progress)
+        per_log.append(_experiments.validation_record(label, spec, m))
+    pooled = _experiments.pooled_validation(per_log, first.channel_names)
+    return result.with_provenance(validation_logs=per_log, validation_pooled=pooled)
 
 
 def _chart_from_log(cfg0: Config, cfg: Config, system: System, train: Dataset,
@@ -1748,266 +888,3 @@ def _learn(cfg: Config, system: System, base: BaseParameters, result: Identifica
         p_tr, p_va = p_tr + f_tr, p_va + curves.force(held_out.dq)
     return train_and_validate(cfg.learning, names, train, y_tr, p_tr, held_out, y_va, p_va, fr, progress,
                               model_friction=f_tr)
-
-
-OUTPUT_FILES = ("result.json", "result.npz", "params.csv", "summary.txt", "validation.png", "processing.png", "report.html",
-                "hierarchical.png", "model.urdf", "model.mjcf", TIMING_FILE, "result_learning.pt")
-
-
-def write_outputs(outcome: IdentifyOutcome, out_dir: str | Path) -> dict[str, Path]:
-    """Write result.json, result.npz, params.csv, summary.txt, timing.json (+ plots, report.html).
-
-    Files are staged and moved into ``out_dir`` only when all were written; dynid
-    outputs of an earlier run that this run did not produce are removed. Returns the
-    files of this run.
-    """
-    out = Path(out_dir)
-    try:
-        with staged_output(out) as stage:
-            write_files(outcome, stage)
-            produced = sorted(p.name for p in stage.iterdir())
-    except BaseException:
-        if outcome.jobs is not None:  # the figures still under way are no longer wanted
-            outcome.jobs.close(kill=True)
-        raise
-    if outcome.jobs is not None:  # every figure collected: the worker is idle and ends
-        outcome.jobs.close()
-    # outputs of an earlier run that this run did not write (e.g. plots now switched off)
-    # would describe another identification: remove them
-    for name in OUTPUT_FILES:
-        if name not in produced and (out / name).is_file():
-            (out / name).unlink()
-    return {name: out / name for name in produced}
-
-
-ONE_OF_MANY = ("one of many: the data fix only the base parameters; these standard parameters are the physically "
-               "consistent vector (every body's pseudo-inertia positive semidefinite: positive mass, inertia within the "
-               "triangle inequalities) closest to the nominal one (min ||S^-1 (pi - pi_nom)||, S the RMS nominal "
-               "magnitude of each kind of parameter: mass, first moment, inertia, each joint term) that gives the "
-               "estimated base parameters; every other vector with these base parameters predicts the same forces")
-
-
-def standard_vector(outcome: IdentifyOutcome) -> tuple[FloatArray, list[str]] | None:
-    """The standard vector of a result (the system's parameters), and notes for the exported file.
-
-    A physically consistent fit's recovered vector as it is (consistent by construction; with
-    regularization it is the estimate itself). For every other result whose parameters start with
-    the base parameters (OLS, WLS, Gauss-Markov, IV, DIDIM, maximum likelihood; the rigid-body part
-    of a Stribeck or hierarchical fit), the rule of
-    :func:`~dynid.estimation.consistent_standard.consistent_standard`: the physically consistent
-    vector closest to the nominal one, :math:`\\min\\lVert S^{-1}(\\pi - \\pi_{nom})\\rVert`
-    (:func:`~dynid.model.base_parameters.parameter_scales`) subject to :math:`B\\pi = \\hat\\beta`
-    and every body's pseudo-inertia :math:`\\succeq 0` (Wensing, Kim & Slotine 2017); when no
-    consistent vector gives :math:`\\hat\\beta`, the one that misses it least (in standard
-    deviations of the estimate), which a note says. Joint terms pass through. The nominal vector is
-    the description's projected onto the physically consistent set
-    (:func:`~dynid.model.base_parameters.consistent_parameters`; unchanged for a consistent
-    description). None: no base parameters."""
-    from dynid.estimation.consistent_standard import consistent_standard
-    from dynid.model.base_parameters import consistent_parameters, parameter_scales
-
-    res = outcome.result
-    system = outcome.system if outcome.system is not None else as_system(outcome.robot)
-    names = system.parameter_names
-    std = res.solver.get("standard_params")
-    if std:
-        missing = [n for n in names if n not in std]
-        if missing:
-            raise InputError(f"the result's standard parameters do not match the robot (missing {missing[:3]})")
-        return np.array([std[n] for n in names], dtype=float), []
-    base = outcome.base
-    if tuple(res.names[: base.n_base]) != base.names or tuple(base.standard_names) != tuple(names):
-        return None
-    nominal = consistent_parameters(system.nominal_parameters(), system.body_blocks())
-    scale = parameter_scales(names, system.body_blocks(), nominal)
-    beta = np.array(res.params[: base.n_base], dtype=float)
-    notes = [ONE_OF_MANY]
-    if "stribeck" in res.solver:  # its curves replace the linear Coulomb and viscous columns (stribeck.predict)
-        fj = stribeck.friction_joints(system, base)
-        beta[list(fj.coulomb) + list(fj.viscous)] = 0.0
-        notes.append("the Stribeck friction curves (result.json solver.stribeck) replace the linear Coulomb and "
-                     "viscous terms, written here as 0")
-    cov = None if res.cov_params is None else np.asarray(res.cov_params, dtype=float)[: base.n_base, : base.n_base]
-    found = consistent_standard(beta, system.standard_map(base), nominal, scale, cov)
-    pi = found.params
-    if found.projected:
-        notes.append("the closest vector without the consistency constraints was not physically consistent; "
-                     "the constraints bind (a semidefinite program, Clarabel)")
-    if not found.exact:
-        notes.append(f"no physically consistent standard vector gives the estimated base parameters: this one "
-                     f"misses them by {found.mismatch:.3g} ({found.metric}; the least any consistent vector misses "
-                     f"them by is {found.stages['mismatch_min']:.3g}), and its forces differ from the estimate's "
-                     "accordingly")
-    notes += list(found.notes)
-    if "hierarchical" in res.solver:
-        notes.append("the hierarchical fit's friction curves are in result.json (solver.hierarchical), not in this file")
-    return pi, notes
-
-
-def export_model(outcome: IdentifyOutcome, folder: Path,
-                 found: tuple[FloatArray, list[str]] | None | bool = False) -> Path | None:
-    """The result's standard parameters (:func:`standard_vector`, or ``found``, its value when the
-    caller has it) as a robot description: ``model.urdf`` for a serial robot, ``model.mjcf`` for a
-    closed-loop mechanism (None when the result has no base parameters to reproduce); a body that
-    is not physically consistent is an :class:`~dynid.errors.InputError` and no file is written
-    (:func:`dynid.io.export.write_model`)."""
-    if found is False:
-        found = standard_vector(outcome)
-    if found is None:
-        return None
-    from dynid.io.export import write_model
-
-    pi, notes = found
-    robot = outcome.robot
-    system = outcome.system if outcome.system is not None else as_system(robot)
-    # a reduced structure (identification.structure): every tied body gets its group's values
-    params = system.expand_parameters(pi)
-    return write_model(robot, params, folder, name=f"{robot.name}_identified", notes=notes)
-
-
-def export_warnings(outcome: IdentifyOutcome, factor: float = 10.0,
-                    found: tuple[FloatArray, list[str]] | None | bool = False) -> list[str]:
-    """Lines for summary.txt when the exported standard parameters are far from the model's
-    nominal ones: a body mass more than ``factor`` times above or below its nominal value. The
-    base parameters fix only combinations of the standard ones; without regularization the rest
-    comes from the tie-break, and a constrained fit on weak data can push it far (e.g. legs of
-    hundreds of tonnes that give the same actuator forces). ``found``: :func:`standard_vector`'s
-    value when the caller has it."""
-    if found is False:
-        found = standard_vector(outcome)
-    robot = outcome.system if outcome.system is not None else as_system(outcome.robot)
-    if found is None:
-        return []
-    nominal = robot.nominal_parameters()
-    names = robot.parameter_names
-    far = []
-    for blk in robot.body_blocks():
-        i = blk[0]
-        m, m0 = float(found[0][i]), float(nominal[i])
-        if m0 > 0 and not (m0 / factor <= m <= m0 * factor):
-            far.append(f"{names[i]} = {m:.4g} kg (nominal {m0:.4g} kg)")
-    if not far:
-        return []
-    return [f"warning: the exported model's masses are far from the nominal ones: {', '.join(far)}. The data fix "
-            "the base parameters only; regularization towards the nominal model (identification.regularization) "
-            "gives standard parameters a simulator can trust."]
-
-
-def _nominal_dict(v: ValidationMetrics) -> dict[str, Any]:
-    """The nominal model's errors for result.json (its rows, source and overlap are the validation's)."""
-    d = v.to_dict()
-    return {k: d[k] for k in ("joints", "n_samples", "rmse_per_joint", "rel_rmse_pct_per_joint", "max_abs_error_per_joint",
-                              "r2_per_joint")}
-
-
-def _selected_dict(sel: SelectedRows) -> dict[str, Any]:
-    """:class:`SelectedRows` for result.json."""
-    d = sel.metrics.to_dict()
-    ident = {k: d[k] for k in ("joints", "n_samples", "rows_per_joint", "rmse_per_joint", "rel_rmse_pct_per_joint",
-                               "max_abs_error_per_joint", "r2_per_joint", "kind")}
-    return {"rule": sel.rule, "identified": ident,
-            **({"nominal": {**_nominal_dict(sel.nominal), "rows_per_joint": ident["rows_per_joint"]}}
-               if sel.nominal is not None else {}),
-            **({"prior_comparison": sel.prior} if sel.prior is not None else {})}
-
-
-def _full_rate_dict(fr: FullRate) -> dict[str, Any]:
-    """:class:`FullRate` for result.json."""
-    d = fr.metrics.to_dict()
-    ident = {k: d[k] for k in ("joints", "n_samples", "rmse_per_joint", "rel_rmse_pct_per_joint",
-                               "max_abs_error_per_joint", "r2_per_joint")}
-    return {"decimate_in_fit": fr.decimate, "identified": ident,
-            **({"nominal": _nominal_dict(fr.nominal)} if fr.nominal is not None else {}),
-            **({"prior_comparison": fr.prior} if fr.prior is not None else {})}
-
-
-def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
-    """Write the output files into an existing folder (see :func:`write_outputs`)."""
-    res = outcome.result
-    expressions = res.expressions if res.expressions is not None else outcome.base.expressions()
-    system = outcome.system if outcome.system is not None else as_system(outcome.robot)
-    # the physical-consistency check (a semidefinite program) runs with the report only
-    jobs = outcome.jobs if outcome.config.output.plots else None
-    flags = outcome.flags
-    res.save(
-        stage / "result",
-        extra={
-            "validation": {**outcome.validation.to_dict(), **({"units_per_joint": list(outcome.units)}
-                                                              if outcome.units else {})},
-            "parameter_flags": flags,
-            "robot": {"name": outcome.robot.name, "source": getattr(outcome.robot, "source", "")},
-            "warnings": [w.to_dict() for w in outcome.warnings],
-            **({"nominal_validation": _nominal_dict(outcome.nominal_validation), "prior_comparison": outcome.prior}
-               if outcome.nominal_validation is not None else {}),
-            **({"validation_other_view": {"label": outcome.other_view.label,
-                                          "identified": _nominal_dict(outcome.other_view.metrics),
-                                          **({"nominal": _nominal_dict(outcome.other_view.nominal)}
-                                             if outcome.other_view.nominal is not None else {})}}
-               if outcome.other_view is not None else {}),
-            **({"validation_selected_rows": _selected_dict(outcome.selected)} if outcome.selected is not None else {}),
-            **({"validation_full_rate": _full_rate_dict(outcome.full_rate)} if outcome.full_rate is not None else {}),
-            **({"learning": outcome.learning.to_dict()} if outcome.learning is not None else {}),
-            "training": {"n_samples": outcome.n_train, "rmse_per_joint": res.rmse_per_channel.tolist()},
-            **({"data_path": outcome.data_path} if outcome.data_path is not None else {}),
-            **({"prediction_inputs": outcome.prediction} if outcome.prediction is not None else {}),
-            **({"structure": outcome.structure} if outcome.structure is not None else {}),
-            "base_parameters": {
-                "names": list(outcome.base.names),
-                "expressions": list(expressions),
-                "standard_names": list(outcome.base.standard_names),
-            },
-        },
-    )
-    with open(stage / "params.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["name", "value", "std", "rel_std_pct", "ci_low", "ci_high", "expression", "covariance"])
-        if res.cov_params is not None:
-            ci, bse, rel = res.conf_int(), res.bse, res.rel_std
-            stats = [(repr(float(bse[i])), f"{rel[i]:.6g}", repr(float(ci[i, 0])), repr(float(ci[i, 1]))) for i in range(len(res.names))]
-        else:  # the method gives no covariance (see the result's notes): leave the columns empty
-            stats = [("", "", "", "")] * len(res.names)
-        for i, n in enumerate(res.names):
-            w.writerow([n, repr(float(res.params[i])), *stats[i], expressions[i], res.covariance_kind or ""])
-    found = standard_vector(outcome)  # a consistency failure raises here: no output at all (exit 2)
-    warn = export_warnings(outcome, found=found)
-    try:
-        exported = export_model(outcome, stage, found)
-    except ModelError as exc:  # what a format cannot hold (a joint type): the estimate is kept, the file is not written
-        exported = None
-        warn = [f"no robot description exported: {exc}", *warn]
-    if exported is not None and found is not None and found[1]:
-        warn = [f"exported {exported.name}: " + "; ".join(found[1]), *warn]
-    (stage / "summary.txt").write_text(outcome.summary_text() + "\n" + "".join(f"\n{w}\n" for w in warn))
-    if outcome.learning is not None:
-        from dynid.pipeline.learning import LEARNING_FILE
-
-        outcome.learning.networks.save(stage / LEARNING_FILE)
-    write_timing(stage, {"identify_s": outcome.elapsed_s, "solver": res.timing})
-    if outcome.config.output.plots:
-        from dynid.report import plot_validation, write_html_report
-
-        if jobs is not None and "validation.png" in jobs:
-            jobs.write_figure("validation.png", stage / "validation.png")
-        else:
-            plot_validation(outcome.validation, stage / "validation.png", units=outcome.units or None)
-        images = {"validation.png": "Validation: measured against predicted"}
-        if "hierarchical" in res.solver:
-            from dynid.pipeline.hierarchical import plot_history
-
-            plot_history(res.solver["hierarchical"], tuple(res.channel_names), stage / "hierarchical.png")
-            images["hierarchical.png"] = "Hierarchical iterations"
-        raw, proc = (outcome.raw_train, outcome.train) if outcome.raw_train is not None else (outcome.streamed_plots
-                                                                                              or (None, None))
-        if raw is not None:
-            if jobs is not None and "processing.png" in jobs:
-                jobs.write_figure("processing.png", stage / "processing.png")
-            else:
-                from dynid.report.plots import plot_processing
-
-                plot_processing(raw, proc, stage / "processing.png", steps=proc.meta.get("processing"))
-            images["processing.png"] = "Processing: raw and processed training signals"
-        write_html_report(res, outcome.validation, stage / "report.html",
-                          images={stage / name: title for name, title in images.items()},
-                          nominal=outcome.nominal_validation, prior=outcome.prior, other_view=outcome.other_view,
-                          selected=outcome.selected, units=outcome.units or None, flags=flags, facts=run_facts(),
-                          structure=outcome.structure)

@@ -92,10 +92,25 @@ def _processing_config(d: dict[str, Any]) -> ProcessingConfig:
     return ProcessingConfig(**d)
 
 
-def _read_log_config(path: str | Path, saved_robot: RobotConfig):
-    """The ``[data]`` table of the log config (and its ``[robot]`` table, checked against the result's)."""
+def log_count(path: str | Path) -> int:
+    """How many logs the log config names: 1 for ``[data]``, the entries of ``[[data]]``."""
+    data = read_toml(Path(path)).get("data")
+    return len(data) if isinstance(data, list) else 1
+
+
+def _read_log_config(path: str | Path, saved_robot: RobotConfig, index: int | None = None):
+    """The ``[data]`` table of the log config, or entry ``index`` of its ``[[data]]`` array (and its ``[robot]``
+    table, checked against the result's)."""
     path = Path(path)
     doc = read_toml(path)
+    where = "data"
+    if isinstance(doc.get("data"), list):
+        if not doc["data"]:
+            raise ConfigError(f"{path}: an empty [[data]] array")
+        if index is None and len(doc["data"]) > 1:
+            raise ConfigError(f"{path}: {len(doc['data'])} [[data]] logs; score them with predict_logs (dynid predict does)")
+        where = f"data[{index or 0}]"
+        doc = {**doc, "data": doc["data"][index or 0]}
     other = sorted(set(doc) - {"data", "robot"})
     if other:
         raise ConfigError(f"{path}: [{other[0]}] is not read by dynid predict: the processing and the model are the "
@@ -114,7 +129,7 @@ def _read_log_config(path: str | Path, saved_robot: RobotConfig):
         if diff:
             raise ConfigError(f"{path}: [robot] {diff[0]} differs from the result's robot ({getattr(saved_robot, diff[0])!r}); "
                               "leave [robot] out to use the result's")
-    return _parse_data(doc["data"], "data", base)
+    return _parse_data(doc["data"], where, base)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -232,8 +247,9 @@ def _hierarchical_curves(result: IdentificationResult, joints: tuple[str, ...]):
 
 
 def predict(result_path: str | Path, log_config: str | Path, progress: Progress = _no_progress, *,
-            processing_from: str | Path | None = None) -> PredictOutcome:
-    """Score the saved model of ``result_path`` on the log of ``log_config`` (module docstring).
+            index: int | None = None, processing_from: str | Path | None = None) -> PredictOutcome:
+    """Score the saved model of ``result_path`` on the log of ``log_config`` (module docstring); ``index``: that
+    entry of a ``[[data]]`` array (:func:`predict_logs` scores them all).
 
     ``processing_from``: another result of ``dynid identify`` on the same robot whose processing
     (filters, derivatives, decimation, row selection) is used instead of this result's own: two
@@ -256,7 +272,7 @@ def predict(result_path: str | Path, log_config: str | Path, progress: Progress 
     if not robot["model"].startswith("builtin:") and not Path(robot["model"]).is_absolute():
         robot["model"] = str((saved.folder / robot["model"]).resolve())
     robot_cfg = _robot_config(robot)
-    data = _read_log_config(log_config, robot_cfg)
+    data = _read_log_config(log_config, robot_cfg, index)
     base_dir = Path(inp["config_dir"]) if inp.get("config_dir") else saved.folder
     if not base_dir.is_absolute():
         base_dir = (saved.folder / base_dir).resolve()
@@ -363,6 +379,43 @@ def plot_prediction(outcome: PredictOutcome, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def predict_logs(result_path: str | Path, log_config: str | Path, progress: Progress = _no_progress):
+    """Every log of a ``[[data]]`` log config, each read, processed and scored on its own (:func:`predict`), and
+    the pooled table (:func:`dynid.pipeline.experiments.pooled_validation`: the squared errors summed over
+    every log's rows)."""
+    from dynid.pipeline.experiments import pooled_validation, validation_record
+
+    outcomes = [predict(result_path, log_config, progress, index=i) for i in range(log_count(log_config))]
+    specs = [_read_log_config(log_config, _robot_config_of(result_path), i) for i in range(len(outcomes))]
+    per_log = [validation_record(f"data[{i}]", spec, o.metrics) for i, (spec, o) in enumerate(zip(specs, outcomes))]
+    return outcomes, per_log, pooled_validation(per_log, outcomes[0].metrics.channel_names)
+
+
+def _robot_config_of(result_path: str | Path) -> RobotConfig:
+    saved = load_saved(result_path)
+    robot = dict(saved.inputs["robot"])
+    if not robot["model"].startswith("builtin:") and not Path(robot["model"]).is_absolute():
+        robot["model"] = str((saved.folder / robot["model"]).resolve())
+    return _robot_config(robot)
+
+
+def write_predictions(outcomes, per_log, pooled, out_dir: str | Path, plots: bool = True) -> list[str]:
+    """Several logs: summary.txt (each log's, then the per-log and pooled tables), predict.json
+    (``logs``, ``validation_logs``, ``validation_pooled``), predict_<i>.png; all written or none."""
+    from dynid.pipeline.experiments import summary_lines
+
+    with staged_output(out_dir) as stage:
+        text = "\n\n".join(f"== data[{i}]\n{o.summary_text()}" for i, o in enumerate(outcomes))
+        (stage / "summary.txt").write_text(text + "\n" + "\n".join(summary_lines([], per_log, pooled)) + "\n")
+        doc = {"logs": [o.to_dict() for o in outcomes], "validation_logs": per_log, "validation_pooled": pooled}
+        (stage / "predict.json").write_text(json.dumps(_finite(doc), indent=2, allow_nan=False))
+        if plots:
+            for i, o in enumerate(outcomes):
+                plot_prediction(o, stage / f"predict_{i}.png")
+        written = sorted(p.name for p in stage.iterdir())
+    return written
 
 
 def write_prediction(outcome: PredictOutcome, out_dir: str | Path, plots: bool = True) -> list[str]:

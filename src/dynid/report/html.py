@@ -185,6 +185,27 @@ def _image_html(path: Path, title: str) -> str:
             f"<figcaption>{html.escape(title)} ({html.escape(Path(path).name)})</figcaption></figure>")
 
 
+def _several_logs_html(prov: Mapping[str, Any]) -> str:
+    """``[[data]]`` / ``[[validation]]`` (:mod:`dynid.pipeline.experiments`): a row per experiment, a held-out
+    table per validation log and the pooled one (squared errors summed over every log's rows)."""
+    out = ""
+    if prov.get("experiments"):
+        rows = "".join(f"<tr><td>data[{e['index']}]</td><td>{html.escape(', '.join(Path(f).name for f in e['files']))}"
+                       f"</td><td>{e['samples_processed']}</td><td>{e['rate_hz']:.6g}</td><td>{e['rows_used']}</td>"
+                       f"<td>{', '.join(f'{x:.4g}' for x in e['noise_std'])}</td></tr>" for e in prov["experiments"])
+        out += ("<h2 id='experiments'>Experiments ([[data]])</h2><table><tr><th>experiment</th><th>files</th>"
+                f"<th>samples</th><th>rate Hz</th><th>rows used</th><th>noise std (WLS weights)</th></tr>{rows}</table>")
+    logs = list(prov.get("validation_logs") or [])
+    if logs:
+        pooled = prov.get("validation_pooled")
+        rows = "".join(f"<tr><td>{html.escape(v['label'])}</td>" + "".join(
+            f"<td>{e:.4g} ({100 * r:.1f} %)</td>" for e, r in zip(v["rmse"], v["relative_rmse"])) + "</tr>"
+            for v in [*logs, *([pooled] if pooled else [])])
+        out += ("<h2 id='validation-logs'>Held-out error per validation log</h2><table><tr><th>log</th>"
+                + "".join(f"<th>{html.escape(c)} RMSE (rel.)</th>" for c in logs[0]["channels"]) + f"</tr>{rows}</table>")
+    return out
+
+
 def structure_lines(record: dict[str, Any] | None) -> list[str]:
     """The parameter structure and the evidence of its choice in words (summary.txt, the report):
     ``record`` is result.json's ``"structure"`` (:mod:`dynid.pipeline.structure`)."""
@@ -258,6 +279,7 @@ def write_html_report(result: IdentificationResult, metrics: Any, path: str | Pa
         + f"<h2 id='validation'>{html.escape(metrics.heading())}</h2>"
         + "<table><tr><th>joint</th><th>unit</th><th>RMSE</th><th>rel RMSE %</th><th>R²</th>"
         + ("<th>RMSE nominal</th>" if nominal is not None else "") + f"</tr>{rows}</table>"
+        + _several_logs_html(result.provenance)
         + (_prior_html(metrics, nominal, prior) if nominal is not None and prior is not None else "")
         + (_selected_html(selected) if selected is not None else "")
         + (_other_view_html(other_view) if other_view is not None else "")
