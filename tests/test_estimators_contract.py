@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import seed
-from dynid.errors import ConfigError, InputError
+from dynid.errors import ConfigError, IdentifiabilityError, InputError
 from dynid.estimation import (
     IRLS,
     OLS,
@@ -61,7 +61,9 @@ ALL = {
     "GM estimated": GaussMarkov(iterations=2),
     "IRLS": IRLS(),
     "IRLS full": IRLS(covariance="full"),
-    "TLS": TLS(),
+    # the errors of these problems are in the outputs only (whitened: std 1 per channel); TLS told so.
+    # TLS() with its unit-norm heuristic is refused on them (test_tls_refuses_an_ill_posed_problem)
+    "TLS": TLS(error_std=(1e-3,) * BASE.n_base + (1.0,)),
     "PhysicalLS": PhysicalLS(weighting="wls"),
 }
 
@@ -255,6 +257,21 @@ def test_tls_is_consistent_with_errors_in_the_regressor():
     assert np.abs((ols.params - beta) / ols.bse).max() > 5  # biased beyond its own uncertainty
     assert np.abs((tls.params - beta) / tls.bse).max() < 4.5  # 4 parameters: a false alarm of 3e-5
     assert np.abs(tls.params - beta).max() < 0.05  # TLS std 0.005: 10 of them
+
+
+def test_tls_refuses_an_ill_posed_problem(noisy):
+    """With unit column norms TLS assumes errors in every column as large as the output's; on this
+    arm (cond(W^T W) = 1e5, errors in the outputs only) the regressor's weakest direction is then
+    below those errors and TLS would amplify it (generalized.TLS docstring): refused with the
+    figures. The same data with the right error scales are well posed, and TLS is then within a
+    fraction of a standard error of WLS: the TLS correction moves the estimate by about
+    (kappa - 1) x its size along the weakest direction, kappa - 1 ~ 1e-3 here (seen 8e-4) and
+    that direction ~10 std from 0 (seen: 0.007 std); 0.1 leaves a factor 10."""
+    with pytest.raises(IdentifiabilityError, match=r"TLS is ill-posed .* multiply the weakest parameter direction by"):
+        TLS().fit(noisy)
+    res, wls = ALL["TLS"].fit(noisy), WLS().fit(noisy)
+    assert 1.0 <= res.solver["amplification"] <= 2.0
+    assert np.abs((res.params - wls.params) / wls.bse).max() < 0.1
 
 
 def test_errors_name_the_problem(noisy):

@@ -263,6 +263,12 @@ class IRLS:
         return _result(problem, "IRLS", s, sigma, solver, (f"IRLS: per-channel noise variances re-estimated {it} times",))
 
 
+TLS_MAX_AMPLIFICATION = 2.0
+"""The largest factor :class:`TLS` may multiply the weakest direction of the least-squares solution by:
+beyond it the regressor's weakest direction carries less signal than the errors TLS assumes in it
+(signal-to-error ratio below 1; see :class:`TLS`)."""
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class TLS:
     """Total least squares for a noisy regressor (errors in the variables).
@@ -277,6 +283,28 @@ class TLS:
     asymptotic expression :math:`\\hat\\sigma^2 (1 + \\|x\\|^2) (A^T A - s_{min}^2 I)^{-1}` in the
     scaled variables (Van Huffel & Vandewalle 1991, §8), valid when the scaled regressor and
     output errors are independent with equal variance; a note says so.
+
+    Well-posedness (refused otherwise). With :math:`\\sigma'_p` the smallest singular value of the
+    scaled regressor :math:`A` and :math:`s_{p+1}` the smallest of the scaled :math:`[A\\;y]`, the TLS
+    solution exists and is unique only when :math:`\\sigma'_p > s_{p+1}` (Van Huffel & Vandewalle
+    1991, Thm 2.7), and the TLS correction of the least-squares solution,
+    :math:`x = (A^TA - s_{p+1}^2 I)^{-1} A^T y`, multiplies the weakest direction by
+
+    .. math:: \\kappa = \\frac{\\sigma'^2_p}{\\sigma'^2_p - s^2_{p+1}}.
+
+    Under the TLS model (errors of variance :math:`s^2` per row in every scaled column, n rows)
+    :math:`s^2_{p+1} \\approx n s^2` and :math:`\\sigma'^2_p \\approx \\sigma^2_p(A_0) + n s^2`, so
+    :math:`\\kappa - 1 \\approx n s^2 / \\sigma_p^2(A_0)`: the inverse squared signal-to-error ratio of the
+    regressor's weakest direction. Above :data:`TLS_MAX_AMPLIFICATION` (2: that direction carries
+    less signal than the errors TLS assumes in it) the smallest singular vector of :math:`[A\\;y]` is
+    a near-collinearity of the regressor columns, not the noise; the first-order covariance above
+    (an expansion in error over signal) does not hold either. The fit is then refused with the
+    figures (:class:`~dynid.errors.IdentifiabilityError`, one line from the CLI). This is what
+    happens with unit column norms on an ill-conditioned closed-chain regressor, where the errors
+    are mostly in the outputs: a MuJoCo Stewart platform (examples/mujoco_twins, 53 base
+    parameters, condition number 1.9e3) gave :math:`\\sigma'_p` = 1.2130e-3 against :math:`s_{p+1}` =
+    1.2121e-3, :math:`\\kappa` = 750, and held-out errors of 150-230 % per leg where WLS has 1.3-1.6 %
+    and the prior 3-33 % (bench/README, "TLS on a closed chain").
     """
 
     weighting: str = "wls"
@@ -306,9 +334,19 @@ class TLS:
         if abs(v[p]) < 1e-12 or sv[-1] >= sv[-2] * (1 - 1e-12):
             raise IdentifiabilityError("the total-least-squares problem has no unique solution "
                                        "(smallest singular value repeated or its vector has no output component)")
+        A = Ms[:, :p]
+        sa = float(np.linalg.svd(A, compute_uv=False)[-1])
+        kappa = sa**2 / (sa**2 - sv[-1] ** 2) if sa > sv[-1] else float("inf")
+        if not kappa <= TLS_MAX_AMPLIFICATION:
+            snr = 1.0 / np.sqrt(kappa - 1.0) if np.isfinite(kappa) and kappa > 1 else 0.0
+            raise IdentifiabilityError(
+                f"TLS is ill-posed on these data: the scaled regressor's smallest singular value {sa:.5g} is within "
+                f"{100 * (sa - sv[-1]) / sa:.2g} % of the smallest of [regressor, output] ({sv[-1]:.5g}), so TLS would "
+                f"multiply the weakest parameter direction by {kappa:.3g} (its signal-to-error ratio under TLS's "
+                f"error model is {snr:.2g}, below 1) and fit a near-collinearity of the regressor instead of the noise "
+                f"({scaling}); use method = 'wls' or 'iv' (or, from Python, TLS(error_std=...) with the regressor columns' error scales)")
         x = -v[:p] / v[p]
         beta = x * d[p] / d[:p]
-        A = Ms[:, :p]
         dof = problem.n_total - p
         s2 = sv[-1] ** 2 / dof
         G = A.T @ A - sv[-1] ** 2 * np.eye(p)
@@ -323,7 +361,8 @@ class TLS:
         check_identifiable(r, problem.names)
         s = _Solve(beta=beta, R=r, c=np.zeros(p), rss=rss, scale=float(s2), cov=cov, dof=dof, cond=condition_number(r))
         solver = {"algorithm": "SVD of the column-scaled, whitened augmented factors", "weighting": self.weighting,
-                  "column_scaling": scaling, "smallest_singular_values": sv[-2:].tolist()}
+                  "column_scaling": scaling, "smallest_singular_values": sv[-2:].tolist(),
+                  "regressor_smallest_singular_value": sa, "amplification": kappa}
         notes = ("TLS covariance is first-order asymptotic and assumes equal, independent errors in the scaled "
                  "regressor columns and outputs",)
         return _result(problem, "TLS", s, sigma, solver, notes)
