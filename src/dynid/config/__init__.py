@@ -164,7 +164,10 @@ class ProcessingConfig:
 
     resample: str | float = "auto"
     lowpass: LowpassConfig | None = None
-    derivatives: str = "central"
+    derivatives: str = "central"  # "central" | "measured" | "kalman" (RTS smoother: dynid.signals.kalman)
+    # derivatives = "kalman": the positions' measurement noise std per coordinate (SI, actuator space), e.g.
+    # an encoder's resolution / sqrt(12); None: estimated from the log with the smoother's noise ratio
+    position_noise_std: tuple[float, ...] | None = None
     decimate: int = 1
     decimate_method: str = "samples"
     trim_samples: int | None = None
@@ -357,7 +360,7 @@ class Config:
 ROBOT_KEYS = ("extras", "gear_ratios", "couplings", "drive_gains", "position_offset", "actuated", "independent",
               "rotor_inertia")
 """The keys of ``[robot]`` besides ``model``."""
-PROCESSING_KEYS = ("resample", "lowpass", "derivatives", "decimate", "decimate_method", "trim_samples", "min_velocity",
+PROCESSING_KEYS = ("resample", "lowpass", "derivatives", "position_noise_std", "decimate", "decimate_method", "trim_samples", "min_velocity",
                    "min_velocity_passive", "periodic", "reversal_guard")
 """The keys of ``[processing]``."""
 
@@ -596,6 +599,17 @@ def _windows(t: Mapping[str, Any], where: str) -> tuple[tuple[int, int] | None, 
     return rows, window
 
 
+def _noise_std(t: dict, where: str) -> tuple[float, ...] | None:
+    """``processing.position_noise_std``: one value or one per coordinate, only with derivatives = 'kalman'."""
+    if "position_noise_std" not in t:
+        return None
+    if t.get("derivatives") != "kalman":
+        raise ConfigError(f"{where}.position_noise_std is the measurement noise of the Kalman smoother: it needs "
+                          f"{where}.derivatives = 'kalman'")
+    v = _num_or_list(t["position_noise_std"], f"{where}.position_noise_std", positive=True)
+    return v if isinstance(v, tuple) else (v,)
+
+
 def _parse_processing(t: Any) -> ProcessingConfig:
     where = "processing"
     t = _table(t, where, set(PROCESSING_KEYS))
@@ -637,14 +651,15 @@ def _parse_processing(t: Any) -> ProcessingConfig:
             filter_effort=_bool(pt.get("filter_effort", False), f"{where}.periodic.filter_effort"),
             domain=_str(pt.get("domain", "actuators"), f"{where}.periodic.domain", ("actuators", "pose")),
         )
-        clash = [k for k in ("lowpass", "decimate", "trim_samples") if k in t] + (["derivatives"] if t.get("derivatives") == "measured" else [])
+        clash = [k for k in ("lowpass", "decimate", "trim_samples") if k in t] + (["derivatives"] if t.get("derivatives") in ("measured", "kalman") else [])
         if clash:
             raise ConfigError(f"{where}.periodic replaces {clash}: the frequency-domain processing filters, differentiates and keeps whole periods itself")
     return ProcessingConfig(
         periodic=periodic,
         resample=resample,
         lowpass=lowpass,
-        derivatives=_str(t.get("derivatives", "central"), f"{where}.derivatives", ("central", "measured")),
+        derivatives=_str(t.get("derivatives", "central"), f"{where}.derivatives", ("central", "measured", "kalman")),
+        position_noise_std=_noise_std(t, where),
         decimate=_int(t.get("decimate", 1), f"{where}.decimate", 1),
         decimate_method=_str(t.get("decimate_method", "samples"), f"{where}.decimate_method", ("samples", "parallel")),
         trim_samples=_int(t["trim_samples"], f"{where}.trim_samples", 0) if "trim_samples" in t else None,

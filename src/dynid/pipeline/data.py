@@ -375,10 +375,19 @@ def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str, *, filter_positio
     if not filter_positions:
         raise ConfigError("positions left unfiltered for a cut-off search need [processing.periodic]")
     lp = cfg.lowpass
+    kalman = None
+    if cfg.derivatives == "kalman":  # the smoother replaces the positions' low-pass (dynid.signals.kalman)
+        from dynid.signals.kalman import smooth
+
+        noise = cfg.position_noise_std
+        if noise is not None and len(noise) not in (1, q.shape[1]):
+            raise ConfigError(f"processing.position_noise_std has {len(noise)} values for {q.shape[1]} coordinates")
+        kalman = smooth(q, 1.0 / fs, None if noise is None else np.array(noise))
     if lp is not None:
         if not lp.cutoff_hz < fs / 2:
             raise ConfigError(f"processing.lowpass.cutoff_hz = {lp.cutoff_hz} Hz is not below fs/2 = {fs / 2:g} Hz")
-        q = lowpass(q, lp.cutoff_hz, fs, lp.order)
+        if kalman is None:
+            q = lowpass(q, lp.cutoff_hz, fs, lp.order)
         if dq_m is not None:
             dq_m = lowpass(dq_m, lp.cutoff_hz, fs, lp.order)
         if ddq_m is not None:
@@ -386,7 +395,16 @@ def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str, *, filter_positio
         if lp.filter_effort:
             tau = lowpass(tau, lp.cutoff_hz, fs, lp.order)
         steps.append({"step": "lowpass", "type": "zero-phase Butterworth (sosfiltfilt)", "cutoff_hz": lp.cutoff_hz, "order": lp.order, "fs_hz": fs, "efforts_filtered": lp.filter_effort})
-    if cfg.derivatives == "central":
+    if kalman is not None:
+        q, dq, ddq = kalman.q, kalman.dq, kalman.ddq
+        steps.append({"step": "derivatives", "method": "Kalman (RTS) smoother of the positions, white noise in the "
+                      "4th derivative (dynid.signals.kalman)", "noise_ratio": kalman.ratio.tolist(),
+                      "position_noise_std": kalman.noise_std.tolist(),
+                      "noise": "given" if cfg.position_noise_std is not None else "maximum likelihood from the log",
+                      "std_position": kalman.std[:, 0].tolist(), "std_velocity": kalman.std[:, 1].tolist(),
+                      "std_acceleration": kalman.std[:, 2].tolist(),
+                      "positions_lowpassed": False})
+    elif cfg.derivatives == "central":
         dq = central_difference(q, t)
         ddq = central_difference(dq, t)
         steps.append({"step": "derivatives", "method": "central differences of filtered positions"})
@@ -399,6 +417,8 @@ def preprocess(ds: Dataset, cfg: ProcessingConfig, label: str, *, filter_positio
     n_trim = cfg.trim_samples
     if n_trim is None:
         n_trim = padlen_for(lp.order, lp.cutoff_hz, fs) if lp is not None else 2
+        if kalman is not None:  # the smoother's start transient (below 1e-6 of its size)
+            n_trim = max(n_trim if lp is not None else 2, kalman.settle)
     if 2 * n_trim >= t.shape[0] - 2:
         n, left = t.shape[0], t.shape[0] - 2 * n_trim
         msg = (f"{label}: {n} samples; after trimming {n_trim} filter-transient samples at each end "
@@ -671,6 +691,8 @@ def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data",
     - ``processing.derivatives = "measured"``: :math:`s` is the measured velocity itself (the log's
       velocity columns), :math:`h` the configured low-pass (the processing filters measured
       velocities with it), or the identity without one (:math:`\sigma_{\dot q} = \sigma_s`).
+    - ``processing.derivatives = "kalman"``: the smoother's steady-state velocity std
+      (:func:`dynid.signals.kalman.smooth`).
 
     ``cutoff_hz``: the gain of the same low-pass at another cut-off (maximum likelihood's candidate
     cut-offs, :func:`dynid.pipeline.identification._maximum_likelihood_time`); :math:`\sigma_s` is
@@ -679,6 +701,13 @@ def velocity_noise_std(ds: Dataset, cfg: ProcessingConfig, label: str = "data",
     if cfg.periodic is not None:
         raise ConfigError("identification.coulomb_smoothing = 'auto' reads the velocity noise of a processed time "
                           "series; with [processing.periodic] give the widths per actuator instead")
+    if cfg.derivatives == "kalman":  # the smoother's own steady-state velocity std
+        from dynid.signals.kalman import smooth
+
+        t = np.asarray(ds.t, dtype=float)
+        noise = cfg.position_noise_std
+        return smooth(np.asarray(ds.q, dtype=float), float(np.median(np.diff(t))),
+                      None if noise is None else np.array(noise)).std[:, 1]
     measured = cfg.derivatives == "measured"
     if measured and ds.dq is None:
         raise ConfigError(f"identification.coulomb_smoothing = 'auto' with processing.derivatives = 'measured' reads "

@@ -93,6 +93,7 @@ def _why_not(cfg: Config, system) -> str | None:
         (system.kind != "serial", "closed-loop mechanisms are processed in memory"),
         (cfg.data.bag or cfg.validation.bag, "ROS bags are read in memory"),
         (pcfg.periodic is not None, "[processing.periodic] averages whole periods"),
+        (pcfg.derivatives == "kalman", "the Kalman smoother's noise is estimated from the whole log"),
         (pcfg.decimate > 1 and pcfg.decimate_method == "parallel", "parallel decimation"),
         (pcfg.reversal_guard is not None, "processing.reversal_guard needs the whole log's reversals"),
         (isinstance(pcfg.resample, float), "processing.resample to a given rate"),
