@@ -267,7 +267,7 @@ WRONG = [
     ("processing.lowpass", {"cutoff_hz": 5.0, "order": 0}, None, r"processing.lowpass.order: must be >= 1, got 0"),
     ("processing.lowpass", {"cutoff_hz": True}, None, r"processing.lowpass.cutoff_hz: expected a number, got True"),
     ("processing.resample", "sometimes", None, r"processing.resample: must be one of \['auto', 'off'\]"),
-    ("processing.derivatives", "spline", None, r"processing.derivatives: must be one of \['central', 'measured'\]"),
+    ("processing.derivatives", "spline", None, r"processing.derivatives: must be one of \['central', 'measured', 'kalman'\]"),
     ("processing.decimate", 0, None, r"processing.decimate: must be >= 1, got 0"),
     ("processing.min_velocity", -0.1, None, r"processing.min_velocity: must be >= 0"),
     ("processing.min_velocity", math.nan, None, r"processing.min_velocity: expected a finite number, got nan"),
