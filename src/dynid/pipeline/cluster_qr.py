@@ -271,10 +271,15 @@ class ClusterRun:
 
 def tree_reduce(client, leaves: list) -> Any:
     """The futures ``leaves`` combined pairwise, level by level, on the cluster (:func:`combine`); an odd
-    one out moves up a level unchanged. Returns the root's future."""
+    one out moves up a level unchanged. Returns the root's future. The combinations run before the
+    leaves still waiting (higher priority), as soon as their pair is done, and a result is released
+    once combined: a worker holds a few chunks' factors and the tree's frontier (``log2`` of the
+    chunks), not every chunk's."""
     level = list(leaves)
+    depth = 0
     while len(level) > 1:
-        nxt = [client.submit(combine, level[i], level[i + 1]) for i in range(0, len(level) - 1, 2)]
+        depth += 1
+        nxt = [client.submit(combine, level[i], level[i + 1], priority=depth) for i in range(0, len(level) - 1, 2)]
         if len(level) % 2:
             nxt.append(level[-1])
         level = nxt
@@ -298,13 +303,15 @@ def compress_on_cluster(cfg: Config, system, base, force_model: str | None, stre
         shared = client.scatter([light, system, base], broadcast=True)
         leaves = [client.submit(chunk_factor, *shared, force_model, pcfg, out_rows, n_eff, span, cross, pure=False)
                   for span in spans]
-        done = 0
-        for fut in distributed.as_completed(leaves):
+        root_future = tree_reduce(client, leaves)
+        finished = distributed.as_completed(leaves, loop=client.loop)
+        del leaves  # (a chunk's factors are released once combined)
+        for done, fut in enumerate(finished, start=1):
             if fut.status == "error":
                 fut.result()  # the worker's error (an InputError of the log: NaN at a row, a short column), here
-            done += 1
-            progress("compress", done, len(leaves))
-        root = tree_reduce(client, leaves).result()
+            progress("compress", done, len(spans))
+        del fut
+        root = root_future.result()
     channels = system.channel_names(force_model)
     problem = RegressionProblem(
         names=base.names, channel_names=channels, factors=root.factors, n_obs=root.n_obs, cross=root.cross,
