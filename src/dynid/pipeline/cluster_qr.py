@@ -30,21 +30,23 @@ residual sum of squares for any parameter vector
 the OLS residual variances and the weights (paper 001 Eqs. 14-16), in the driver, on the root.
 
 Margin against the single-process result. Householder QR is backward stable: the computed factor of
-a sequence (in-process) or a tree (cluster) of stacked QRs is the exact factor of ``A + dA`` with
-``||dA|| <= gamma ||A||``, ``gamma = c_1 (d + 1) sqrt(p) eps`` for a depth ``d`` of stacked
-factorizations and ``p`` columns (Higham, *Accuracy and Stability of Numerical Algorithms*, 2nd ed.,
-Thm. 19.4 and its per-column form; errors that add as a random walk, the usual case, give the
-square root of the width instead of the width). A least-squares solution of ``A + dA`` differs from
-that of ``A`` by (Wedin; Higham Thm. 20.1)
+a sequence (in-process) or a tree (cluster) of stacked QRs of ``A`` (``p`` columns) is the exact
+factor of ``A + dA`` with ``||dA|| <= gamma ||A||`` (Higham, *Accuracy and Stability of Numerical
+Algorithms*, 2nd ed., Thm. 19.4; a row goes through ``d`` stacked factorizations: the ``chunk_size``
+blocks of the log in sequence, plus the tree's levels). The worst-case constant grows like
+``d p eps``; rounding errors that add as a random walk (Higham Sec. 2.8, the rule of thumb that
+replaces such constants by their square roots) give ``gamma = c_1 sqrt((d + 1)(p + 1)) eps``. A
+least-squares solution of ``A + dA`` differs from that of ``A`` by at most (Wedin; Higham Thm. 20.1)
 
-.. math:: \\frac{\\|\\delta\\theta\\|}{\\|\\theta\\|} \\le \\kappa \\gamma
-   \\Big(2 + (\\kappa + 1) \\frac{\\|r\\|}{\\|A\\| \\|\\theta\\|}\\Big),
+.. math:: \\|\\delta\\theta\\| \\le \\kappa \\gamma
+   \\Big(2 \\|\\theta\\| + (\\kappa + 1) \\frac{\\|r\\|}{\\|A\\|}\\Big),
 
-``kappa`` the condition number of the (weighted) regressor, i.e. of its R factor, and ``r`` the
-residual. Both paths sit within that of the exact solution, so they sit within twice it of each
-other; ``tests/test_cluster_qr.py`` checks it with ``c_1 = 10`` on the problem's own ``kappa``,
-``theta`` and ``r``, and the standard deviations (``sigma sqrt(diag((R^T R)^-1))``, perturbed by
-``kappa gamma`` relatively) to ``4 kappa gamma``.
+``kappa`` the condition number of the weighted regressor (its R factor), ``r`` its residual: both
+the in-process and the cluster solution sit within that of the exact one, so within twice it of each
+other. The standard deviations ``s sqrt(diag((R^T R)^-1))`` move by ``kappa gamma`` relatively (the
+inverse of ``R``), twice that between the paths. ``tests/test_cluster_qr.py`` asserts both with
+``c_1 = 10``, ``kappa``, ``||A||``, ``||r||`` and ``theta`` read from the fit (its covariance
+``s^2 (R^T R)^-1``, scale ``s^2`` and degrees of freedom), and prints the differences seen.
 
 Memory per worker. A task holds one chunk: the raw rows ``[raw_lo, raw_hi)`` (its ``filter_rows``
 processed rows times the decimation, plus twice the filter overlap), their processed rows, one
