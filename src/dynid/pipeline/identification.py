@@ -378,6 +378,10 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     for i, spec in enumerate(cfg.validation_logs[1:], start=1):
         check_units(spec, kinds, names, f"validation[{i}]")
     streams, data_path = streaming.plan(cfg, system, readers)
+    if cfg.identification.cluster != "off":  # the streamed path on a Dask cluster, or why not
+        from dynid.pipeline.cluster_qr import check
+
+        check(cfg, data_path["reason"] if streams is None else None)
     if streams is not None and several:
         raise ConfigError(f"data: {len(cfg.training_logs)} [[data]] experiments, but the training log is streamed "
                           f"({data_path.get('reason')}); several experiments are held in memory, one at a time")

@@ -444,17 +444,8 @@ def open_stream(spec: DataConfig, n_channels: int, names: tuple[str, ...], label
 
 def plan(cfg: Config, system, readers: dict) -> tuple[tuple[LogStream, LogStream] | None, dict[str, Any]]:
     """Decide the path (module docstring): the two streams (None: in memory) and the record of
-    ``result.json``'s ``data_path``; with ``identification.cluster`` the streamed path or a
-    :class:`~dynid.errors.ConfigError` (:func:`dynid.pipeline.cluster_qr.check`)."""
-    streams, record = _plan(cfg, system, readers)
-    if cfg.identification.cluster != "off":
-        from dynid.pipeline.cluster_qr import check
-
-        check(cfg, record["reason"] if streams is None else None)
-    return streams, record
-
-
-def _plan(cfg: Config, system, readers: dict) -> tuple[tuple[LogStream, LogStream] | None, dict[str, Any]]:
+    ``result.json``'s ``data_path`` (``identification.cluster`` then checks it:
+    :func:`dynid.pipeline.cluster_qr.check`)."""
     mode = cfg.identification.streaming
     if mode == "off":
         return None, {"mode": "in-memory", "reason": "identification.streaming = 'off'"}
