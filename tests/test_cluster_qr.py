@@ -85,11 +85,13 @@ def _margins(res, depth: int) -> tuple[float, float]:
 @pytest.mark.numerics
 @pytest.mark.parametrize("method, processing", [
     ("wls", ""),
-    ("gm", "min_velocity = [0.05, 0.05, 0.05, 0.05, 0.05, 0.05]\n"),  # cross-channel and partial factors
+    # cross-channel and partial factors (a row selection), decimated rows
+    ("gm", "decimate = 5\nmin_velocity = [0.05, 0.05, 0.05, 0.05, 0.05, 0.05]\n"),
 ])
 def test_cluster_equals_single_process(log60k, monkeypatch, method, processing):
     """A LocalCluster of 2 processes, 5 chunks, a 3-level tree: the same estimate, standard deviations,
-    residuals and validation as the single-process streamed path, within the conditioning's margin."""
+    residuals and validation as the single-process streamed path, within the conditioning's margin
+    (decimated by 5: chunks of 2 000 processed rows, 10 000 log rows)."""
     monkeypatch.setattr(streaming, "FILTER_ROWS", FILTER)
     folder, data = log60k
     on = identify(_cfg(folder, data, 60_000, method=method, processing=processing))
@@ -98,8 +100,8 @@ def test_cluster_equals_single_process(log60k, monkeypatch, method, processing):
     assert on.data_path["mode"] == "streamed" and "cluster" not in off.data_path
     assert (cl["chunks"], cl["workers"], cl["tree_levels"]) == (5, 2, 3)
     assert json.loads(json.dumps(on.data_path))["cluster"]["chunks"] == 5  # result.json's data_path, as written
-    assert "on the cluster: local Dask cluster (2 processes), 5 chunks of 10000 processed rows on 2 workers" in \
-        on.summary_text()
+    assert f"on the cluster: local Dask cluster (2 processes), 5 chunks of {cl['chunk_rows']} processed rows on 2 " \
+           "workers" in on.summary_text()
     a, b = on.result, off.result
     assert a.n_obs.tolist() == b.n_obs.tolist()
     depth = -(-on.data_path["training_samples"] // CHUNK) + cl["tree_levels"]
@@ -240,3 +242,13 @@ def test_refusals_one_line_exit_2(log60k, tmp_path, capsys):
         assert main(["identify", str(path), "--out", str(tmp_path / "o"), "-q"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("dynid: error:") and says in err[0]
+
+
+def test_worker_error_is_one_line(tmp_path, capfd, monkeypatch):
+    """A NaN in the third chunk of the log, found on a worker: dynid's one line, exit 2, no output (the
+    workers' own logs silenced: ``capfd`` reads what the worker processes write to the same stderr)."""
+    monkeypatch.setattr(streaming, "FILTER_ROWS", FILTER)
+    log = _log(30_000)
+    log["q"][20_500, 2] = np.nan
+    rc, err = _cli(_cfg(tmp_path, _write(tmp_path, log, "npz"), 30_000), tmp_path, capfd)
+    assert rc == 2 and err == ["dynid: error: data: positions contains NaN values (first at sample 20500)"], err
