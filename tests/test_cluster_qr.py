@@ -234,7 +234,8 @@ def test_refusals_one_line_exit_2(log60k, tmp_path, capsys):
         rc, err = _cli(_cfg(folder, data, 60_000, **kw), tmp_path, capsys)
         assert rc == 2 and len(err) == 1 and err[0].startswith("dynid: error: identification.cluster"), err
         assert says in err[0], err
-    for kw, says in ((dict(cluster="off"), "identification.workers"), (dict(cluster="tcp://host:99999"), "not a Dask")):
+    for kw, says in ((dict(cluster="off"), "identification.workers"), (dict(cluster="tcp://host:99999"), "not a Dask"),
+                     (dict(cluster="lokal", workers=None), "expected 'off', 'local' or a Dask scheduler address")):
         with pytest.raises(ConfigError) as exc:
             _cfg(folder, data, 60_000, name="refused", **kw)
         assert says in str(exc.value)

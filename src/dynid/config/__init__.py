@@ -696,6 +696,9 @@ def _parse_cluster(t: Mapping[str, Any], where: str) -> dict[str, Any]:
     """``cluster`` ("off", "local" or a Dask scheduler address) and ``workers`` (with "local" only)."""
     cluster = t.get("cluster", "off")
     if cluster not in ("off", "local"):
+        if not (isinstance(cluster, str) and "://" in cluster):  # a bare word is a typo of a choice, not a host
+            raise ConfigError(f"{where}.cluster: expected 'off', 'local' or a Dask scheduler address with its scheme "
+                              f"(tcp://host:8786), got {cluster!r}")
         cluster = parse_scheduler(cluster, f"{where}.cluster")
     if "workers" in t and cluster != "local":
         raise ConfigError(f"{where}.workers is the size of the local cluster (cluster = 'local'); with cluster = "
