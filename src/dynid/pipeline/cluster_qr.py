@@ -29,14 +29,18 @@ residual sum of squares for any parameter vector
 (:meth:`~dynid.estimation.problem.RegressionProblem.rss_per_channel`), from which the estimator takes
 the OLS residual variances and the weights (paper 001 Eqs. 14-16), in the driver, on the root.
 
-Margin against the single-process result. Householder QR is backward stable: the computed factor of
-a sequence (in-process) or a tree (cluster) of stacked QRs of ``A`` (``p`` columns) is the exact
-factor of ``A + dA`` with ``||dA|| <= gamma ||A||`` (Higham, *Accuracy and Stability of Numerical
-Algorithms*, 2nd ed., Thm. 19.4; a row goes through ``d`` stacked factorizations: the ``chunk_size``
-blocks of the log in sequence, plus the tree's levels). The worst-case constant grows like
-``d p eps``; rounding errors that add as a random walk (Higham Sec. 2.8, the rule of thumb that
-replaces such constants by their square roots) give ``gamma = c_1 sqrt((d + 1)(p + 1)) eps``. A
-least-squares solution of ``A + dA`` differs from that of ``A`` by at most (Wedin; Higham Thm. 20.1)
+Margin against the single-process result. Householder QR is backward stable: the computed R of an
+``m x n`` matrix is the exact R of ``A + dA`` with ``||da_j|| <= c m n eps ||a_j||`` per column
+(Higham, *Accuracy and Stability of Numerical Algorithms*, 2nd ed., Thm. 19.4). Both paths factor
+a sequence (in-process) or a tree (cluster) of stacked matrices: a row goes through ``d``
+factorizations (the ``chunk_size`` blocks of the log, ``m_c`` rows each, stacked under the running
+factor; plus the tree's levels), each of at most ``m_c + p + 1`` rows and ``p + 1`` columns, and
+each step's error is relative to a matrix no larger than ``A``: the computed factor is the exact
+factor of ``A + dA``, ``||dA|| <= gamma ||A||``, with ``gamma`` of the order of ``d (m_c + p + 1)
+(p + 1) eps`` in the worst case. Rounding errors that add as a random walk (Higham Sec. 2.8, the
+rule of thumb that replaces such constants by their square roots) give
+``gamma = c_1 sqrt(d (m_c + p + 1)(p + 1)) eps``. A least-squares solution of ``A + dA`` differs from
+that of ``A`` by at most (Wedin; Higham Thm. 20.1)
 
 .. math:: \\|\\delta\\theta\\| \\le \\kappa \\gamma
    \\Big(2 \\|\\theta\\| + (\\kappa + 1) \\frac{\\|r\\|}{\\|A\\|}\\Big),
