@@ -159,7 +159,28 @@ def test_tree_of_stacked_factors_is_the_factor_of_the_stack():
     assert abs(abs(f[p, p]) - resid) <= 1e-12 * resid  # rho: the residual norm
 
 
-def test_worker_memory_does_not_grow_with_the_chunks(tmp_path, monkeypatch):
+@pytest.fixture(scope="module")
+def scheduler():
+    """A running cluster (2 processes, one thread each) for the tests that reach one by its address."""
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as lc:
+        yield lc.scheduler_address
+
+
+@pytest.mark.numerics
+def test_a_running_scheduler(log60k, monkeypatch, scheduler):
+    """``cluster = "tcp://..."``: the scheduler's workers run the chunks; the same model as one process."""
+    monkeypatch.setattr(streaming, "FILTER_ROWS", FILTER)
+    folder, data = log60k
+    on = identify(_cfg(folder, data, 60_000, cluster=scheduler, workers=None))
+    off = identify(_cfg(folder, data, 60_000, cluster="off", workers=None))
+    cl = on.data_path["cluster"]
+    assert (cl["where"], cl["workers"], cl["chunks"]) == (f"Dask scheduler {scheduler}", 2, 5)
+    bound, rel = _margins(off.result, -(-on.data_path["training_samples"] // CHUNK) + cl["tree_levels"], CHUNK)
+    assert np.linalg.norm(on.result.params - off.result.params) <= bound
+    assert np.max(np.abs(on.result.bse / off.result.bse - 1)) <= rel
+
+
+def test_worker_memory_does_not_grow_with_the_chunks(tmp_path, monkeypatch, scheduler):
     """The traced peak of each chunk's task on a worker (tracemalloc inside the task): the same (within
     10 %) for a log of 5 and of 10 chunks, larger for chunks of twice the rows (the raw rows a task
     holds: the peak follows the chunk, not the log); what a task returns does not grow either (its
@@ -186,8 +207,7 @@ def test_worker_memory_does_not_grow_with_the_chunks(tmp_path, monkeypatch):
         d.mkdir()
         logs[n] = d, _write(d, _log(n), "npz")
     peaks, sizes, rows = {}, {}, {}
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc, \
-            distributed.Client(lc, set_as_default=False) as client:
+    with distributed.Client(scheduler, set_as_default=False) as client:
         for label, n, block in (("warm-up", 60_000, FILTER), ("5 chunks", 60_000, FILTER), ("10 chunks", 120_000, FILTER),
                                 ("twice the rows", 120_000, 2 * FILTER)):
             monkeypatch.setattr(streaming, "FILTER_ROWS", block)

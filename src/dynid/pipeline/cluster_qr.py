@@ -253,7 +253,8 @@ def _client(cluster: str, workers: int) -> Iterator[tuple[Any, str]]:
 
         n = workers if workers > 0 else len(os.sched_getaffinity(0))
         # silent workers: a chunk's error (an InputError of the log) is dynid's one line, not Dask's log of it
-        with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+        # (the dashboard on a free port: no clash with one already running)
+        with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                       silence_logs=logging.CRITICAL) as lc, \
                 distributed.Client(lc, set_as_default=False) as client:
             yield client, f"local Dask cluster ({n} processes)"
