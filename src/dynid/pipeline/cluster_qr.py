@@ -10,8 +10,10 @@ the training pass of the streamed path (:mod:`dynid.pipeline.streaming`) on the 
    blocks the in-process path filters at once; it sends each worker a chunk's *row ranges*, not its
    data: the processed rows ``[f_lo, f_hi)`` and the raw rows ``[raw_lo, raw_hi)`` that cover them
    and their filter overlap;
-2. each worker opens the log itself (:class:`~dynid.io.readers.RowStream` seeks or streams to the
-   rows), reads those raw rows and their times, filters, differentiates and decimates them exactly as
+2. each worker opens the log itself (:class:`~dynid.io.readers.RowStream`: a stored NPZ member is
+   read from the chunk's first row, Parquet from its row group; a deflated NPZ member is decompressed
+   and a CSV file parsed up to it, in blocks: long logs are best given as NPZ or Parquet), reads
+   those raw rows and their times, filters, differentiates and decimates them exactly as
    the in-process path does (the same filter blocks: the processed rows are the same numbers), builds
    the base regressor chunk by chunk (``chunk_size`` rows), selects rows (``min_velocity``) and
    returns only a :class:`ChunkFactor`: per channel the ``(p+1) x (p+1)`` factor ``[[R, Q^T y],
