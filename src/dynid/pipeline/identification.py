@@ -722,7 +722,8 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
 
         blocks = None  # (covariance = "model": dynid.pipeline.cluster_qr.check)
         problem, run = compress_on_cluster(cfg, system, base, force_model, tr, size, meta, progress)
-        q_lo, q_hi, tau_max, constant, notes = run.root.q_lo, run.root.q_hi, run.root.tau_max, run.root.constant, run.root.notes
+        root = run.root
+        q_lo, q_hi, tau_max, constant, notes = root.q_lo, root.q_hi, root.tau_max, root.constant, root.notes
         reference, data_path = run.reference, {**data_path, "cluster": run.record}
     else:
         blocks = block_builder(icfg.covariance, base.names, channels, n_eff)
