@@ -188,6 +188,26 @@ def test_parquet(tmp_path, table):
     np.testing.assert_array_equal(TableReader(path).columns(["b", "t"]), table[:, [2, 0]])
 
 
+def test_parquet_rows_from_the_middle(tmp_path):
+    """RowStream of a Parquet file from a row inside a later row group (the groups before it skipped by
+    their footer sizes: a chunk on a cluster worker, dynid.pipeline.cluster_qr): the same rows, in
+    blocks of the asked size."""
+    pa = pytest.importorskip("pyarrow")
+    import pyarrow.parquet as pq
+
+    from dynid.io.readers import RowStream
+
+    x = np.random.default_rng(0).standard_normal((10_000, 3))
+    path = tmp_path / "log.parquet"
+    pq.write_table(pa.table({"a": x[:, 0], "b": x[:, 1], "c": x[:, 2]}), path, row_group_size=777)
+    rs = RowStream(TableReader(path), ["c", "a"])
+    for start, stop, block in [(0, None, 1000), (776, 777, 5), (777, 5000, 333), (5443, 10_000, 10_000), (9_999, None, 7),
+                               (10_000, None, 3)]:
+        got = list(rs.blocks(start, stop, block))
+        np.testing.assert_array_equal(np.concatenate(got) if got else np.empty((0, 2)), x[start:stop][:, [2, 0]])
+        assert all(g.shape[0] == block for g in got[:-1])
+
+
 # ---------------------------------------------------------------------- staged output
 def snapshot(folder):
     return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else None) for p in sorted(folder.rglob("*"))}

@@ -22,6 +22,8 @@ from dynid.config._schema import (  # noqa: F401 - re-exported to the other sche
     _reject_unknown,
     _str,
     _table,
+    parse_scheduler,
+    parse_workers,
     read_toml,
 )
 from dynid.errors import ConfigError
@@ -242,6 +244,11 @@ class IdentificationConfig:
     # chunk by chunk when the configuration allows it; "on": streamed or a ConfigError saying why not;
     # "off": held in memory (dynid.pipeline.streaming)
     streaming: str = "auto"
+    # the streamed path's chunks on a Dask cluster (dynid.pipeline.cluster_qr): "off", "local" (a LocalCluster
+    # of `workers` processes; 0: the cores this process may use) or a scheduler address (montecarlo.scheduler's
+    # syntax; its workers are the cluster's)
+    cluster: str = "off"
+    workers: int = 0
     base_seed: int = 0
     base_samples: int | None = None
     min_joint_motion: float = 1e-3
@@ -693,11 +700,25 @@ def _chain_groups(spec: Any, where: str) -> tuple[tuple[tuple[str, ...], ...], .
 _LOOP_KEYS = ("experiment", "start", "max_iterations", "tolerance", "replay_coulomb_band", "directions_rtol")
 
 
-IDENTIFICATION_KEYS = ("method", "physical_consistency", "chunk_size", "streaming", "base_seed", "base_samples", "min_joint_motion",
+IDENTIFICATION_KEYS = ("method", "physical_consistency", "chunk_size", "streaming", "cluster", "workers", "base_seed", "base_samples", "min_joint_motion",
                        "force_model", "noise_covariance", "iterations", "nominal_weighting", "position_covariance",
                        "cutoff_range_hz", "structure", "identical_chains", "coulomb_smoothing", "hierarchical",
                        "friction_prior", *_PHYSICAL_KEYS, *_COVARIANCE_KEYS, *_LOOP_KEYS)
 """The keys of ``[identification]``."""
+
+
+def _parse_cluster(t: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """``cluster`` ("off", "local" or a Dask scheduler address) and ``workers`` (with "local" only)."""
+    cluster = t.get("cluster", "off")
+    if cluster not in ("off", "local"):
+        if not (isinstance(cluster, str) and "://" in cluster):  # a bare word is a typo of a choice, not a host
+            raise ConfigError(f"{where}.cluster: expected 'off', 'local' or a Dask scheduler address with its scheme "
+                              f"(tcp://host:8786), got {cluster!r}")
+        cluster = parse_scheduler(cluster, f"{where}.cluster")
+    if "workers" in t and cluster != "local":
+        raise ConfigError(f"{where}.workers is the size of the local cluster (cluster = 'local'); with cluster = "
+                          f"{cluster!r} " + ("nothing runs on workers" if cluster == "off" else "the scheduler's workers run it"))
+    return {"cluster": cluster, "workers": parse_workers(t.get("workers", 0), f"{where}.workers")}
 
 
 def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfig:
@@ -837,6 +858,7 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
         max_samples=_int(t.get("max_samples", 4000), f"{where}.max_samples", 100),
         chunk_size=_int(t.get("chunk_size", 20000), f"{where}.chunk_size", 1),
         streaming=_str(t.get("streaming", "auto"), f"{where}.streaming", ("auto", "on", "off")),
+        **_parse_cluster(t, where),
         base_seed=_int(t.get("base_seed", 0), f"{where}.base_seed", 0),
         base_samples=_int(t["base_samples"], f"{where}.base_samples", 1) if "base_samples" in t else None,
         min_joint_motion=_num(t.get("min_joint_motion", 1e-3), f"{where}.min_joint_motion", minimum=0.0),

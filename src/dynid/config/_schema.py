@@ -126,3 +126,27 @@ def read_toml(path: Path) -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+
+
+def parse_workers(value: Any, where: str) -> int:
+    """``workers``: an integer >= 0 or ``"auto"`` (0: all cores)."""
+    if value == "auto":
+        return 0
+    if isinstance(value, str):
+        raise ConfigError(f"{where}: expected an integer >= 0 or \"auto\", got {value!r}")
+    return _int(value, where, 0)
+
+
+_SCHEDULER = re.compile(r"^(?:(?P<scheme>[A-Za-z][A-Za-z0-9+.-]*)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
+                        r"(?::(?P<port>\d{1,5}))?$")
+_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
+
+
+def parse_scheduler(value: Any, where: str) -> str:
+    """A Dask scheduler address: ``[tcp|tls|ucx|ws|wss://]host[:port]``."""
+    text = _str(value, where)
+    m = _SCHEDULER.match(text)
+    if m is None or (m.group("scheme") or "tcp") not in _SCHEMES or (m.group("port") and not 0 < int(m.group("port")) < 65536):
+        raise ConfigError(f"{where}: {text!r} is not a Dask scheduler address; expected "
+                          f"[{'|'.join(_SCHEMES)}://]host[:port], e.g. tcp://127.0.0.1:8786")
+    return text

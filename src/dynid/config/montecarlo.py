@@ -29,12 +29,12 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from dynid.config import Config, _bool, _int, _num, _str, _table, parse_config, read_toml
+from dynid.config._schema import parse_scheduler, parse_workers  # noqa: F401  (re-exported)
 from dynid.config.simulate import SimulateConfig, load_simulate_config, parse_simulate_config
 from dynid.errors import ConfigError, InputError
 
@@ -156,30 +156,6 @@ def _parse_simulate(t: Any, base_dir: Path) -> SimulateConfig:
         return parse_simulate_config(t, base_dir)
     except ConfigError as exc:
         raise ConfigError(f"simulate: {exc}") from None
-
-
-def parse_workers(value: Any, where: str) -> int:
-    """``workers``: an integer >= 0 or ``"auto"`` (0: all cores)."""
-    if value == "auto":
-        return 0
-    if isinstance(value, str):
-        raise ConfigError(f"{where}: expected an integer >= 0 or \"auto\", got {value!r}")
-    return _int(value, where, 0)
-
-
-_SCHEDULER = re.compile(r"^(?:(?P<scheme>[A-Za-z][A-Za-z0-9+.-]*)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
-                        r"(?::(?P<port>\d{1,5}))?$")
-_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
-
-
-def parse_scheduler(value: Any, where: str) -> str:
-    """A Dask scheduler address: ``[tcp|tls|ucx|ws|wss://]host[:port]``."""
-    text = _str(value, where)
-    m = _SCHEDULER.match(text)
-    if m is None or (m.group("scheme") or "tcp") not in _SCHEMES or (m.group("port") and not 0 < int(m.group("port")) < 65536):
-        raise ConfigError(f"{where}: {text!r} is not a Dask scheduler address; expected "
-                          f"[{'|'.join(_SCHEMES)}://]host[:port], e.g. tcp://127.0.0.1:8786")
-    return text
 
 
 def parse_montecarlo_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = None) -> MonteCarloConfig:

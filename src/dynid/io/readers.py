@@ -469,8 +469,17 @@ class RowStream:
             raise InputError(f"{r.path}: cannot read ({str(exc).strip().splitlines()[0]})") from None
 
     def _parquet_blocks(self, start: int, stop: int | None, block: int):
-        seen = 0
-        for batch in self._parquet().iter_batches(batch_size=block, columns=self.names):
+        pf = self._parquet()
+        seen, groups = 0, []  # the row groups before ``start`` are skipped unread (their sizes are in the footer)
+        for g in range(pf.metadata.num_row_groups):
+            n = pf.metadata.row_group(g).num_rows
+            if groups or seen + n > start:
+                groups.append(g)
+            else:
+                seen += n
+        if not groups:
+            return
+        for batch in pf.iter_batches(batch_size=block, columns=self.names, row_groups=groups):
             a, b = seen, seen + batch.num_rows
             seen = b
             lo, hi = max(a, start), b if stop is None else min(b, stop)

@@ -378,6 +378,10 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     for i, spec in enumerate(cfg.validation_logs[1:], start=1):
         check_units(spec, kinds, names, f"validation[{i}]")
     streams, data_path = streaming.plan(cfg, system, readers)
+    if cfg.identification.cluster != "off":  # the streamed path on a Dask cluster, or why not
+        from dynid.pipeline.cluster_qr import check
+
+        check(cfg, data_path["reason"] if streams is None else None)
     if streams is not None and several:
         raise ConfigError(f"data: {len(cfg.training_logs)} [[data]] experiments, but the training log is streamed "
                           f"({data_path.get('reason')}); several experiments are held in memory, one at a time")
@@ -713,11 +717,20 @@ def _identify_streamed(cfg0: Config, cfg: Config, system: System, force_model: s
             yield Chunk(base.regressor(r.W), r.y, p["dq"], r.inconsistency, r.joint_dq, None, r.Ga, None)
             progress("compress", j0 + p["t"].shape[0], n_eff)
 
-    blocks = block_builder(icfg.covariance, base.names, channels, n_eff)
-    problem, worst = _compress(system, base, None, force_model=force_model, min_velocity=pcfg.min_velocity,
-                               parallel_decimate=1, chunk_size=size, progress=progress, meta=meta,
-                               cross=icfg.method == "gm", periodic=None, min_velocity_passive=pcfg.min_velocity_passive,
-                               blocks=blocks, source=training_chunks())
+    if icfg.cluster != "off":  # the chunks on a Dask cluster, their factors tree-reduced there
+        from dynid.pipeline.cluster_qr import compress_on_cluster
+
+        blocks = None  # (covariance = "model": dynid.pipeline.cluster_qr.check)
+        problem, run = compress_on_cluster(cfg, system, base, force_model, tr, size, meta, progress)
+        root = run.root
+        q_lo, q_hi, tau_max, constant, notes = root.q_lo, root.q_hi, root.tau_max, root.constant, root.notes
+        reference, data_path = run.reference, {**data_path, "cluster": run.record}
+    else:
+        blocks = block_builder(icfg.covariance, base.names, channels, n_eff)
+        problem, worst = _compress(system, base, None, force_model=force_model, min_velocity=pcfg.min_velocity,
+                                   parallel_decimate=1, chunk_size=size, progress=progress, meta=meta,
+                                   cross=icfg.method == "gm", periodic=None,
+                                   min_velocity_passive=pcfg.min_velocity_passive, blocks=blocks, source=training_chunks())
     tr.check_constant(constant)
     check_joint_motion(SimpleNamespace(q=np.vstack([q_lo, q_hi])), system, icfg.min_joint_motion, "data")
     nominal_w = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None

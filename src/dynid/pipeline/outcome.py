@@ -224,6 +224,11 @@ class IdentifyOutcome:
                                                 prov.get("validation_pooled"))
         if self.data_path is not None:
             lines += ["", f"Data path: {self.data_path['mode']} ({self.data_path['reason']})"]
+            cl = self.data_path.get("cluster")
+            if cl is not None:  # dynid.pipeline.cluster_qr
+                lines.append(f"on the cluster: {cl['where']}, {cl['chunks']} chunk{'s' * (cl['chunks'] != 1)} of "
+                             f"{cl['chunk_rows']} processed rows on {cl['workers']} workers, QR factors tree-reduced in "
+                             f"{cl['tree_levels']} level{'s' * (cl['tree_levels'] != 1)}")
         if self.warnings:
             lines += ["", f"{len(self.warnings)} warning{'s' if len(self.warnings) > 1 else ''} about the logs "
                           "(dynid.pipeline.diagnostics):"] + [str(w) for w in self.warnings]

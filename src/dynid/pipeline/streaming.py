@@ -121,30 +121,38 @@ class LogStream:
     meta: dict[str, Any]
     effort_columns: tuple[str, ...]
     tau_file: Path
+    # a part of the window on a cluster worker (dynid.pipeline.cluster_qr): ``t`` holds the window rows
+    # [t0, t0 + len(t)), the window's length and sampling rate are the driver's
+    t0: int = 0
+    n_rows: int | None = None
+    fs_hz: float | None = None
 
     @property
     def n(self) -> int:
-        return int(self.t.shape[0])
+        return int(self.t.shape[0]) if self.n_rows is None else self.n_rows
 
     @property
     def fs(self) -> float:
-        return float(1.0 / np.median(np.diff(self.t)))
+        return float(1.0 / np.median(np.diff(self.t))) if self.fs_hz is None else self.fs_hz
 
     def as_dataset_stub(self) -> SimpleNamespace:
         """What :func:`~dynid.pipeline.data.check_held_out` reads (times and provenance)."""
         return SimpleNamespace(t=self.t, meta=self.meta)
 
     # .................................................................. raw blocks
-    def raw_blocks(self, system, block: int, constant: dict | None = None) -> Iterator[tuple[int, dict[str, FloatArray], list[str]]]:
-        """(first window row, actuator-space signals ``t q tau [dq ddq]``, notes) block by block.
-        ``constant``: filled with the per-channel 'every value equal' flags of the efforts."""
+    def raw_blocks(self, system, block: int, constant: dict | None = None, first: int = 0,
+                   last: int | None = None) -> Iterator[tuple[int, dict[str, FloatArray], list[str]]]:
+        """(first window row, actuator-space signals ``t q tau [dq ddq]``, notes) block by block, of the
+        window rows ``[first, last)`` (default: all). ``constant``: filled with the per-channel 'every
+        value equal' flags of the efforts."""
         from dynid.pipeline.data import to_actuator_space
 
-        while self.n % block == 1 and block < self.n:  # no one-row tail: a Dataset needs two samples
+        last = self.n if last is None else last
+        while (last - first) % block == 1 and block < last - first:  # no one-row tail: a Dataset needs two samples
             block += 1
-        iters = [g.blocks(self.start, self.start + self.n, block) for g, _ in self.groups]
-        a = 0
-        while a < self.n:
+        iters = [g.blocks(self.start + first, self.start + last, block) for g, _ in self.groups]
+        a = first
+        while a < last:
             arrays: dict[str, FloatArray] = {}
             k = None
             for it, (_, cols) in zip(iters, self.groups):
@@ -158,7 +166,7 @@ class LogStream:
                 for what, sl in cols:
                     arrays[what] = x[:, sl] * self.scales[what]
             b = a + k
-            arrays["t"] = self.t[a:b]
+            arrays["t"] = self.t[a - self.t0:b - self.t0]
             for what, label in (("q", "positions"), ("tau", "efforts"), ("dq", "velocities"), ("ddq", "accelerations")):
                 if what in arrays:
                     bad = ~np.isfinite(arrays[what])
@@ -224,23 +232,34 @@ class LogStream:
         return {"sos": sos, "overlap": overlap, "n_trim": int(n_trim), "k": k, "rows": rows, "steps": steps,
                 "padlen": None if sos is None else min(3 * (2 * sos.shape[0] + 1), n - 1)}
 
+    def filter_rows(self, pcfg: ProcessingConfig, out_rows: int, decimate: int | None = None) -> int:
+        """Processed rows filtered at once by :meth:`processed` (a whole multiple of ``out_rows``, long
+        against the overlap: the re-filtered share ``2 L / block`` stays small whatever chunk_size is)."""
+        p = self.processing(pcfg, decimate)
+        return out_rows * max(1, -(-max(4 * p["overlap"], FILTER_ROWS) // (out_rows * p["k"])))
+
     def processed(self, system, pcfg: ProcessingConfig, out_rows: int, *, decimate: int | None = None,
                   read_rows: int | None = None, constant: dict | None = None,
-                  notes: list | None = None, raw_tap=None) -> Iterator[tuple[int, dict[str, FloatArray]]]:
+                  notes: list | None = None, raw_tap=None,
+                  span: tuple[int, int, int, int] | None = None) -> Iterator[tuple[int, dict[str, FloatArray]]]:
         """(first processed row, ``t q dq ddq tau``) of blocks of ``out_rows`` processed rows, equal
         to the rows of :func:`~dynid.pipeline.data.preprocess` of the whole window to rounding
         (module docstring). ``raw_tap(a, arrays)``: called on every raw actuator-space block of the
-        window, in order (the processing figure, :class:`dynid.pipeline.stream_plots.ProcessingPlot`)."""
+        window, in order (the processing figure, :class:`dynid.pipeline.stream_plots.ProcessingPlot`).
+        ``span = (f_lo, f_hi, raw_lo, raw_hi)``: only the processed rows ``[f_lo, f_hi)``, filtered as one
+        block, from the raw window rows ``[raw_lo, raw_hi)``, which must cover their overlap (a chunk on a
+        cluster worker: :func:`dynid.pipeline.cluster_qr.chunk_spans` cuts at this path's filter blocks)."""
         from dynid.signals import central_difference
 
         p = self.processing(pcfg, decimate)
         sos, L, k, rows, padlen = p["sos"], p["overlap"], p["k"], p["rows"], p["padlen"]
+        f_lo, f_hi, raw_lo, raw_hi = (0, len(rows), 0, self.n) if span is None else span
         lp = pcfg.lowpass
-        raw = self.raw_blocks(system, read_rows or READ_ROWS, constant)
+        raw = self.raw_blocks(system, read_rows or READ_ROWS, constant, raw_lo, raw_hi)
         if raw_tap is not None:
             raw = _tapped(raw, raw_tap)
         buf: dict[str, FloatArray] = {}
-        buf_lo = buf_hi = 0
+        buf_lo = buf_hi = raw_lo
 
         def window(lo: int, hi: int) -> dict[str, FloatArray]:
             nonlocal buf, buf_lo, buf_hi
@@ -261,13 +280,15 @@ class LogStream:
             return signal.sosfiltfilt(sos, x, axis=0, padtype="odd", padlen=padlen)
 
         n = self.n
-        # filter blocks of whole multiples of out_rows, long against the overlap (the re-filtered share
-        # 2 L / block stays small whatever chunk_size is), yielded out_rows at a time
-        per = out_rows * max(1, -(-max(4 * L, FILTER_ROWS) // (out_rows * k)))
-        for f0 in range(0, len(rows), per):
-            sel = rows[f0: f0 + per]
+        # filter blocks of whole multiples of out_rows (filter_rows), yielded out_rows at a time
+        per = self.filter_rows(pcfg, out_rows, decimate) if span is None else max(1, f_hi - f_lo)
+        for f0 in range(f_lo, f_hi, per):
+            sel = rows[f0: min(f0 + per, f_hi)]
             a, b = sel[0], sel[-1] + 1
             lo, hi = max(0, a - L), min(n, b + L)
+            if lo < raw_lo or hi > raw_hi:
+                raise ValueError(f"processed rows [{f0}, {f0 + len(sel)}) need the raw rows [{lo}, {hi}), "
+                                 f"outside the span's [{raw_lo}, {raw_hi})")
             w = window(lo, hi)
             t, q, tau = w["t"], w["q"], w["tau"]
             dq_m, ddq_m = w.get("dq"), w.get("ddq")
@@ -424,7 +445,8 @@ def open_stream(spec: DataConfig, n_channels: int, names: tuple[str, ...], label
 
 def plan(cfg: Config, system, readers: dict) -> tuple[tuple[LogStream, LogStream] | None, dict[str, Any]]:
     """Decide the path (module docstring): the two streams (None: in memory) and the record of
-    ``result.json``'s ``data_path``."""
+    ``result.json``'s ``data_path`` (``identification.cluster`` then checks it:
+    :func:`dynid.pipeline.cluster_qr.check`)."""
     mode = cfg.identification.streaming
     if mode == "off":
         return None, {"mode": "in-memory", "reason": "identification.streaming = 'off'"}
