@@ -214,6 +214,35 @@ def test_methods_that_cannot_stack_experiments_refuse_them(logs, tmp_path):
     assert "experiments" not in res.provenance
 
 
+def test_each_experiment_converts_its_currents_with_its_own_drive_gains(logs, tmp_path):
+    """Experiment b logged as motor currents through other sensors (gains 2.5, 0.8, 1.7 N*m/A): with
+    those gains in its effort table the identification is the one of the torque logs (the currents are
+    the torques divided by the gains: the same numbers to rounding; 1e-9 of each std is many
+    orders above the rounding a division and a product add, ~1e-16 relative, through cond ~1e3)."""
+    d, _, names = logs
+    gains = np.array([2.5, 0.8, 1.7])
+    cols = dict(names["b"])
+    for j, jn in enumerate(JOINTS):
+        cols[f"tau_{jn}"] = cols[f"tau_{jn}"] / gains[j]
+    save_npz(tmp_path / "b_current.npz", cols)
+    ref = identify(parse_config(_doc(d), d)).result
+    doc = _doc(d)
+    current = _table(tmp_path / "b_current.npz")
+    current["effort"] = {**current["effort"], "kind": "current", "unit": "A", "drive_gains": gains.tolist()}
+    doc["data"] = [doc["data"][0], current]
+    res = identify(parse_config(doc, d)).result
+    np.testing.assert_allclose(res.params, ref.params, rtol=0, atol=1e-9 * np.min(ref.bse))
+    # without its gains (the robot has none) the log's currents are not torques: not mixed with torque logs
+    doc["data"][1]["effort"] = {k: v for k, v in current["effort"].items() if k != "drive_gains"}
+    with pytest.raises(ConfigError, match=r"data\[1\]: its efforts are current \(unknown gains\), data\[0\]'s torque"):
+        identify(parse_config(doc, d))
+    with pytest.raises(ConfigError, match=r"drive_gains convert motor currents: they need .*kind = 'current'"):
+        parse_config({**doc, "data": [doc["data"][0], {**_table(d / "b.npz"), "effort": {
+            "columns": [f"tau_{j}" for j in JOINTS], "drive_gains": [1.0, 1.0, 1.0]}}]}, d)
+    with pytest.raises(ConfigError, match="2 gains for 3 columns"):
+        parse_config({**doc, "data": [doc["data"][0], {**current, "effort": {**current["effort"], "drive_gains": [1.0, 2.0]}}]}, d)
+
+
 def test_the_several_logs_example_runs_as_the_readme_says(tmp_path):
     """README "Several logs in one identification": the three commands, as written there, in a copy of the folder."""
     import json

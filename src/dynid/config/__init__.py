@@ -8,6 +8,7 @@ The complete schema with one example is documented in the README ("Configuration
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -103,6 +104,9 @@ class SignalConfig:
     kind: str = "torque"
     file: Path | None = None
     topic: str | None = None  # ROS bags: the JointState topic of this signal (None: [data] topic)
+    # effort kind = "current": this log's current-to-torque gains per motor, in place of robot.drive_gains
+    # (a log recorded with other current sensors or another calibration; [[data]] experiments differ)
+    drive_gains: tuple[float, ...] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -452,7 +456,7 @@ def _column(v: Any, where: str, header: bool) -> str:
 
 
 def _parse_signal(t: Any, where: str, base: Path, what: str, header: bool = True, bag: bool = False) -> SignalConfig:
-    allowed = {"columns", "unit", "side", "file", "topic"} | ({"kind"} if what == "effort" else set())
+    allowed = {"columns", "unit", "side", "file", "topic"} | ({"kind", "drive_gains"} if what == "effort" else set())
     t = _table(t, where, allowed, {"columns"})
     if bag and "file" in t:
         raise ConfigError(f"{where}.file: every signal of a ROS bag log comes from the bag of {where.split('.')[0]}.file; "
@@ -487,7 +491,17 @@ def _parse_signal(t: Any, where: str, base: Path, what: str, header: bool = True
     if file is not None and is_bag(file):
         raise ConfigError(f"{where}.file: {file.name} is a ROS bag; a bag is the file of the whole log ({where.split('.')[0]}.file)")
     topic = _str(t["topic"], f"{where}.topic") if "topic" in t else None
-    return SignalConfig(columns=columns, unit=unit, side=side, kind=kind, file=file, topic=topic)
+    gains = None
+    if "drive_gains" in t:
+        if kind != "current":
+            raise ConfigError(f"{where}.drive_gains convert motor currents: they need {where}.kind = 'current'")
+        g = _num_or_list(t["drive_gains"], f"{where}.drive_gains")
+        gains = g if isinstance(g, tuple) else (g,)
+        if any(v == 0 or not math.isfinite(v) for v in gains):
+            raise ConfigError(f"{where}.drive_gains: every gain must be finite and non-zero, got {list(gains)}")
+        if len(gains) not in (1, len(columns)):
+            raise ConfigError(f"{where}.drive_gains: {len(gains)} gains for {len(columns)} columns")
+    return SignalConfig(columns=columns, unit=unit, side=side, kind=kind, file=file, topic=topic, drive_gains=gains)
 
 
 _DATA_KEYS = {"file", "time", "sample_rate_hz", "position", "effort", "velocity", "acceleration", "rows", "time_window",

@@ -16,6 +16,8 @@ Steps (each recorded in the returned provenance, in order):
 
 from __future__ import annotations
 
+import dataclasses
+
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -151,6 +153,7 @@ def log_meta(spec: DataConfig, files: dict, readers: dict) -> dict:
         "position_side": spec.position.side,
         "effort_kind": spec.effort.kind,
         "effort_side": spec.effort.side if spec.effort.kind == "torque" else "motor",
+        **({"drive_gains": list(spec.effort.drive_gains)} if spec.effort.drive_gains else {}),
         "source": {k: str(v) for k, v in files.items()},
         "sha256": {str(p): readers[p].sha256() for p in dict.fromkeys(files.values())},
         "window": {"rows": list(spec.rows)} if spec.rows else ({"time": list(spec.time_window)} if spec.time_window else "all"),
@@ -320,7 +323,14 @@ def to_actuator_space(ds: Dataset, system: System, label: str) -> tuple[Dataset,
     elif tr is not None:
         q = q + tr.position_offset
     if ds.meta["effort_kind"] == "current":
-        if tr is None:
+        own = ds.meta.get("drive_gains")  # this log's effort.drive_gains, in place of robot.drive_gains
+        if own is not None:
+            base = tr if tr is not None else Transmission.identity(system.n_actuators)
+            if len(own) not in (1, base.drive_gains.size):
+                raise ConfigError(f"{label}.effort.drive_gains: {len(own)} gains for {base.drive_gains.size} motors")
+            tr_eff = dataclasses.replace(base, drive_gains=np.broadcast_to(np.asarray(own, float), base.drive_gains.shape).copy())
+            notes.append(f"{label}: drive gains of this log (effort.drive_gains) {list(own)}")
+        elif tr is None:
             tr_eff = Transmission.identity(system.n_actuators)
             notes.append("efforts are motor currents with unit drive gains: parameters absorb the unknown gains")
         else:

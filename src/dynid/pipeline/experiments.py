@@ -80,11 +80,19 @@ def build_experiments(cfg: Config, first: Experiment, compress, read) -> list[Ex
     read and processed on its own by ``read(spec, label) -> (dataset, steps, raw_meta)`` and compressed on its own
     by ``compress(dataset) -> RegressionProblem``."""
     out = [first]
+
+    def kind(meta: dict) -> str:
+        """What the efforts are once in actuator space: currents with known gains (the log's
+        effort.drive_gains or robot.drive_gains) are torques; without, currents (the parameters absorb
+        the unknown gains, so such a log cannot be mixed with torque logs)."""
+        known = meta.get("drive_gains") is not None or cfg.robot.drive_gains is not None
+        return "torque" if meta.get("effort_kind") == "torque" or known else "current (unknown gains)"
+
     for i, spec in enumerate(cfg.training_logs[1:], start=1):
         ds, steps, raw_meta = read(spec, f"data[{i}]")
-        if raw_meta.get("effort_kind") != first.raw_meta.get("effort_kind"):
-            raise ConfigError(f"data[{i}]: its efforts are {raw_meta.get('effort_kind')}, data[0]'s "
-                              f"{first.raw_meta.get('effort_kind')}; every experiment measures the same kind")
+        if kind(raw_meta) != kind(first.raw_meta):
+            raise ConfigError(f"data[{i}]: its efforts are {kind(raw_meta)}, data[0]'s {kind(first.raw_meta)}; every "
+                              "experiment measures the same kind (give a current log its effort.drive_gains)")
         out.append(Experiment(i, spec, ds, compress(ds), raw_meta, steps))
     return out
 

@@ -417,8 +417,9 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
         notes = [*notes, f"independent coordinates "
                          f"{', '.join(system.model.pin_model.names[j + 1] for j in system.model.independent.joints)}: "
                          f"{system.model.independent_choice}; [robot] independent overrides"]
+    own_gains = raw_train.meta.get("drive_gains") is not None  # the log's effort.drive_gains
     if (gains is None and raw_train.meta["effort_kind"] == "current" and cfg0.robot.drive_gains is None
-            and system.channels_are_actuators(force_model)):
+            and not own_gains and system.channels_are_actuators(force_model)):
         # currents without drive gains: the gains from the prior, then the identification in torque units
         progress("drive gains", 0, 1)
         est = estimate_drive_gains(system, base_parameters(), train, force_model,
@@ -431,7 +432,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
             with_gains = dataclasses.replace(cfg0, robot=dataclasses.replace(cfg0.robot, drive_gains=tuple(est["value"])))
             return _identify(with_gains, progress, readers, jobs, gains=est)
         gains = est  # reported, not used
-    if several and raw_train.meta["effort_kind"] == "current" and cfg0.robot.drive_gains is None:
+    if several and raw_train.meta["effort_kind"] == "current" and cfg0.robot.drive_gains is None and not own_gains:
         raise ConfigError("robot.drive_gains: several [[data]] experiments measure currents; give the drive gains "
                           "(they are estimated from one log only)")
     smoothing = _coulomb_smoothing(icfg.coulomb_smoothing, train_a, pcfg, system)
@@ -522,7 +523,8 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
         result = _per_log_validation(cfg, system, base, result, force_model, pcfg, metrics, parallel, names, readers,
                                      progress)
     tr = system.transmission
-    comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
+    comparable = not (raw_train.meta["effort_kind"] == "current" and raw_train.meta.get("drive_gains") is None
+                      and (tr is None or np.all(tr.drive_gains == 1.0)))
     learned = None
     if cfg.learning is not None:
         learned = _learn(cfg, system, base, result, train, held_out, icfg.chunk_size, progress,

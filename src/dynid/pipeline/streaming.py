@@ -181,7 +181,8 @@ class LogStream:
                 constant["same"] &= np.all(tau == constant["first"], axis=0)
                 constant["zero"] = constant["zero"] and not np.any(tau)
             ds = Dataset(t=arrays["t"], q=arrays["q"], tau=arrays["tau"], dq=arrays.get("dq"), ddq=arrays.get("ddq"),
-                         names=self.names, meta={k2: self.meta[k2] for k2 in ("position_side", "effort_kind", "effort_side")})
+                         names=self.names, meta={k2: self.meta[k2] for k2 in ("position_side", "effort_kind", "effort_side", "drive_gains")
+                               if k2 in self.meta})
             out, notes = to_actuator_space(ds, system, self.label)
             yield a, {"t": out.t, "q": out.q, "tau": out.tau, **({"dq": out.dq} if out.dq is not None else {}),
                       **({"ddq": out.ddq} if out.ddq is not None else {})}, notes
