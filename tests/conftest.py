@@ -39,9 +39,9 @@ def pytest_configure(config):
 # first, they spread over the xdist workers (one module per worker at a time, --dist loadfile)
 # before the many short ones fill the gaps: the longest-first rule keeps the workers finishing
 # together. Only the order changes, never what runs.
-SLOW_MODULES = ("test_demo.py", "test_estimator_study.py", "test_physical_study.py", "test_processing_study.py",
-                "test_paper000.py", "test_maximum_likelihood.py", "test_cli.py", "test_identify_mechanism.py",
-                "test_reproducible.py")
+SLOW_MODULES = ("test_physical_study.py", "test_demo.py", "test_paper003_study.py", "test_control_loop.py",
+                "test_maximum_likelihood.py", "test_table2_time.py", "test_estimator_study.py", "test_cluster_qr.py",
+                "test_mujoco_twins.py", "test_stream_plots.py", "test_vendor_urdfs.py", "test_friction.py")
 
 
 # ---------------------------------------------------------------- make test-robust (tools/robust.py)
