@@ -162,7 +162,7 @@ class PayloadFit:
         return out
 
 
-def _payload_map(base: BaseParameters, mass_known: bool) -> StandardMap:
+def _payload_map(base: BaseParameters) -> StandardMap:
     return StandardMap(standard_names=PAYLOAD_NAMES, B=base.B, body_blocks=(np.arange(10),),
                        nonnegative=np.zeros(0, dtype=int), reference=None)
 
@@ -220,14 +220,16 @@ def fit_given_arm(problem: RegressionProblem, arm_names: Sequence[str], arm_cov:
     xp = full.select(x_names + list(arm_names))
     xonly = full.select(x_names)
     xonly = dataclasses.replace(xonly, expressions=base.expressions(),
-                                standard=_payload_map(base, mass is not None) if physical else None)
+                                standard=_payload_map(base) if physical else None)
     if physical:
         from dynid.estimation.physical import BodyBounds, PhysicalConstraints, PhysicalLS
 
         bounds = {"payload": BodyBounds(mass=(mass, mass))} if mass is not None else {}
-        est = PhysicalLS(weighting="wls", constraints=PhysicalConstraints(bodies=bounds), solver=solver)
+        est = PhysicalLS(weighting="wls", constraints=PhysicalConstraints(bodies=bounds, sign=False), solver=solver)
         res = est.fit(xonly)
         standard = np.array([res.solver["standard_params"][n] for n in PAYLOAD_NAMES])
+        if base.n_base == len(free):  # every parameter identified: PhysicalLS's note on unidentifiable ones is moot
+            res = dataclasses.replace(res, notes=tuple(n for n in res.notes if not n.startswith("standard parameters:")))
     else:
         from dynid.estimation.linear import WLS
 
@@ -258,21 +260,30 @@ def fit_given_arm(problem: RegressionProblem, arm_names: Sequence[str], arm_cov:
     identified = tuple(n for r, n in enumerate(base.names) if not np.any(base.K[r] != 0.0))
     if mass is not None:
         identified = (PAYLOAD_NAMES[0],) + identified
-    dep_names = [PAYLOAD_NAMES[i] for i in base.dependent if not (mass is not None and i == 0)]
-    unid = tuple(f"{n}: not excited by the log (regrouped into the identified parameters)" for n in dep_names)
+    unid = []
+    for c, i in enumerate(base.dependent):
+        if mass is not None and i == 0:
+            continue
+        into = [e for r, e in enumerate(base.expressions()) if base.K[r, c] != 0.0]
+        unid.append(f"{PAYLOAD_NAMES[i]}: " + ("no effect on the joint torques of this log" if not into else
+                                               "appears only within " + "; ".join(into)))
+    unid = tuple(unid)
     return PayloadFit(res, standard, base, mass, cov_noise, cov_arm, identified, unid)
 
 
 # ------------------------------------------------------------------------------------ jointly with the arm
-def joint_problem(problems: Sequence[RegressionProblem], mounted: Sequence[bool]) -> RegressionProblem:
+def joint_problem(problems: Sequence[RegressionProblem], mounted: Sequence[bool],
+                  arm_standard: StandardMap | None = None) -> RegressionProblem:
     """The stacked factors of experiments with and without the payload (module docstring).
 
     ``problems[i]``: experiment i compressed with columns (the arm's base parameters, then
     :data:`PAYLOAD_NAMES`: the mount body's 10 standard-regressor columns, computed whether or not the payload
-    is mounted), output the measured efforts. ``mounted[i]``: whether experiment i carries the payload; where it
+    is mounted; no standard map), output the measured efforts. ``arm_standard``: the arm's map to its standard
+    parameters (:meth:`~dynid.model.system.System.standard_map`), extended by the payload block for the
+    physically consistent fit. ``mounted[i]``: whether experiment i carries the payload; where it
     does not, the payload columns are zeroed (their factor re-triangularized: :math:`F Z` has the Gram matrix of
     :math:`A Z`). Channels are named ``"<i>:<channel>"`` as :func:`dynid.pipeline.experiments.stack` names them;
-    the arm's standard map (when the problems carry one) is extended by the payload block."""
+    the payload's own columns are its parameters (identity map)."""
     if len(problems) != len(mounted) or not problems:
         raise InputError(f"{len(problems)} experiments but {len(mounted)} payload flags")
     first = problems[0]
@@ -297,8 +308,10 @@ def joint_problem(problems: Sequence[RegressionProblem], mounted: Sequence[bool]
         n_obs.append(pr.n_obs)
         channels += [f"{i}:{c}" for c in pr.channel_names]
     standard = None
-    if first.standard is not None:
-        sm = first.standard
+    if arm_standard is not None:
+        sm = arm_standard
+        if sm.B.shape[0] != p - 10:
+            raise InputError(f"the arm's standard map has {sm.B.shape[0]} base parameters, the experiments {p - 10}")
         n_std, r = sm.B.shape[1], sm.B.shape[0]
         B = np.zeros((r + 10, n_std + 10))
         B[:r, :n_std] = sm.B
