@@ -294,3 +294,37 @@ def test_bad_payload_configs_are_refused_in_one_line(example, tmp_path):
         lines = p.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("dynid: error: "), (what, p.stderr)
         assert snapshot(out) is None, what
+
+
+def test_an_origin_moves_the_exported_frame_not_the_payload(example):
+    """``[payload] origin``: the URDF link and the MJCF body are written in the payload's own frame; the physical
+    payload (what pinocchio adds to the mount body, where MuJoCo puts its centre of mass) is the same."""
+    from conftest import run_dynid
+
+    text = (example / "payload.toml").read_text().replace(
+        "# origin = { xyz = [0, 0, 0.02], rpy = [0, 0, 0] }", "origin = { xyz = [0.01, 0.0, 0.02], rpy = [0.1, 0.2, 0.3] }")
+    assert "origin = { xyz = [0.01" in text
+    (example / "payload_origin.toml").write_text(text)
+    p = run_dynid(["payload", "payload_origin.toml", "--out", "payload_origin", "-q"], example)
+    assert p.returncode == 0, p.stderr
+    doc = json.loads((example / "payload_origin" / "payload.json").read_text())
+    vals = np.array([q["value"] for q in doc["parameters"]])
+    ref = np.array([q["value"] for q in json.loads((example / "payload" / "payload.json").read_text())["parameters"]])
+    np.testing.assert_array_equal(vals, ref)  # the same fit: the origin changes only the outputs' frame
+    arm = (example / "arm_id" / "model.urdf").read_text()
+    snip = (example / "payload_origin" / "payload.urdf").read_text()
+    merged = example / "arm_with_payload_origin.urdf"
+    merged.write_text(arm[:arm.rindex("</robot>")] + snip[snip.index("<link"):snip.rindex("</robot>")] + "</robot>\n")
+    m0, m1 = pin.buildModelFromUrdf(str(example / "arm_id" / "model.urdf")), pin.buildModelFromUrdf(str(merged))
+    j = m1.getJointId("joint_6")
+    added = np.asarray(m1.inertias[j].toDynamicParameters()) - np.asarray(m0.inertias[j].toDynamicParameters())
+    # 17 significant digits in the file, a rotation and a translation composed: rounding of a few ulps
+    np.testing.assert_allclose(added, vals, rtol=0, atol=1e-10 * max(1.0, np.abs(vals).max()))
+    mujoco = pytest.importorskip("mujoco", reason="the MJCF check needs mujoco (the test extra)")
+    mj = mujoco.MjModel.from_xml_path(str(example / "payload_origin" / "payload.xml"))
+    data = mujoco.MjData(mj)
+    mujoco.mj_forward(mj, data)
+    b = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_BODY, "payload")
+    d = describe_payload(vals)
+    np.testing.assert_allclose(data.xipos[b], d["com"], atol=1e-9)  # MuJoCo's quat is normalized in float64
+    np.testing.assert_allclose(np.sort(mj.body_inertia[b]), d["principal_moments"], rtol=1e-9)
