@@ -471,6 +471,20 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_payload(args: argparse.Namespace) -> int:
+    _check_out(args.out)
+    from dynid.pipeline.payload import identify_payload, payload_config_of, write_payload
+
+    cfg = payload_config_of(args.config)
+    with _progress_bar(not args.quiet) as progress:
+        outcome = identify_payload(cfg, progress)
+    written = write_payload(outcome, args.out)
+    if not args.quiet:
+        print(outcome.summary_text())
+    print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="dynid", description="Identify the dynamic parameters of robot manipulators.")
     p.add_argument("--version", action="version", version=f"dynid {__version__}")
@@ -528,6 +542,14 @@ def build_parser() -> argparse.ArgumentParser:
     pp.add_argument("--no-plots", action="store_true", help="no predict.png")
     pp.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
     pp.set_defaults(func=_cmd_predict)
+
+    pl = sub.add_parser("payload", help="a payload's 10 inertial parameters from a log with it mounted, given the "
+                                         "arm's dynid identify result: payload.json, payload.urdf, payload.xml")
+    pl.add_argument("config", help="TOML with [payload] (arm = the arm's result.json, body, mass, origin) and [data] "
+                                   "(the log with the payload mounted)")
+    pl.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    pl.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+    pl.set_defaults(func=_cmd_payload)
 
     pf = sub.add_parser("identifiability", help="model-structure search of paper 000 on CONFIG.toml's logs: models "
                                                 "1-4, parameters identified (rel. std < 15 %% and feasible), eps_RA, eps_AV")

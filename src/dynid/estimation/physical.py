@@ -130,7 +130,8 @@ class BodyBounds:
     Parameters
     ----------
     mass : (low, high), optional
-        Mass bounds [kg]; ``high`` may be ``inf``.
+        Mass bounds [kg]; ``high`` may be ``inf``; ``low == high``: a known mass (an equality, never
+        reported as an active constraint).
     com_box : (low xyz, high xyz), optional
         Box that contains the centre of mass [m].
     com_ellipsoid : (centre xyz, semi-axes xyz), optional
@@ -144,8 +145,9 @@ class BodyBounds:
     def __post_init__(self) -> None:
         if self.mass is not None:
             lo, hi = (float(v) for v in self.mass)
-            if not (np.isfinite(lo) and lo >= 0 and hi > lo):
-                raise InputError(f"mass bounds must satisfy 0 <= low < high, got {list(self.mass)}")
+            if not (np.isfinite(lo) and lo >= 0 and (hi > lo or (hi == lo and lo > 0))):
+                raise InputError(f"mass bounds must satisfy 0 <= low < high (or low == high > 0: a known mass), "
+                                 f"got {list(self.mass)}")
             object.__setattr__(self, "mass", (lo, hi))
         if self.com_box is not None:
             lo3, hi3 = _vec3(self.com_box[0], "com_box low"), _vec3(self.com_box[1], "com_box high")
@@ -328,7 +330,9 @@ class PhysicalLS:
             if b is None:
                 continue
             m, h = pi[blk[0]], pi[blk[1:4]]
-            if b.mass is not None:
+            if b.mass is not None and b.mass[0] == b.mass[1]:  # a known mass: an equality, not tightened
+                cons.append(m == b.mass[0])
+            elif b.mass is not None:
                 cons.append(m >= b.mass[0] + tau)
                 if np.isfinite(b.mass[1]):
                     cons.append(m <= b.mass[1] - tau)
@@ -560,7 +564,7 @@ class PhysicalLS:
             m, h = pi[blk[0]], pi[blk[1:4]]
             if b is None:
                 continue
-            if b.mass is not None:
+            if b.mass is not None and b.mass[0] != b.mass[1]:  # a known mass is an equality: no slack to report
                 out.append((f"body {name} mass >= {b.mass[0]:g}", m - b.mass[0], max(abs(m), 1e-300)))
                 if np.isfinite(b.mass[1]):
                     out.append((f"body {name} mass <= {b.mass[1]:g}", b.mass[1] - m, max(abs(m), 1e-300)))
