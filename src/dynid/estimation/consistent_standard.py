@@ -181,7 +181,7 @@ class _Conic:
         the status in cvxpy's words."""
         from scipy import sparse
 
-        from dynid.estimation.identifiability import _CLARABEL_STATUS
+        from dynid.estimation.feasibility import _CLARABEL_STATUS
 
         clarabel = self.clarabel
         q = np.zeros(self.p + 1)

@@ -97,7 +97,7 @@ def _physical(result: IdentificationResult, base: Any, system: Any) -> dict[str,
     if tuple(result.names) != tuple(base.names):
         return {"checked": False, "reason": "the result's parameters are not the base parameters of the robot "
                                             "description (reduced or extended parameter set)"}
-    from dynid.estimation.identifiability import is_feasible, violating_parameters
+    from dynid.estimation.feasibility import is_feasible, violating_parameters
 
     try:
         smap = system.standard_map(base)
