@@ -57,11 +57,11 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg as sla
 
-from dynid._typing import FloatArray
 from dynid.errors import ModelError, existing_file, read_file_text
 from dynid.model._xml import check_mjcf_inertials, native_stderr, parse_failure, parse_xml_file, urdf_without_dynamics
+from dynid.model.ball_joints import _balls_as_hinges, _given, _mjcf_written_balls, _urdf_balls_as_hinges
+from dynid.model.loop_assembly import _assemble, _idle_joints, _lock, _world_aligned
 from dynid.model.mechanism import BallJoint, JointCoordinates, JointTerm, LoopClosure, Mechanism, PointCoordinates
 
 __all__ = ["ACTUATOR_TAGS", "load_mechanism_mjcf", "load_mechanism_urdf"]
@@ -70,7 +70,6 @@ ACTUATOR_TAGS = ("motor", "position", "velocity", "general", "intvelocity", "dam
 """MJCF ``<actuator>`` elements whose ``joint`` attribute names an actuated joint."""
 
 _EQUALITY_KINDS = {"connect": "3d", "weld": "6d"}
-_TOL = 1e-9
 
 JointRefs = Sequence[str | int]
 Independent = JointRefs | JointCoordinates | PointCoordinates | None
@@ -257,158 +256,6 @@ def _check_one_dof(model: pin.Model, path: Path, hint: str) -> None:
             hint = "a floating body is not supported (chain 1-DOF joints through massless bodies)"
         kind = "a ball joint" if short == "JointModelSpherical" else "a free joint" if short == "JointModelFreeFlyer" else short
         raise ModelError(f"{path}: joint {name!r} is {kind} ({jm.nv} DOF); mechanisms need 1-DOF joints: {hint}")
-
-
-_ORIENTATION = ("quat", "axisangle", "xyaxes", "zaxis", "euler")
-BALL_AXES = ("x", "y", "z")
-
-
-def _ball_names(name: str, joints, bodies, what: str, kind: str) -> tuple[tuple[str, ...], tuple[str, str]]:
-    """The hinges ``<name>_x/_y/_z`` and massless ``<name>_bx/_by`` a ball joint becomes, refused
-    when the file already uses one of those names."""
-    hinges = tuple(f"{name}_{a}" for a in BALL_AXES)
-    mids = (f"{name}_bx", f"{name}_by")
-    taken = [n for n in hinges if n in joints] + [n for n in mids if n in bodies]
-    if taken:
-        raise ModelError(f"{what} {name!r} becomes hinges {list(hinges)} through {kind} {list(mids)}, "
-                         f"but {taken} already exist in the file: rename them")
-    return hinges, mids
-
-
-def _balls_as_hinges(root: ET.Element, path: Path, notes: list[str]) -> list[BallJoint]:
-    """Rewrite (in place) each ``<joint type="ball">`` of a body B as three hinges about B's
-    x, y and z axes through B's joint point, in a chain through two massless bodies.
-
-    The body ``<ball>_bx`` takes B's place (B's ``pos`` and orientation) and carries the
-    hinge ``<ball>_x``; ``<ball>_by`` (at its origin) carries ``<ball>_y``; B itself (now at
-    the origin of ``<ball>_by``) carries ``<ball>_z``. The relative rotation of B is then
-    :math:`R_x R_y R_z` about the joint point, which is every rotation away from the middle
-    angle ±90° (:class:`~dynid.model.mechanism.BallJoint`): at the reference (all angles 0,
-    MuJoCo's ``qpos0`` of a ball is the identity) it is the file's pose. A ball's
-    ``damping`` [N·m·s/rad] is MuJoCo's viscous friction per degree of freedom and goes to
-    each hinge (terms ``fv_<ball>_x`` ... on the chart's angle rates, equal to the relative
-    angular velocity's components at the reference); ``frictionloss``, ``armature`` and
-    ``range`` (a cone of rotation angles in MuJoCo) have no equivalent here and are noted, not
-    used."""
-    bodies = {b.get("name") for b in root.iter("body")}
-    joints = {j.get("name") for j in root.iter("joint")}
-    out = []
-    parents = {child: parent for parent in root.iter() for child in parent}
-    for body in list(root.iter("body")):
-        balls = [j for j in body.findall("joint") if j.get("type") == "ball"]
-        if not balls:
-            continue
-        bname = body.get("name") or "?"
-        if len(body.findall("joint")) > 1 or body.find("freejoint") is not None:
-            raise ModelError(f"{path}: body {bname!r} has a ball joint and other joints; give each joint its own body")
-        ball = balls[0]
-        name = ball.get("name") or f"{bname}_ball"
-        hinges, mids = _ball_names(name, joints, bodies, f"{path}: ball joint", "bodies")
-        parent = parents[body]
-        k = list(parent).index(body)
-        outer = ET.Element("body", name=mids[0])
-        for key in ("pos", *_ORIENTATION):
-            if body.get(key) is not None:
-                outer.set(key, body.attrib.pop(key))
-        middle = ET.SubElement(outer, "body", name=mids[1])
-        for el, hinge, axis in ((outer, hinges[0], "1 0 0"), (middle, hinges[1], "0 1 0")):
-            ET.SubElement(el, "inertial", pos="0 0 0", mass="0", diaginertia="0 0 0")
-            ET.SubElement(el, "joint", _hinge_attrs(ball, hinge, axis))
-        body.remove(ball)
-        body.insert(0, ET.Element("joint", _hinge_attrs(ball, hinges[2], "0 0 1")))
-        parent.remove(body)
-        parent.insert(k, outer)
-        middle.append(body)
-        lost = [key for key in ("frictionloss", "armature", "range") if _given(ball.get(key))]
-        if lost:
-            notes.append(f"ball joint {name}: {' and '.join(lost)} not modelled (no such term on ball joints)")
-        out.append(BallJoint(name, bname, hinges))
-    return out
-
-
-def _given(value: str | None) -> bool:
-    """An attribute that says something: present and not all zeros (text that is not numbers counts)."""
-    try:
-        return value is not None and any(float(v) != 0.0 for v in value.split())
-    except ValueError:
-        return True
-
-
-def _hinge_attrs(ball: ET.Element, name: str, axis: str) -> dict[str, str]:
-    attrs = {"name": name, "type": "hinge", "axis": axis, "pos": ball.get("pos", "0 0 0")}
-    if ball.get("damping") is not None:
-        attrs["damping"] = ball.get("damping")
-    return attrs
-
-
-def _mjcf_written_balls(root: ET.Element, path: Path) -> list[BallJoint]:
-    """Ball joints written by :func:`dynid.io.export.write_mjcf` as three hinges, recorded in
-    ``<custom><text name="dynid:ball" data="<ball> <body> <hinge x> <hinge y> <hinge z>"/>``."""
-    out = []
-    for text in root.findall("./custom/text"):
-        if text.get("name") == "dynid:ball":
-            words = text.get("data", "").split()
-            if len(words) != 5:
-                raise ModelError(f"{path}: <text name='dynid:ball' data={text.get('data')!r}>: expected "
-                                 "'ball body hinge_x hinge_y hinge_z'")
-            out.append(BallJoint(words[0], words[1], tuple(words[2:])))
-    return out
-
-
-def _urdf_balls_as_hinges(xml: str, spherical: list[str], dynamics: dict[str, tuple[float, float]], urdf_path: Path,
-                          yaml_path: Path, notes: list[str]) -> tuple[str, list[BallJoint], dict[str, tuple[float, float]]]:
-    """URDF text with each joint named in ``spherical`` (the YAML's ``joint_name``) replaced by
-    three revolute joints ``<j>_x``, ``<j>_y``, ``<j>_z`` about the axes of that joint's frame
-    (its ``<origin>``, which is the child link's frame at zero), through two massless links
-    ``<j>_bx``, ``<j>_by``: the same chart as an MJCF ball (:func:`_balls_as_hinges`), at the
-    file's pose when all three angles are zero. The placeholder's type (revolute, continuous or
-    fixed) and axis are ignored. Its ``<dynamics damping>`` goes to each hinge (viscous per
-    angle rate); ``friction`` (Coulomb) is noted and not used. The ball's parameters are named
-    after the child link. Returns the text, the balls and the dynamics table without the
-    placeholders (with the hinges' damping)."""
-    root = ET.fromstring(xml)
-    joints = {j.get("name"): j for j in root.findall("joint")}
-    links = {link.get("name") for link in root.findall("link")}
-    missing = [n for n in spherical if n not in joints]
-    if missing:
-        raise ModelError(f"{yaml_path}: joint_name {missing} are not joints of {urdf_path.name}; joints: {sorted(joints)}")
-    dynamics = dict(dynamics)
-    out = []
-    for name in spherical:
-        joint = joints[name]
-        kind = joint.get("type")
-        if kind not in ("revolute", "continuous", "fixed"):
-            raise ModelError(f"{urdf_path}: joint {name!r} is declared SPHERICAL in {yaml_path.name} but is a {kind!r} joint; "
-                             "write the placeholder as revolute, continuous or fixed")
-        hinges, mids = _ball_names(name, joints, links, f"{urdf_path}: spherical joint", "links")
-        parent, child = joint.find("parent"), joint.find("child")
-        if parent is None or child is None:
-            raise ModelError(f"{urdf_path}: joint {name!r} lacks <parent> or <child>")
-        chain = [parent.get("link"), *mids, child.get("link")]
-        k = list(root).index(joint)
-        root.remove(joint)
-        for n, (hinge, axis) in enumerate(zip(hinges, ("1 0 0", "0 1 0", "0 0 1"))):
-            el = ET.Element("joint", name=hinge, type="revolute")
-            origin = joint.find("origin")
-            if n == 0 and origin is not None:
-                el.append(origin)
-            ET.SubElement(el, "parent", link=chain[n])
-            ET.SubElement(el, "child", link=chain[n + 1])
-            ET.SubElement(el, "axis", xyz=axis)
-            ET.SubElement(el, "limit", lower=repr(-np.pi), upper=repr(np.pi), effort="1000", velocity="100")
-            root.insert(k + n, el)
-        for mid in mids:
-            link = ET.SubElement(root, "link", name=mid)
-            inertial = ET.SubElement(link, "inertial")
-            ET.SubElement(inertial, "mass", value="0")
-            ET.SubElement(inertial, "inertia", ixx="0", ixy="0", ixz="0", iyy="0", iyz="0", izz="0")
-        damping, friction = dynamics.pop(name, (0.0, 0.0))
-        if damping:
-            dynamics.update({h: (damping, 0.0) for h in hinges})
-        if friction:
-            notes.append(f"ball joint {name}: friction (Coulomb) not modelled (no such term on ball joints)")
-        out.append(BallJoint(name, chain[-1], hinges))
-    return ET.tostring(root, encoding="unicode"), out, dynamics
 
 
 def _mjcf_chart(root: ET.Element, path: Path, model: pin.Model) -> Independent:
@@ -638,137 +485,6 @@ def _frame_closure(model: pin.Model, fa: str, fb: str, kind: str, yaml_path: Pat
     sides = [model.frames[model.getFrameId(f)] for f in (fa, fb)]
     return LoopClosure(f"{fa}-{fb}", int(sides[0].parentJoint), pin.SE3(sides[0].placement),
                        int(sides[1].parentJoint), pin.SE3(sides[1].placement), kind)
-
-
-# ---------------------------------------------------------------------------- assembly and idle joints
-def _kinematics(model: pin.Model, data: pin.Data, closures, q: FloatArray, exact: bool) -> tuple[FloatArray, FloatArray]:
-    """Residual c(q) and Jacobian, with the conventions of :class:`Mechanism`."""
-    pin.computeJointJacobians(model, data, q)
-    res, rows = [], []
-    for c in closures:
-        M = [data.oMi[c.joint_a] * c.placement_a, data.oMi[c.joint_b] * c.placement_b]
-        lin, ang = [], []
-        for j, Mj in zip((c.joint_a, c.joint_b), M):
-            J = pin.getJointJacobian(model, data, j, pin.ReferenceFrame.WORLD) if j else np.zeros((6, model.nv))
-            lin.append(J[:3] - pin.skew(Mj.translation) @ J[3:])
-            ang.append(J[3:])
-        res.append(M[1].translation - M[0].translation)
-        rows.append(lin[1] - lin[0])
-        if c.kind == "6d":
-            Rrel = M[0].rotation.T @ M[1].rotation
-            res.append(pin.log3(Rrel))
-            rows.append(pin.Jlog3(Rrel) @ M[1].rotation.T @ (ang[1] - ang[0]) if exact else ang[1] - ang[0])
-    return np.concatenate(res), np.vstack(rows)
-
-
-def _assemble(model: pin.Model, closures, q0: FloatArray, name: str) -> FloatArray:
-    """The assembly nearest ``q0`` (Gauss-Newton); a closure that cannot close is named with
-    its residual [m, rad]."""
-    data = model.createData()
-    q = q0.copy()
-    for _ in range(100):
-        c, J = _kinematics(model, data, closures, q, exact=True)
-        if np.linalg.norm(c, np.inf) < 1e-12:
-            return q
-        q = q + np.linalg.lstsq(J, -c, rcond=1e-10)[0]
-    per, k = [], 0
-    for cl in closures:
-        rows = 6 if cl.kind == "6d" else 3
-        per.append(float(np.linalg.norm(c[k : k + rows], np.inf)))
-        k += rows
-    worst = int(np.argmax(per))
-    cl = closures[worst]
-    raise ModelError(f"cannot assemble the loops of {name!r}: closure {cl.name!r} ({cl.kind}) cannot close "
-                     f"(constraint residual {per[worst]:.3g} after 100 Gauss-Newton steps from the reference configuration)")
-
-
-def _null(A: FloatArray) -> FloatArray:
-    return sla.null_space(A, rcond=_TOL) if A.shape[0] else np.eye(A.shape[1])
-
-
-def _idle_joints(model: pin.Model, closures, actuated: list[int], q: FloatArray) -> list[int]:
-    """pinocchio joints to lock: one per closure whose welded pair spins freely (see module docstring)."""
-    nv = model.nv
-    Jc = _kinematics(model, model.createData(), closures, q, exact=False)[1]
-    side = {model.joints[j].idx_v for c in closures for j in (c.joint_a, c.joint_b) if j > 0} - set(actuated)
-    fixed = [v for v in range(nv) if v not in side]
-    E = np.eye(nv)
-    N = _null(np.vstack([Jc, E[fixed]]))
-    locked: list[int] = []
-    for c in closures:
-        if N.shape[1] == 0:
-            break
-        for j in (c.joint_b, c.joint_a):
-            v = model.joints[j].idx_v if j > 0 else -1
-            if v in side and np.linalg.norm(N[v]) > 1e-6:
-                fixed.append(v)
-                locked.append(j)
-                N = _null(np.vstack([Jc, E[fixed]]))
-                break
-    return locked
-
-
-def _reduce(model: pin.Model, closures, locked: list[int], q: FloatArray):
-    """Reduced model, closures re-attached to the nearest moving ancestor, reduced q."""
-    data = model.createData()
-    pin.forwardKinematics(model, data, q)
-    red = pin.buildReducedModel(model, locked, q)
-    gone = set(locked)
-
-    def side(j: int, P: pin.SE3) -> tuple[int, pin.SE3]:
-        a = j
-        while a in gone:
-            a = model.parents[a]
-        if a != j:
-            P = data.oMi[a].actInv(data.oMi[j]) * P
-        return (red.getJointId(model.names[a]) if a else 0), P
-
-    new = []
-    for c in closures:
-        ja, Pa = side(c.joint_a, c.placement_a)
-        jb, Pb = side(c.joint_b, c.placement_b)
-        new.append(LoopClosure(c.name, ja, Pa, jb, Pb, c.kind))
-    qr = np.array([q[model.joints[model.getJointId(red.names[j])].idx_q] for j in range(1, red.njoints)])
-    return red, new, qr
-
-
-def _lock(model: pin.Model, closures, locked: list[int], q: FloatArray, name: str, notes: list[str]):
-    """Lock the idle joints at 0 (their pose in the file) if the loops still close so, else at
-    their assembled values; note each. Returns the reduced model, closures and assembled q."""
-    q0 = q.copy()
-    q0[[model.joints[j].idx_q for j in locked]] = 0.0
-    try:
-        red, new, qr = _reduce(model, closures, locked, q0)
-        qr, at = _assemble(red, new, qr, name), q0
-    except ModelError:
-        (red, new, qr), at = _reduce(model, closures, locked, q), q
-    for j in locked:
-        c = next(c for c in closures if j in (c.joint_a, c.joint_b))
-        notes.append(
-            f"locked idle joint {model.names[j]}: closure {c.name!r} ({c.kind}) leaves it free to spin with the joint at "
-            f"the other side, a motion no actuator determines; locked at {at[model.joints[j].idx_q]:.4g} rad, its body "
-            "merged into its parent"
-        )
-    return red, new, qr
-
-
-def _world_aligned(model: pin.Model, closures, q: FloatArray) -> list[LoopClosure]:
-    """``6d`` closures with both frames turned (by the same rotation, which leaves the
-    constraint unchanged) to be world-aligned at the assembly ``q``.
-
-    :class:`Mechanism` picks the independent rows of a planar loop on world-frame angular
-    rows but its Newton solver uses the ``log3`` rows, expressed in the closure frame:
-    the two agree only when the closure frames are world-aligned (and stay so in planar
-    motion about a world axis)."""
-    data = model.createData()
-    pin.forwardKinematics(model, data, q)
-    out = []
-    for c in closures:
-        if c.kind == "6d":
-            turn = pin.SE3((data.oMi[c.joint_a] * c.placement_a).rotation.T, np.zeros(3))
-            c = LoopClosure(c.name, c.joint_a, c.placement_a * turn, c.joint_b, c.placement_b * turn, c.kind)
-        out.append(c)
-    return out
 
 
 # ---------------------------------------------------------------------------- building the mechanism
