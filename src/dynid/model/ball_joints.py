@@ -1,17 +1,83 @@
-"""Ball joints as three hinges through two massless bodies, rewritten in the file before pinocchio
-reads it: an MJCF ``<joint type="ball">`` (:func:`_balls_as_hinges`) or a URDF placeholder joint the
+"""Ball and universal joints. :class:`BallJoint`: a ball joint as three hinges through two massless
+bodies; :func:`add_ball_joint` / :func:`add_universal_joint` build them in a pinocchio model, and the
+file readers rewrite them before pinocchio reads a file: an MJCF ``<joint type="ball">`` (:func:`_balls_as_hinges`) or a URDF placeholder joint the
 closure YAML declares spherical (:func:`_urdf_balls_as_hinges`); the hinges' names and their clash check
-(:class:`~dynid.model.mechanism.BallJoint`). Split from :mod:`dynid.model.mechanism_files`."""
+(:class:`BallJoint`). Split from :mod:`dynid.model.mechanism_files` and :mod:`dynid.model.mechanism`, which
+re-export what they used to hold."""
 
 from __future__ import annotations
 
+import dataclasses
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from dynid.errors import ModelError
-from dynid.model.mechanism import BallJoint
+
+__all__ = ["BallJoint", "add_ball_joint", "add_universal_joint"]
+
+
+@dataclasses.dataclass(frozen=True)
+class BallJoint:
+    r"""A spherical (ball) joint as three orthogonal revolute joints ``hinges = (x, y, z)`` in a
+    chain through two massless bodies: the relative rotation is
+    :math:`R_x(q_x) R_y(q_y) R_z(q_z)` (Cardan angles), an exact chart of SO(3) away from
+    :math:`q_y = \pm 90°`, where the ``x`` and ``z`` axes align (gimbal lock). ``body`` is
+    the body the ball joint carries, whose parameters are named after it (``m_<body>``)
+    rather than after the last hinge."""
+
+    name: str
+    body: str
+    hinges: tuple[str, str, str]
+
+
+_AXIS_JOINTS = {"x": pin.JointModelRX, "y": pin.JointModelRY, "z": pin.JointModelRZ}
+
+
+def add_ball_joint(model: pin.Model, parent: int, placement: pin.SE3, name: str, inertia: pin.Inertia,
+                   *, body: str | None = None) -> BallJoint:
+    r"""Add a spherical (ball) joint and the body it carries to a pinocchio model under
+    construction (the Python builders' counterpart of MJCF ``<joint type="ball">``).
+
+    The joint is three revolute joints ``<name>_x``, ``<name>_y``, ``<name>_z`` about the axes of
+    the joint frame ``placement`` (in the frame of joint ``parent``), chained through two massless
+    bodies; the last carries ``inertia`` (expressed in the joint frame). The relative rotation is
+    :math:`R_x R_y R_z`, exact away from the middle angle ±90° (:class:`BallJoint`; pinocchio's
+    ``JointModelSpherical`` gives the same poses, ``tests/test_ball_joints.py``). Pass the
+    returned record in ``Mechanism(..., ball_joints=...)``: its two intermediate bodies then count
+    as massless and the body's parameters are named after ``body`` (default ``name``).
+    The pinocchio joint that carries the body is ``model.getJointId(ball.hinges[2])``.
+    """
+    hinges = tuple(f"{name}_{a}" for a in "xyz")
+    taken = [h for h in hinges if model.existJointName(h)]
+    if taken:
+        raise ModelError(f"ball joint {name!r}: joints {taken} already exist in the model")
+    j = parent
+    for k, (h, a) in enumerate(zip(hinges, "xyz")):
+        j = model.addJoint(j, _AXIS_JOINTS[a](), placement if k == 0 else pin.SE3.Identity(), h)
+        model.appendBodyToJoint(j, inertia if k == 2 else pin.Inertia.Zero(), pin.SE3.Identity())
+    return BallJoint(name, body or name, hinges)  # type: ignore[arg-type]
+
+
+def add_universal_joint(model: pin.Model, parent: int, placement: pin.SE3, name: str, inertia: pin.Inertia,
+                        *, axes: str = "xy", cross: pin.Inertia | None = None) -> tuple[int, int]:
+    """Add a universal (Cardan) joint and the body it carries: revolute ``<name>_<axes[0]>`` about
+    that axis of the joint frame ``placement``, carrying the cross (``cross``: its inertia; none by
+    default), then revolute ``<name>_<axes[1]>`` carrying ``inertia``.
+
+    Returns ``(cross_joint, body_joint)``, pinocchio joint indices; with no ``cross`` inertia, list
+    ``cross_joint`` in ``Mechanism(..., massless=...)`` (a massless body has no parameters)."""
+    if len(axes) != 2 or axes[0] == axes[1] or any(a not in _AXIS_JOINTS for a in axes):
+        raise ModelError(f"universal joint {name!r}: axes {axes!r} must be two different letters of 'xyz'")
+    first = model.addJoint(parent, _AXIS_JOINTS[axes[0]](), placement, f"{name}_{axes[0]}")
+    model.appendBodyToJoint(first, pin.Inertia.Zero() if cross is None else cross, pin.SE3.Identity())
+    second = model.addJoint(first, _AXIS_JOINTS[axes[1]](), pin.SE3.Identity(), f"{name}_{axes[1]}")
+    model.appendBodyToJoint(second, inertia, pin.SE3.Identity())
+    return first, second
+
+
 
 _ORIENTATION = ("quat", "axisangle", "xyaxes", "zaxis", "euler")
 BALL_AXES = ("x", "y", "z")

@@ -11,8 +11,8 @@ import pinocchio as pin
 import scipy.linalg as sla
 
 from dynid._typing import FloatArray
-from dynid.errors import ModelError
-from dynid.model.mechanism import LoopClosure
+from dynid.errors import InputError, ModelError
+from dynid.model.closures import LoopClosure
 
 _TOL = 1e-9
 
@@ -144,4 +144,53 @@ def _world_aligned(model: pin.Model, closures, q: FloatArray) -> list[LoopClosur
             turn = pin.SE3((data.oMi[c.joint_a] * c.placement_a).rotation.T, np.zeros(3))
             c = LoopClosure(c.name, c.joint_a, c.placement_a * turn, c.joint_b, c.placement_b * turn, c.kind)
         out.append(c)
+    return out
+
+
+def solve_positions(mech, u: FloatArray, q0: FloatArray | None, tol: float, max_iter: int, max_cond: float) -> FloatArray:
+    """:meth:`Mechanism.solve_positions <dynid.model.mechanism.Mechanism.solve_positions>` (its docstring):
+    Newton's method on :math:`[c(q); u(q) - u^*] = 0`, warm-started along the samples."""
+    u = np.atleast_2d(np.asarray(u, dtype=float))
+    n_u = mech.independent.size
+    if u.ndim != 2 or u.shape[1] != n_u:
+        raise InputError(f"independent coordinates must have shape (n, {n_u}), got {u.shape}")
+    if not np.all(np.isfinite(u)):
+        raise InputError("independent coordinates contain NaN or infinite values")
+    n = u.shape[0]
+    if q0 is None and mech.position_guess is not None:
+        try:
+            q0 = np.asarray(mech.position_guess(u), dtype=float)
+        except ModelError:
+            q0 = None  # out of the closed form's reach: Newton from q_ref says why
+    per_sample = q0 is not None and np.ndim(q0) == 2
+    if per_sample and np.shape(q0) != (n, mech.nv):
+        raise InputError(f"q0 must have shape ({n}, {mech.nv}), got {np.shape(q0)}")
+    guess = mech.q_ref if q0 is None else np.asarray(q0, dtype=float)
+    data = mech.pin_model.createData()
+    rows = mech.constraint_rows
+    out = np.empty((n, mech.nv))
+    q = (guess[0] if per_sample else guess).copy()
+    for i in range(n):
+        if per_sample:
+            q = guess[i].copy()
+        for it in range(max_iter + 1):
+            F = np.concatenate([mech._constraint_residual(q, data)[rows], mech._coordinate_values(q, data) - u[i]])
+            if np.linalg.norm(F, np.inf) < tol:
+                break
+            A = np.vstack([mech._constraint_jacobian(q, data, exact=True)[rows], mech._coordinate_jacobian(q, data)])
+            cond = np.linalg.cond(A)
+            if not np.isfinite(cond) or cond > max_cond:
+                raise ModelError(
+                    f"sample {i}: singular configuration while solving the loops "
+                    f"(condition number of [J_c; J_u] = {cond:.3g}, residual {np.linalg.norm(F, np.inf):.3g})"
+                )
+            if it == max_iter:
+                raise ModelError(
+                    f"sample {i}: pose u = {np.array2string(u[i], precision=4)} is unreachable or too far from "
+                    f"the initial guess (residual {np.linalg.norm(F, np.inf):.3g} after {max_iter} Newton steps, "
+                    f"condition number {cond:.3g})"
+                )
+            q = q - np.linalg.solve(A, F)
+        out[i] = q
+    mech.check_ball_charts(out, "solve_positions")
     return out

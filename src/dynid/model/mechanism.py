@@ -42,11 +42,11 @@ from types import MappingProxyType
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg as sla
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
-from dynid.model import loop_kinematics
+from dynid.model import charts, loop_assembly, loop_kinematics
+from dynid.model.ball_joints import BallJoint, add_ball_joint, add_universal_joint  # noqa: F401  (re-exported)
 from dynid.model.closures import (
     TERM_KINDS,
     Coordinates,
@@ -78,67 +78,8 @@ BALL_MARGIN_DEG = 10.0
 """How close [deg] the middle angle of a ball joint's chart may come to ±90° (its singularity)."""
 
 
-@dataclasses.dataclass(frozen=True)
-class BallJoint:
-    r"""A spherical (ball) joint as three orthogonal revolute joints ``hinges = (x, y, z)`` in a
-    chain through two massless bodies: the relative rotation is
-    :math:`R_x(q_x) R_y(q_y) R_z(q_z)` (Cardan angles), an exact chart of SO(3) away from
-    :math:`q_y = \pm 90°`, where the ``x`` and ``z`` axes align (gimbal lock). ``body`` is
-    the body the ball joint carries, whose parameters are named after it (``m_<body>``)
-    rather than after the last hinge."""
-
-    name: str
-    body: str
-    hinges: tuple[str, str, str]
-
-
 def _skew(p: FloatArray) -> FloatArray:
     return np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
-
-
-_AXIS_JOINTS = {"x": pin.JointModelRX, "y": pin.JointModelRY, "z": pin.JointModelRZ}
-
-
-def add_ball_joint(model: pin.Model, parent: int, placement: pin.SE3, name: str, inertia: pin.Inertia,
-                   *, body: str | None = None) -> BallJoint:
-    r"""Add a spherical (ball) joint and the body it carries to a pinocchio model under
-    construction (the Python builders' counterpart of MJCF ``<joint type="ball">``).
-
-    The joint is three revolute joints ``<name>_x``, ``<name>_y``, ``<name>_z`` about the axes of
-    the joint frame ``placement`` (in the frame of joint ``parent``), chained through two massless
-    bodies; the last carries ``inertia`` (expressed in the joint frame). The relative rotation is
-    :math:`R_x R_y R_z`, exact away from the middle angle ±90° (:class:`BallJoint`; pinocchio's
-    ``JointModelSpherical`` gives the same poses, ``tests/test_ball_joints.py``). Pass the
-    returned record in ``Mechanism(..., ball_joints=...)``: its two intermediate bodies then count
-    as massless and the body's parameters are named after ``body`` (default ``name``).
-    The pinocchio joint that carries the body is ``model.getJointId(ball.hinges[2])``.
-    """
-    hinges = tuple(f"{name}_{a}" for a in "xyz")
-    taken = [h for h in hinges if model.existJointName(h)]
-    if taken:
-        raise ModelError(f"ball joint {name!r}: joints {taken} already exist in the model")
-    j = parent
-    for k, (h, a) in enumerate(zip(hinges, "xyz")):
-        j = model.addJoint(j, _AXIS_JOINTS[a](), placement if k == 0 else pin.SE3.Identity(), h)
-        model.appendBodyToJoint(j, inertia if k == 2 else pin.Inertia.Zero(), pin.SE3.Identity())
-    return BallJoint(name, body or name, hinges)  # type: ignore[arg-type]
-
-
-def add_universal_joint(model: pin.Model, parent: int, placement: pin.SE3, name: str, inertia: pin.Inertia,
-                        *, axes: str = "xy", cross: pin.Inertia | None = None) -> tuple[int, int]:
-    """Add a universal (Cardan) joint and the body it carries: revolute ``<name>_<axes[0]>`` about
-    that axis of the joint frame ``placement``, carrying the cross (``cross``: its inertia; none by
-    default), then revolute ``<name>_<axes[1]>`` carrying ``inertia``.
-
-    Returns ``(cross_joint, body_joint)``, pinocchio joint indices; with no ``cross`` inertia, list
-    ``cross_joint`` in ``Mechanism(..., massless=...)`` (a massless body has no parameters)."""
-    if len(axes) != 2 or axes[0] == axes[1] or any(a not in _AXIS_JOINTS for a in axes):
-        raise ModelError(f"universal joint {name!r}: axes {axes!r} must be two different letters of 'xyz'")
-    first = model.addJoint(parent, _AXIS_JOINTS[axes[0]](), placement, f"{name}_{axes[0]}")
-    model.appendBodyToJoint(first, pin.Inertia.Zero() if cross is None else cross, pin.SE3.Identity())
-    second = model.addJoint(first, _AXIS_JOINTS[axes[1]](), pin.SE3.Identity(), f"{name}_{axes[1]}")
-    model.appendBodyToJoint(second, inertia, pin.SE3.Identity())
-    return first, second
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -378,170 +319,32 @@ class Mechanism:
 
     # ------------------------------------------------------------------ set-up checks
     def _check_topology(self, auto: bool = False) -> None:
-        """Assemble the loops, find independent constraint rows and check the mobility; ``auto``
-        (no independent coordinates given): a redundantly actuated mechanism gets the best
-        conditioned subset of its actuated joints over a sample of its workspace
-        (:meth:`choose_independent`)."""
-        m = self.pin_model
-        nv = m.nv
-        data = m.createData()
-        q0 = pin.neutral(m) if self.q_guess is None else np.asarray(self.q_guess, dtype=float)
-        if q0.shape != (nv,):
-            raise ModelError(f"q_guess must have shape ({nv},), got {q0.shape}")
-        q = self._assemble(q0, data)
-        self.check_ball_charts(q, f"reference configuration of {self.name!r}")
-        object.__setattr__(self, "q_ref", q)
-        object.__setattr__(self, "constraint_rows", np.arange(sum(c.rows for c in self.closures)))
-        Jc = self._constraint_jacobian(q, data)
-        scale = max(np.abs(Jc).max(), 1e-300)
-        _, r, piv = sla.qr(Jc.T / scale, mode="economic", pivoting=True)
-        d = np.abs(np.diag(r)) if r.size else np.zeros(0)
-        rank = int(np.count_nonzero(d > 1e-9 * (d[0] if d.size else 1.0)))
-        rows = np.sort(piv[:rank])
-        object.__setattr__(self, "constraint_rows", rows)
-        mob = nv - rank
-        object.__setattr__(self, "mobility", mob)
-        if mob <= 0:
-            raise ModelError(f"mechanism {self.name!r} cannot move: the loop closures remove all {nv} degrees of freedom")
-        if auto and len(self.actuated) > mob:
-            qs = self._workspace_samples(q, Jc[rows], data)
-            ranked = self.rank_charts(qs)
-            best, worst = ranked[0]
-            if np.isfinite(worst) and worst <= 1e8:
-                object.__setattr__(self, "independent", JointCoordinates(best))
-                object.__setattr__(self, "independent_choice", self._choice_text(ranked, len(qs), "workspace samples"))
-        n_u = self.independent.size
-        if len(self.actuated) < mob:
-            raise ModelError(
-                f"actuated joints {self.actuated_names} are fewer than the mobility {mob}: the mechanism is under-actuated"
-            )
-        if n_u != mob:
-            raise ModelError(
-                f"mechanism {self.name!r} has mobility {mob} (n_v {nv} - {rank} independent constraint rows) "
-                f"but {n_u} independent coordinates were given{self._chart_hint(Jc[rows], mob)}"
-            )
-        Sa = np.zeros((len(self.actuated), nv))
-        Sa[np.arange(len(self.actuated)), list(self.actuated)] = 1.0
-        ra = np.linalg.matrix_rank(np.vstack([Jc[rows], Sa]), tol=1e-9 * max(1.0, np.abs(Jc).max()))
-        if ra < nv:
-            raise ModelError(
-                f"actuated joints {self.actuated_names} do not determine the motion: "
-                f"{nv - ra} degree(s) of freedom stay free at the reference configuration (mobility {mob})"
-            )
-        A = np.vstack([Jc[rows], self._coordinate_jacobian(q, data)])
-        cond = np.linalg.cond(A)
-        if not np.isfinite(cond) or cond > 1e10:
-            given = (f" {[self.pin_model.names[j + 1] for j in self.independent.joints]}"
-                     if isinstance(self.independent, JointCoordinates) else "")
-            raise ModelError(
-                f"the independent coordinates{given} do not determine the motion at the reference configuration "
-                f"(condition number of [J_c; J_u] = {cond:.3g}){self._chart_hint(Jc[rows], mob)}"
-            )
+        """Assemble the loops, find the independent constraint rows, check the mobility
+        (:func:`dynid.model.charts.check_topology`)."""
+        charts.check_topology(self, auto)
 
-    # ------------------------------------------------------------------ independent coordinates
-    WORKSPACE_SAMPLES = 64
-    """Configurations of the workspace over which a redundant mechanism's chart is chosen without a log."""
+    # ------------------------------------------------------------------ independent coordinates (dynid.model.charts)
+    WORKSPACE_SAMPLES = charts.WORKSPACE_SAMPLES
 
     def _workspace_samples(self, q_ref: FloatArray, Jc: FloatArray, data: pin.Data, seed: int = 0) -> FloatArray:
-        """Assembled configurations around ``q_ref``: steps along the tangent space of the loops
-        (null space of ``Jc``) scaled to a quarter of each joint's range (0.3 rad, or 0.3 of the
-        mechanism's length scale for a slide, where the description gives no limits), at random
-        fractions of that size, then closed by :meth:`_assemble`; those that cannot close or come
-        near a ball joint's singularity are left out. ``q_ref`` first."""
-        m = self.pin_model
-        rng = np.random.default_rng(seed)
-        N = sla.null_space(Jc)
-        lo, hi = self.position_limits()
-        length = max((float(np.linalg.norm(m.jointPlacements[j].translation)) for j in range(1, m.njoints)), default=1.0)
-        slide = np.array([m.joints[j].shortname().startswith("JointModelP") for j in range(1, m.njoints)])
-        size = np.where(np.isfinite(hi - lo), 0.25 * (hi - lo), np.where(slide, 0.3 * length, 0.3))
-        out = [q_ref]
-        for _ in range(self.WORKSPACE_SAMPLES - 1):
-            d = N @ rng.standard_normal(N.shape[1])
-            d *= rng.uniform() / max(np.max(np.abs(d) / size), 1e-300)
-            try:
-                qk = self._assemble(q_ref + d, data)
-                self.check_ball_charts(qk)
-            except ModelError:
-                continue
-            out.append(qk)
-        return np.array(out)
+        return charts.workspace_samples(self, q_ref, Jc, data, seed)
 
     def rank_charts(self, q: FloatArray) -> list[tuple[tuple[int, ...], float]]:
-        r"""Subsets of the actuated joints as independent coordinates, best first: each with the
-        worst condition number over the configurations ``q`` (n, n_v) of its velocity map.
-
-        With :math:`N(q)` an orthonormal basis of the loops' tangent space (null space of
-        :math:`J_c`), the velocity map of the joints :math:`S` is :math:`G = N (S N)^{-1}`
-        (:math:`\dot q = G \dot u`), whose condition number is that of :math:`S N`: infinite where
-        the joints do not determine the motion. Mixed joint kinds compare rad with m (the
-        condition number is not unit-free); the subsets are tried in actuator order, ties keep
-        the first."""
-        import itertools
-
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        data = self.pin_model.createData()
-        bases = [sla.null_space(self._constraint_jacobian(qk, data)[self.constraint_rows]) for qk in q]
-        out = []
-        for combo in itertools.combinations(self.actuated, self.mobility):
-            worst = 0.0
-            for N in bases:
-                c = np.linalg.cond(N[list(combo)]) if N.shape[1] == len(combo) else np.inf
-                worst = max(worst, c if np.isfinite(c) else np.inf)
-            out.append((tuple(int(j) for j in combo), float(worst)))
-        return sorted(out, key=lambda t: t[1])
+        """Subsets of the actuated joints as independent coordinates, best first, with the worst
+        condition number of their velocity map over the configurations ``q`` (n, n_v)
+        (:func:`dynid.model.charts.rank_charts`)."""
+        return charts.rank_charts(self, q)
 
     def _choice_text(self, ranked: list[tuple[tuple[int, ...], float]], n: int, over: str) -> str:
-        names = self.pin_model.names
-        label = lambda c: "(" + ", ".join(names[j + 1] for j in c) + ")"  # noqa: E731
-        others = ", ".join(f"{label(c)} {w:.3g}" for c, w in ranked[1:4])
-        return (f"chosen automatically among the actuated joints: the best-conditioned velocity map over {n} {over} "
-                f"(worst-case condition number {ranked[0][1]:.3g}" + (f"; next {others}" if others else "") + ")")
+        return charts.choice_text(self, ranked, n, over)
 
     def choose_independent(self, q: FloatArray, over: str = "log samples") -> Mechanism:
-        """The same mechanism with the actuated joints whose velocity map is best conditioned over
-        the configurations ``q`` (n, n_v) as independent coordinates (:meth:`rank_charts`),
-        recorded in ``independent_choice``; unchanged when those are already its coordinates
-        (the record then says over what they were confirmed)."""
-        ranked = self.rank_charts(q)
-        best, worst = ranked[0]
-        if not np.isfinite(worst):
-            raise ModelError(f"{self.name!r}: no {self.mobility} of the actuated joints {self.actuated_names} determine "
-                             f"the motion at every one of the {len(q)} {over}; give [robot] independent")
-        return dataclasses.replace(self, independent=JointCoordinates(best), q_guess=self.q_ref,
-                                   independent_choice=self._choice_text(ranked, len(q), over))
+        """The same mechanism with the best-conditioned actuated joints over the configurations ``q``
+        as independent coordinates (:func:`dynid.model.charts.choose_independent`)."""
+        return charts.choose_independent(self, q, over)
 
     def _chart_hint(self, Jc: FloatArray, mob: int, limit: int = 4, budget: int = 5000) -> str:
-        """``"; valid choices ...: [...], [...]"``: sets of ``mob`` joints whose positions are a
-        chart at the reference configuration (rank of ``[J_c; S]`` = n_v, condition number below
-        1e10), the actuated joints' subsets first, then any joints; at most ``budget`` sets tried."""
-        import itertools
-
-        nv = self.pin_model.nv
-        names = self.pin_model.names
-        found: list[list[str]] = []
-        tried = 0
-        pools = [list(self.actuated), list(range(nv))]
-        seen: set[tuple[int, ...]] = set()
-        for pool in pools:
-            for combo in itertools.combinations(pool, mob):
-                if combo in seen:
-                    continue
-                seen.add(combo)
-                tried += 1
-                if tried > budget or len(found) >= limit:
-                    break
-                S = np.zeros((mob, nv))
-                S[np.arange(mob), list(combo)] = 1.0
-                c = np.linalg.cond(np.vstack([Jc, S]))
-                if np.isfinite(c) and c <= 1e10:
-                    found.append([names[j + 1] for j in combo])
-            if found:
-                break
-        if not found:
-            return f"; no set of {mob} joint positions tried ({min(tried, budget)}) is a chart here"
-        return (f"; give {mob} joints as the independent coordinates ([robot] independent = [...], dynid info --independent), e.g. "
-                + ", ".join(str(f) for f in found))
+        return charts.chart_hint(self, Jc, mob, limit, budget)
 
     def _assemble(self, q0: FloatArray, data: pin.Data, tol: float = 1e-12, max_iter: int = 100) -> FloatArray:
         """Closest assembly to ``q0``: Gauss–Newton on c(q) = 0 with minimum-norm steps. When it
@@ -835,50 +638,7 @@ class Mechanism:
             When Newton does not converge (unreachable pose: the message gives the residual
             and the condition number) or the configuration is singular.
         """
-        u = np.atleast_2d(np.asarray(u, dtype=float))
-        n_u = self.independent.size
-        if u.ndim != 2 or u.shape[1] != n_u:
-            raise InputError(f"independent coordinates must have shape (n, {n_u}), got {u.shape}")
-        if not np.all(np.isfinite(u)):
-            raise InputError("independent coordinates contain NaN or infinite values")
-        n = u.shape[0]
-        if q0 is None and self.position_guess is not None:
-            try:
-                q0 = np.asarray(self.position_guess(u), dtype=float)
-            except ModelError:
-                q0 = None  # out of the closed form's reach: Newton from q_ref says why
-        per_sample = q0 is not None and np.ndim(q0) == 2
-        if per_sample and np.shape(q0) != (n, self.nv):
-            raise InputError(f"q0 must have shape ({n}, {self.nv}), got {np.shape(q0)}")
-        guess = self.q_ref if q0 is None else np.asarray(q0, dtype=float)
-        data = self.pin_model.createData()
-        rows = self.constraint_rows
-        out = np.empty((n, self.nv))
-        q = (guess[0] if per_sample else guess).copy()
-        for i in range(n):
-            if per_sample:
-                q = guess[i].copy()
-            for it in range(max_iter + 1):
-                F = np.concatenate([self._constraint_residual(q, data)[rows], self._coordinate_values(q, data) - u[i]])
-                if np.linalg.norm(F, np.inf) < tol:
-                    break
-                A = np.vstack([self._constraint_jacobian(q, data, exact=True)[rows], self._coordinate_jacobian(q, data)])
-                cond = np.linalg.cond(A)
-                if not np.isfinite(cond) or cond > max_cond:
-                    raise ModelError(
-                        f"sample {i}: singular configuration while solving the loops "
-                        f"(condition number of [J_c; J_u] = {cond:.3g}, residual {np.linalg.norm(F, np.inf):.3g})"
-                    )
-                if it == max_iter:
-                    raise ModelError(
-                        f"sample {i}: pose u = {np.array2string(u[i], precision=4)} is unreachable or too far from "
-                        f"the initial guess (residual {np.linalg.norm(F, np.inf):.3g} after {max_iter} Newton steps, "
-                        f"condition number {cond:.3g})"
-                    )
-                q = q - np.linalg.solve(A, F)
-            out[i] = q
-        self.check_ball_charts(out, "solve_positions")
-        return out
+        return loop_assembly.solve_positions(self, u, q0, tol, max_iter, max_cond)
 
     def states(
         self,
