@@ -1,0 +1,362 @@
+"""The position solve of :func:`dynid.model.loop_kinematics.actuator_states` on many samples at once.
+
+A log of a parallel robot gives the actuated joints only; every sample's other joints come from
+Gauss–Newton on :math:`F(q) = [c(q); S_a q - q_a] = 0` (independent constraint rows). Sample by
+sample, warm-started from the previous sample, that is a Python loop of some ten calls per
+iteration (about 230 us per hexapod sample). Here, for point closures (``"3d"``):
+
+* :func:`solve_from_starts`: Gauss–Newton from a starting point per sample, each iteration on
+  all the samples still iterating at once: pinocchio per sample (``computeJointJacobians``, the
+  joints' placements read through one strided view of ``data.oMi``, :class:`_Layout`), the
+  residuals, Jacobians and steps batched. Per sample the iteration and the stopping rule of the
+  sample-by-sample loop: stop when the step's infinity norm is below ``tol`` (that step not
+  taken; with ``accept_starts`` a start whose residual is already below ``tol`` is taken as it
+  is); after ``max_iter`` steps a :class:`~dynid.errors.ModelError` naming the sample and the
+  condition number. The step solves the square stacked system by block elimination (the
+  actuated joints move by :math:`e_a = q_a - q_{a,\\mathrm{meas}}` exactly, the others by LU on
+  :math:`J_{c,w}`), the least squares of the normal equations when actuation is redundant.
+* :func:`continuation`: the warm-started solve along the log. Anchors every ``K``-th sample
+  (``K`` = ``stride``, 16) are solved one after the other, each from the linear extrapolation of
+  the two previous anchors (the first from the previous sample); the samples between two anchors
+  are solved together by :func:`solve_from_starts` from the linear interpolation of the anchors.
+
+Same solution as sample by sample (to the solver's tolerance). Gauss–Newton converges to the
+root whose basin contains its start; the loop's root at sample :math:`i` is the continuation of
+the branch of the first sample. The interpolated start differs from that root by at most
+:math:`K^2h^2\\max|\\ddot q|/8` (sample period :math:`h`; the extrapolated anchor start by
+:math:`K^2h^2\\max|\\ddot q|`), the sample-by-sample loop's own start by :math:`h\\max|\\dot q|`:
+for a log sampled finely enough both are far inside the basin (radius of the order of
+:math:`1/(L\\,\\|A^{-1}\\|)`, :math:`L` the Lipschitz constant of the Jacobian). Two checks make
+that an assertion rather than an assumption, per segment between anchors: the solved samples
+may not deviate from the interpolated start by more than the chord between the two anchors plus
+their second difference (the interpolation error's scale) plus ``100 tol``, and the anchor
+chain's extrapolation error bounds the same way its anchors; a segment that fails (another
+branch is a jump of the order of a link length), whose anchor or batch does not converge, or
+that raises, is solved again sample by sample from the previous accepted sample (``sequential``,
+the loop itself: an unreachable sample raises its own error with its number), ``K`` is halved
+for the next window and grows back by doubling after a clean one. Both routes stop once a
+Newton step is below ``tol`` (infinity norm), where the error is the size of that step to
+second order: each result is within ``tol`` of the root, the two within ``2 tol``.
+
+The module reads only the mechanism's closures and pinocchio model (no import of
+:mod:`~dynid.model.loop_kinematics`, which calls it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pinocchio as pin
+
+from dynid._typing import FloatArray
+from dynid.errors import ModelError
+
+if TYPE_CHECKING:
+    from dynid.model.mechanism import Mechanism
+
+__all__ = ["continuation", "solve_from_starts"]
+
+STRIDE = 16  # samples between anchors (at most)
+_WINDOW = 32  # anchors per window
+_BLOCK = 256  # samples per batched solve (the per-side Jacobians stay in cache)
+
+
+class _Layout:
+    """A read-only strided view of the joints' placements in ``data.oMi``: one copy per sample
+    instead of one Python call per joint. pinocchio stores ``oMi`` as a contiguous vector of
+    SE3 (rotation column-major, then translation: 12 doubles, padded to a constant stride); the
+    view is built from the addresses eigenpy reports and checked against ``oMi[j].homogeneous``
+    at two configurations; where the check fails (another layout), None and the per-joint reads."""
+
+    @staticmethod
+    def view(mech: Mechanism, data: pin.Data, joints: list[int]) -> FloatArray | None:
+        oMi = data.oMi
+        nj = len(oMi)
+        if nj < 2 or not joints:
+            return None
+        try:
+            rot = [oMi[j].rotation for j in range(nj)]
+            tr = [oMi[j].translation for j in range(nj)]
+            addr = [r.__array_interface__["data"][0] for r in rot]
+            stride = addr[1] - addr[0]
+            ok = (
+                all(b - a == stride for a, b in zip(addr, addr[1:]))
+                and all(r.strides == (8, 24) for r in rot)
+                and all(t.__array_interface__["data"][0] - a == 72 for t, a in zip(tr, addr))
+                and stride >= 96 and stride % 8 == 0
+            )
+            if not ok:
+                return None
+            flat = np.lib.stride_tricks.as_strided(rot[0], shape=(nj, 12), strides=(stride, 8), writeable=False)
+            rng = np.random.default_rng(0)
+            for q in (mech.q_ref, mech.q_ref + 0.1 * rng.standard_normal(mech.nv)):
+                pin.forwardKinematics(mech.pin_model, data, np.asarray(q, dtype=float))
+                got = flat[joints]
+                want = np.array([oMi[j].homogeneous for j in joints])
+                if not (np.array_equal(got[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1), want[:, :3, :3])
+                        and np.array_equal(got[:, 9:], want[:, :3, 3])):
+                    return None
+            return flat
+        except (AttributeError, ValueError, TypeError, IndexError):  # pragma: no cover - another binding
+            return None
+
+
+class _Points:
+    """Constants of the batched solve for point closures: the joints whose placements are read,
+    each side's slot among them (ground sides: their fixed point), the moving sides' points and
+    support masks, and per closure row the two sides it subtracts."""
+
+    def __init__(self, mech: Mechanism) -> None:
+        m = mech.pin_model
+        sides = []
+        for c in mech.closures:
+            sides += [(c.joint_a, c.placement_a), (c.joint_b, c.placement_b)]
+        self.joints = sorted({j for j, _ in sides if j != 0})
+        slot = {j: k for k, j in enumerate(self.joints)}
+        self.moving = np.array([s for s, (j, _) in enumerate(sides) if j != 0], dtype=int)
+        self.slot = np.array([slot[sides[s][0]] for s in self.moving], dtype=int)
+        self.r = np.array([sides[s][1].translation for s in self.moving], dtype=float).reshape(-1, 3)
+        self.fixed = np.array([pl.translation if j == 0 else np.zeros(3) for j, pl in sides], dtype=float)
+        k = self.moving.size
+        self.mask = np.zeros((k, m.nv))
+        for i, s in enumerate(self.moving):
+            for a in m.supports[sides[s][0]].tolist()[1:]:
+                jm = m.joints[a]
+                self.mask[i, jm.idx_v : jm.idx_v + jm.nv] = 1.0
+        # closure rows: side b minus side a, as indices into the (moving sides + one zero) arrays
+        index = {int(s): i for i, s in enumerate(self.moving)}
+        ncl = len(sides) // 2
+        ib = np.array([index.get(2 * c + 1, k) for c in range(ncl)])
+        ia = np.array([index.get(2 * c, k) for c in range(ncl)])
+        rows = mech.constraint_rows
+        self.row_b, self.row_a = np.repeat(ib, 3)[rows], np.repeat(ia, 3)[rows]
+        self.row_xyz = np.tile(np.arange(3), ncl)[rows]
+        self.const = (self.fixed[1::2] - self.fixed[0::2]).reshape(-1)[rows]  # ground sides' points
+        # the Jacobian's non-zero entries: closure row r (component x of side b minus side a) on the
+        # support columns of each side's body, value J_v[x] - (p x J_w)[x] = J_v[x] - (p[y] J_w[z] -
+        # p[z] J_w[y]), (x, y, z) a cyclic permutation; as flat indices of J (6 n_v), of the points
+        # (3 k) and of J_c (rows n_v); side b's entries and side a's (subtracted after) apart, each
+        # group without repeated entries
+        self.entries = []
+        for sides_of_row in (self.row_b, self.row_a):
+            e_row, e_col, e_side, e_xyz = [], [], [], []
+            for r, (side, x) in enumerate(zip(sides_of_row, self.row_xyz)):
+                if side == k:  # a side on the ground: no entries
+                    continue
+                cols = np.flatnonzero(self.mask[side])
+                e_row += [r] * cols.size
+                e_col += cols.tolist()
+                e_side += [side] * cols.size
+                e_xyz += [x] * cols.size
+            e_row, e_col, e_side, e_xyz = (np.array(v, dtype=int) for v in (e_row, e_col, e_side, e_xyz))
+            y, z = (e_xyz + 1) % 3, (e_xyz + 2) % 3
+            self.entries.append((e_row * m.nv + e_col, e_xyz * m.nv + e_col, 3 * e_side + y, (3 + z) * m.nv + e_col,
+                                 3 * e_side + z, (3 + y) * m.nv + e_col))
+        self.c_b, self.c_a = 3 * self.row_b + self.row_xyz, 3 * self.row_a + self.row_xyz
+        self.act = np.array(mech.actuated, dtype=int)
+        self.free = np.setdiff1d(np.arange(mech.nv), self.act)
+        self.square = rows.size + self.act.size == mech.nv
+
+
+def _points(mech: Mechanism) -> _Points:
+    cached = mech.__dict__.get("_loop_batch_cache")
+    if cached is None:
+        cached = _Points(mech)
+        object.__setattr__(mech, "_loop_batch_cache", cached)
+    return cached
+
+
+def _stacked(mech: Mechanism, pt: _Points, J: FloatArray, H: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Residual rows :math:`c` (m, rows) and Jacobian rows :math:`J_c` (m, rows, n_v) of a block
+    from its joint Jacobians J (m, 6, n_v) and placements H (m, slots, 12) (column-major rotation,
+    translation): each side :math:`p = R r + t`, rows :math:`J_v - p\\times J_\\omega` on the
+    support of its body, each closure row side b minus side a."""
+    m, nv = J.shape[0], J.shape[2]
+    k = pt.moving.size
+    Hs = H[:, pt.slot]  # (m, k, 12)
+    P = np.zeros((m, 3 * (k + 1)))  # the moving sides' points, then a zero one (ground sides)
+    P[:, : 3 * k] = (np.einsum("mkba,kb->mka", Hs[:, :, :9].reshape(m, k, 3, 3), pt.r) + Hs[:, :, 9:]).reshape(m, -1)
+    c = P[:, pt.c_b] - P[:, pt.c_a] + pt.const
+    Jf = J.reshape(m, -1)
+    Jc = np.zeros((m, pt.row_b.size * nv))
+    for sign, (out, v, py, wz, pz, wy) in zip((1.0, -1.0), pt.entries):
+        val = Jf[:, v] - (P[:, py] * Jf[:, wz] - P[:, pz] * Jf[:, wy])
+        if sign > 0:
+            Jc[:, out] = val
+        else:
+            Jc[:, out] -= val
+    return c, Jc.reshape(m, -1, nv)
+
+
+def solve_from_starts(mech: Mechanism, qa: FloatArray, q_start: FloatArray, tol: float, max_iter: int, offset: int,
+                      data: pin.Data, accept_starts: bool = False) -> FloatArray:
+    """Gauss–Newton from a starting point per sample (point closures), all samples at once in
+    blocks (module docstring). ``offset``: the number of the first sample in error messages."""
+    out = np.array(q_start, dtype=float)
+    for a in range(0, qa.shape[0], _BLOCK):
+        b = min(a + _BLOCK, qa.shape[0])
+        out[a:b] = _solve_block(mech, qa[a:b], out[a:b], tol, max_iter, offset + a, data, accept_starts)
+    return out
+
+
+def _solve_block(mech: Mechanism, qa: FloatArray, Q: FloatArray, tol: float, max_iter: int, offset: int,
+                 data: pin.Data, accept_starts: bool) -> FloatArray:
+    pt = _points(mech)
+    model = mech.pin_model
+    nv = mech.nv
+    view = _Layout.view(mech, data, pt.joints) if "_oMi_view" not in data.__dict__ else data.__dict__["_oMi_view"]
+    try:
+        data.__dict__["_oMi_view"] = view
+    except (AttributeError, TypeError):  # pragma: no cover - a Data without __dict__
+        pass
+    cjj, oMi, joints = pin.computeJointJacobians, data.oMi, list(enumerate(pt.joints))
+    jsel = np.array(pt.joints, dtype=int)
+    act, free = pt.act, pt.free
+    todo = np.arange(qa.shape[0])
+    for it in range(max_iter + 1):
+        m = todo.size
+        if not m:
+            break
+        J = np.empty((m, 6, nv))
+        H = np.empty((m, len(pt.joints), 12))
+        for k, i in enumerate(todo):
+            J[k] = cjj(model, data, Q[i])
+            if view is not None:
+                H[k] = view[jsel]
+            else:
+                Hk = H[k]
+                for s, j in joints:
+                    M = oMi[j]
+                    Hk[s, :9] = M.rotation.T.reshape(-1)
+                    Hk[s, 9:] = M.translation
+        c, Jc = _stacked(mech, pt, J, H)
+        ea = Q[todo][:, act] - qa[todo]
+        if it == 0 and accept_starts:  # starts that solve it already are taken as they are
+            go = np.maximum(np.abs(c).max(axis=1, initial=0.0), np.abs(ea).max(axis=1)) >= tol
+            todo, c, Jc, ea, m = todo[go], c[go], Jc[go], ea[go], int(go.sum())
+            if not m:
+                break
+        step = _steps(pt, Jc, c, ea, nv)
+        big = ~(np.abs(step).max(axis=1) < tol)  # the steps not taken: below tol
+        if it == max_iter and big.any():
+            k = int(np.flatnonzero(big)[0])
+            i = int(todo[k])
+            A = np.concatenate([Jc[k], mech.actuator_selection()])
+            F = np.concatenate([c[k], ea[k]])
+            raise ModelError(
+                f"sample {offset + i}: actuator positions {np.array2string(qa[i], precision=4)} cannot be assembled "
+                f"(residual {np.abs(F).max():.3g} after {max_iter} Gauss-Newton steps, condition number "
+                f"{np.linalg.cond(A):.3g})"
+            )
+        Q[todo[big]] -= step[big]
+        todo = todo[big]
+    return Q
+
+
+def _steps(pt: _Points, Jc: FloatArray, c: FloatArray, ea: FloatArray, nv: int) -> FloatArray:
+    """Gauss–Newton steps of :math:`A = [J_c; S_a]`, :math:`F = [c; e_a]`: block elimination
+    where A is square (:math:`\\delta q_a = e_a`, :math:`J_{c,w}\\delta q_w = c - J_{c,a} e_a`),
+    the normal equations otherwise; a singular sample by least squares (SVD)."""
+    m = c.shape[0]
+    step = np.empty((m, nv))
+    try:
+        if pt.square:
+            step[:, pt.act] = ea
+            rhs = c - np.einsum("mra,ma->mr", Jc[:, :, pt.act], ea)
+            step[:, pt.free] = np.linalg.solve(Jc[:, :, pt.free], rhs[..., None])[..., 0]
+        else:
+            A, F = _full(pt, Jc, c, ea, nv)
+            At = A.transpose(0, 2, 1)
+            step = np.linalg.solve(At @ A, At @ F[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        A, F = _full(pt, Jc, c, ea, nv)
+        step = np.array([np.linalg.lstsq(Ak, Fk, rcond=None)[0] for Ak, Fk in zip(A, F)])
+    return step
+
+
+def _full(pt: _Points, Jc: FloatArray, c: FloatArray, ea: FloatArray, nv: int) -> tuple[FloatArray, FloatArray]:
+    m = c.shape[0]
+    Sa = np.zeros((pt.act.size, nv))
+    Sa[np.arange(pt.act.size), pt.act] = 1.0
+    return np.concatenate([Jc, np.broadcast_to(Sa, (m, *Sa.shape))], axis=1), np.concatenate([c, ea], axis=1)
+
+
+Sequential = Callable[[FloatArray, FloatArray, int], FloatArray]
+"""``sequential(qa, q0, offset)``: the sample-by-sample loop on the rows ``qa``, warm-started
+from ``q0``, sample numbers from ``offset`` in its errors; returns the joint positions."""
+
+
+def continuation(mech: Mechanism, qa: FloatArray, q0: FloatArray, tol: float, max_iter: int, offset: int,
+                 data: pin.Data, sequential: Sequential, stride: int = STRIDE) -> FloatArray:
+    """The joint positions of actuator positions ``qa`` (n, n_a) along a log, warm-started from
+    ``q0`` (module docstring: anchors, batched samples between them, checks and fallback)."""
+    n = qa.shape[0]
+    Q = np.empty((n, mech.nv))
+    if n <= 2 * stride:
+        return sequential(qa, q0, offset)
+    Q[:2] = sequential(qa[:2], q0, offset)  # the first two: the first anchor's extrapolation
+    a, K = 1, stride
+    while a < n - 1:
+        end = min(a + _WINDOW * K, n - 1)
+        knots = np.unique(np.r_[np.arange(a, end, K), end])
+        ok_until = _window(mech, qa, Q, knots, tol, max_iter, offset, data)
+        if ok_until == end:
+            a, K = end, min(2 * K, stride)
+            continue
+        # the first failing segment (knots[s], knots[s+1]] again sample by sample from its start
+        s = int(np.searchsorted(knots, ok_until))
+        lo, hi = int(knots[s]), int(knots[s + 1])
+        Q[lo + 1 : hi + 1] = sequential(qa[lo + 1 : hi + 1], Q[lo], offset + lo + 1)
+        a, K = hi, max(K // 2, 1)
+    return Q
+
+
+def _window(mech: Mechanism, qa: FloatArray, Q: FloatArray, knots: FloatArray, tol: float, max_iter: int,
+            offset: int, data: pin.Data) -> int:
+    """Solve the samples knots[0] + 1 .. knots[-1] (``Q[knots[0]]`` known) into ``Q``: the anchors
+    one after the other, then the others at once. Returns the last sample of the leading run of
+    accepted segments (``knots[-1]`` when all are)."""
+    a = int(knots[0])
+    # anchors: each from the linear extrapolation of the two previous solutions (the first from
+    # Q[a - 1] and Q[a]); its error is ~ the chain's second difference, so a solution farther from
+    # its start than this chord plus the previous chord (scaled to this gap) plus 100 tol is
+    # another branch or a start too far: the window stops before it
+    prev2, prev1, t2, t1 = Q[a - 1], Q[a], a - 1, a
+    for s in range(1, knots.size):
+        i = int(knots[s])
+        ratio = (i - t1) / (t1 - t2)
+        start = prev1 + (prev1 - prev2) * ratio
+        try:
+            q = solve_from_starts(mech, qa[i : i + 1], start[None], tol, max_iter, offset + i, data)[0]
+        except ModelError:
+            q = None
+        if q is None or np.abs(q - start).max() > (1 + ratio) * np.abs(prev1 - prev2).max() + 100 * tol:
+            knots = knots[:s]
+            break
+        Q[i] = q
+        prev2, prev1, t2, t1 = prev1, q, t1, i
+    idx = np.setdiff1d(np.arange(a + 1, int(knots[-1])), knots)
+    if idx.size:
+        seg = np.searchsorted(knots, idx) - 1  # segment of each sample
+        k0, k1 = knots[seg], knots[seg + 1]
+        w = ((idx - k0) / (k1 - k0))[:, None]
+        start = (1 - w) * Q[k0] + w * Q[k1]
+        try:
+            Q[idx] = solve_from_starts(mech, qa[idx], start, tol, max_iter, offset, data)
+        except ModelError:
+            return a
+        # per segment: deviation from the chord below chord + second difference + 100 tol
+        dev = np.abs(Q[idx] - start).max(axis=1)
+        chord = np.abs(Q[knots[1:]] - Q[knots[:-1]]).max(axis=1)
+        second = np.zeros(knots.size - 1)
+        if knots.size > 2:
+            d2 = np.abs(Q[knots[2:]] - 2 * Q[knots[1:-1]] + Q[knots[:-2]]).max(axis=1)
+            second[:-1] = d2
+            second[1:] = np.maximum(second[1:], d2)
+        bound = chord + second + 100 * tol
+        bad = dev > bound[seg]
+        if bad.any():
+            return int(knots[seg[np.flatnonzero(bad)[0]]])
+    return int(knots[-1])
