@@ -49,6 +49,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg import lapack as sla_lapack
 
 from dynid._typing import FloatArray
 from dynid.errors import ModelError
@@ -58,7 +59,7 @@ if TYPE_CHECKING:
 
 __all__ = ["continuation", "solve_from_starts"]
 
-STRIDE = 16  # samples between anchors (at most)
+STRIDE = 32  # samples between anchors (at most)
 _WINDOW = 32  # anchors per window
 _BLOCK = 256  # samples per batched solve (the per-side Jacobians stay in cache)
 
@@ -155,6 +156,8 @@ class _Points:
             self.entries.append((e_row * m.nv + e_col, e_xyz * m.nv + e_col, 3 * e_side + y, (3 + z) * m.nv + e_col,
                                  3 * e_side + z, (3 + y) * m.nv + e_col))
         self.c_b, self.c_a = 3 * self.row_b + self.row_xyz, 3 * self.row_a + self.row_xyz
+        self.jsel = np.array(self.joints, dtype=int)
+        self.r9 = np.repeat(self.r, 3, axis=1)  # r9[k, 3 b + a] = r[k, b]: R^T (row-major) times r, summed over b
         self.act = np.array(mech.actuated, dtype=int)
         self.free = np.setdiff1d(np.arange(mech.nv), self.act)
         self.square = rows.size + self.act.size == mech.nv
@@ -168,17 +171,24 @@ def _points(mech: Mechanism) -> _Points:
     return cached
 
 
-def _stacked(mech: Mechanism, pt: _Points, J: FloatArray, H: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _residual(pt: _Points, H: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The points P (m, 3 (k + 1)) (the moving sides' :math:`R r + t`, then a zero one for the
+    ground sides) and the residual rows c (m, rows) from the placements H (m, slots, 12)."""
+    m, k = H.shape[0], pt.moving.size
+    Hs = H[:, pt.slot]  # (m, k, 12): column-major rotation (R^T row-major), translation
+    P = np.zeros((m, 3 * (k + 1)))
+    P[:, : 3 * k] = ((Hs[:, :, :9].reshape(m, k, 3, 3) * pt.r[None, :, :, None]).sum(axis=2) + Hs[:, :, 9:]).reshape(m, -1)
+    return P, P[:, pt.c_b] - P[:, pt.c_a] + pt.const
+
+
+def _stacked(pt: _Points, J: FloatArray, H: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Residual rows :math:`c` (m, rows) and Jacobian rows :math:`J_c` (m, rows, n_v) of a block
     from its joint Jacobians J (m, 6, n_v) and placements H (m, slots, 12) (column-major rotation,
     translation): each side :math:`p = R r + t`, rows :math:`J_v - p\\times J_\\omega` on the
-    support of its body, each closure row side b minus side a."""
+    support of its body (the entries of ``_Points.entries`` only), each closure row side b minus
+    side a."""
     m, nv = J.shape[0], J.shape[2]
-    k = pt.moving.size
-    Hs = H[:, pt.slot]  # (m, k, 12)
-    P = np.zeros((m, 3 * (k + 1)))  # the moving sides' points, then a zero one (ground sides)
-    P[:, : 3 * k] = (np.einsum("mkba,kb->mka", Hs[:, :, :9].reshape(m, k, 3, 3), pt.r) + Hs[:, :, 9:]).reshape(m, -1)
-    c = P[:, pt.c_b] - P[:, pt.c_a] + pt.const
+    P, c = _residual(pt, H)
     Jf = J.reshape(m, -1)
     Jc = np.zeros((m, pt.row_b.size * nv))
     for sign, (out, v, py, wz, pz, wy) in zip((1.0, -1.0), pt.entries):
@@ -191,54 +201,88 @@ def _stacked(mech: Mechanism, pt: _Points, J: FloatArray, H: FloatArray) -> tupl
 
 
 def solve_from_starts(mech: Mechanism, qa: FloatArray, q_start: FloatArray, tol: float, max_iter: int, offset: int,
-                      data: pin.Data, accept_starts: bool = False) -> FloatArray:
+                      data: pin.Data, accept_starts: bool = False, frozen: bool = False) -> FloatArray:
     """Gauss–Newton from a starting point per sample (point closures), all samples at once in
-    blocks (module docstring). ``offset``: the number of the first sample in error messages."""
+    blocks (module docstring). ``offset``: the number of the first sample in error messages.
+    ``frozen``: after the first (Newton) step, up to ``_CHORD`` steps with that step's Jacobian
+    (the chord method: a residual, no Jacobian, per sample; it converges linearly at the rate
+    :math:`\\rho \\approx L\\|A^{-1}\\|\\,|q_0 - q^*|`, about 1e-5 from the continuation's
+    starts, so the first such step is the loop's last, below ``tol``), then Newton again."""
     out = np.array(q_start, dtype=float)
     for a in range(0, qa.shape[0], _BLOCK):
         b = min(a + _BLOCK, qa.shape[0])
-        out[a:b] = _solve_block(mech, qa[a:b], out[a:b], tol, max_iter, offset + a, data, accept_starts)
+        out[a:b] = _solve_block(mech, qa[a:b], out[a:b], tol, max_iter, offset + a, data, accept_starts, frozen)
     return out
 
 
+_CHORD = 3  # chord steps after the first Newton step of a frozen solve
+
+
+def _layout(mech: Mechanism, pt: _Points, data: pin.Data) -> FloatArray | None:
+    view = data.__dict__.get("_oMi_view", False)
+    if view is False:
+        view = _Layout.view(mech, data, pt.joints)
+        data.__dict__["_oMi_view"] = view
+    return view
+
+
+def _placements(pt: _Points, data: pin.Data, view: FloatArray | None, out: FloatArray) -> None:
+    if view is not None:
+        out[...] = view[pt.jsel]
+    else:
+        for s, j in enumerate(pt.joints):
+            M = data.oMi[j]
+            out[s, :9] = M.rotation.T.reshape(-1)
+            out[s, 9:] = M.translation
+
+
 def _solve_block(mech: Mechanism, qa: FloatArray, Q: FloatArray, tol: float, max_iter: int, offset: int,
-                 data: pin.Data, accept_starts: bool) -> FloatArray:
+                 data: pin.Data, accept_starts: bool, frozen: bool) -> FloatArray:
     pt = _points(mech)
     model = mech.pin_model
     nv = mech.nv
-    view = _Layout.view(mech, data, pt.joints) if "_oMi_view" not in data.__dict__ else data.__dict__["_oMi_view"]
-    try:
-        data.__dict__["_oMi_view"] = view
-    except (AttributeError, TypeError):  # pragma: no cover - a Data without __dict__
-        pass
-    cjj, oMi, joints = pin.computeJointJacobians, data.oMi, list(enumerate(pt.joints))
-    jsel = np.array(pt.joints, dtype=int)
+    view = _layout(mech, pt, data)
+    cjj, fk = pin.computeJointJacobians, pin.forwardKinematics
     act, free = pt.act, pt.free
+    frozen = frozen and pt.square
+    inv = jca = None  # the frozen matrix J_c,w and J_c,a
     todo = np.arange(qa.shape[0])
     for it in range(max_iter + 1):
         m = todo.size
         if not m:
             break
-        J = np.empty((m, 6, nv))
+        chord = inv is not None and it <= min(_CHORD, max_iter - 1)
         H = np.empty((m, len(pt.joints), 12))
-        for k, i in enumerate(todo):
-            J[k] = cjj(model, data, Q[i])
-            if view is not None:
-                H[k] = view[jsel]
-            else:
-                Hk = H[k]
-                for s, j in joints:
-                    M = oMi[j]
-                    Hk[s, :9] = M.rotation.T.reshape(-1)
-                    Hk[s, 9:] = M.translation
-        c, Jc = _stacked(mech, pt, J, H)
+        if chord:
+            for k, i in enumerate(todo):
+                fk(model, data, Q[i])
+                _placements(pt, data, view, H[k])
+            c = _residual(pt, H)[1]
+        else:
+            J = np.empty((m, 6, nv))
+            for k, i in enumerate(todo):
+                J[k] = cjj(model, data, Q[i])
+                _placements(pt, data, view, H[k])
+            c, Jc = _stacked(pt, J, H)
         ea = Q[todo][:, act] - qa[todo]
         if it == 0 and accept_starts:  # starts that solve it already are taken as they are
             go = np.maximum(np.abs(c).max(axis=1, initial=0.0), np.abs(ea).max(axis=1)) >= tol
             todo, c, Jc, ea, m = todo[go], c[go], Jc[go], ea[go], int(go.sum())
             if not m:
                 break
-        step = _steps(pt, Jc, c, ea, nv)
+        if chord:  # the first step's matrix again (LU: 18 x 18 costs less than an inverse)
+            step = np.empty((m, nv))
+            step[:, act] = ea
+            rhs = c - np.einsum("mra,ma->mr", jca, ea)
+            try:
+                step[:, free] = np.linalg.solve(inv, rhs[..., None])[..., 0]
+            except np.linalg.LinAlgError:  # pragma: no cover - a first step was solved on it
+                step[:, free] = np.array([np.linalg.lstsq(Ak, bk, rcond=None)[0] for Ak, bk in zip(inv, rhs)])
+        else:
+            inv = None
+            step = _steps(pt, Jc, c, ea, nv)
+            if frozen and it == 0 and np.all(np.isfinite(step)):
+                inv, jca = Jc[:, :, free], Jc[:, :, act]
         big = ~(np.abs(step).max(axis=1) < tol)  # the steps not taken: below tol
         if it == max_iter and big.any():
             k = int(np.flatnonzero(big)[0])
@@ -252,7 +296,72 @@ def _solve_block(mech: Mechanism, qa: FloatArray, Q: FloatArray, tol: float, max
             )
         Q[todo[big]] -= step[big]
         todo = todo[big]
+        if inv is not None:
+            inv, jca = inv[big], jca[big]
+            if it + 1 > min(_CHORD, max_iter - 1):
+                inv = None
     return Q
+
+
+def solve_one(mech: Mechanism, qa: FloatArray, q: FloatArray, tol: float, max_iter: int, sample: int,
+              data: pin.Data) -> FloatArray:
+    """:func:`solve_from_starts` with ``frozen`` of one sample on one-dimensional arrays (the
+    anchors of :func:`continuation`, one after the other: the batched route's per-call overhead
+    of some ten operations on small arrays would dominate there): the same rows and steps (LAPACK's
+    LU directly, its factors kept for the chord steps), the least squares where A is not square."""
+    pt = _points(mech)
+    view = _layout(mech, pt, data)
+    model, nv = mech.pin_model, mech.nv
+    act, free = pt.act, pt.free
+    q = np.array(q, dtype=float)
+    H = np.empty((len(pt.joints), 12))
+    lu = piv = jca = None
+    chords = 0
+    for it in range(max_iter + 1):
+        chord = lu is not None and chords < _CHORD and it < max_iter
+        if chord:
+            pin.forwardKinematics(model, data, q)
+            chords += 1
+        else:
+            J = pin.computeJointJacobians(model, data, q)
+            lu = None
+        _placements(pt, data, view, H)
+        Hs = H[pt.slot]
+        P = np.zeros(3 * (pt.moving.size + 1))
+        P[: 3 * pt.moving.size] = ((Hs[:, :9] * pt.r9).reshape(-1, 3, 3).sum(axis=1) + Hs[:, 9:]).reshape(-1)
+        c = P[pt.c_b] - P[pt.c_a] + pt.const
+        ea = q[act] - qa
+        step = np.empty(nv)
+        if not chord:
+            Jf = J.reshape(-1)
+            Jc = np.zeros(pt.row_b.size * nv)
+            (out, v, py, wz, pz, wy), (out_a, v_a, py_a, wz_a, pz_a, wy_a) = pt.entries
+            Jc[out] = Jf[v] - (P[py] * Jf[wz] - P[pz] * Jf[wy])
+            Jc[out_a] -= Jf[v_a] - (P[py_a] * Jf[wz_a] - P[pz_a] * Jf[wy_a])
+            Jc = Jc.reshape(-1, nv)
+            if pt.square:
+                jca = Jc[:, act]
+                lu, piv, info = sla_lapack.dgetrf(Jc[:, free])
+                if info != 0:
+                    lu = None
+                chords = 0
+        if lu is not None:
+            step[act] = ea
+            step[free], info = sla_lapack.dgetrs(lu, piv, c - jca @ ea)
+        else:
+            A, F = _full(pt, Jc[None], c[None], ea[None], nv)
+            step = np.linalg.lstsq(A[0], F[0], rcond=None)[0]
+        if np.abs(step).max() < tol:
+            break
+        if it == max_iter:
+            A = np.concatenate([Jc, mech.actuator_selection()])
+            raise ModelError(
+                f"sample {sample}: actuator positions {np.array2string(qa, precision=4)} cannot be assembled "
+                f"(residual {max(np.abs(c).max(initial=0.0), np.abs(ea).max()):.3g} after {max_iter} Gauss-Newton "
+                f"steps, condition number {np.linalg.cond(A):.3g})"
+            )
+        q -= step
+    return q
 
 
 def _steps(pt: _Points, Jc: FloatArray, c: FloatArray, ea: FloatArray, nv: int) -> FloatArray:
@@ -329,7 +438,7 @@ def _window(mech: Mechanism, qa: FloatArray, Q: FloatArray, knots: FloatArray, t
         ratio = (i - t1) / (t1 - t2)
         start = prev1 + (prev1 - prev2) * ratio
         try:
-            q = solve_from_starts(mech, qa[i : i + 1], start[None], tol, max_iter, offset + i, data)[0]
+            q = solve_one(mech, qa[i], start, tol, max_iter, offset + i, data)
         except ModelError:
             q = None
         if q is None or np.abs(q - start).max() > (1 + ratio) * np.abs(prev1 - prev2).max() + 100 * tol:
@@ -344,7 +453,7 @@ def _window(mech: Mechanism, qa: FloatArray, Q: FloatArray, knots: FloatArray, t
         w = ((idx - k0) / (k1 - k0))[:, None]
         start = (1 - w) * Q[k0] + w * Q[k1]
         try:
-            Q[idx] = solve_from_starts(mech, qa[idx], start, tol, max_iter, offset, data)
+            Q[idx] = solve_from_starts(mech, qa[idx], start, tol, max_iter, offset, data, frozen=True)
         except ModelError:
             return a
         # per segment: deviation from the chord below chord + second difference + 100 tol
