@@ -157,6 +157,16 @@ class _Points:
                                  3 * e_side + z, (3 + y) * m.nv + e_col))
         self.c_b, self.c_a = 3 * self.row_b + self.row_xyz, 3 * self.row_a + self.row_xyz
         self.jsel = np.array(self.joints, dtype=int)
+        # the residual rows as one linear map of the placements read (H flat: slots x [R^T row-major,
+        # t]): c = H W + const, side b's p = R r + t minus side a's (:func:`_residual_rows`)
+        W = np.zeros((len(self.joints), 12, rows.size))
+        for r_, (sb, sa_, x) in enumerate(zip(self.row_b, self.row_a, self.row_xyz)):
+            for side, sign in ((sb, 1.0), (sa_, -1.0)):
+                if side == k:
+                    continue
+                W[self.slot[side], 3 * np.arange(3) + x, r_] += sign * self.r[side]  # R[x, b] r[b] = R^T[b, x] r[b]
+                W[self.slot[side], 9 + x, r_] += sign
+        self.W = np.ascontiguousarray(W.reshape(-1, rows.size))
         self.r9 = np.repeat(self.r, 3, axis=1)  # r9[k, 3 b + a] = r[k, b]: R^T (row-major) times r, summed over b
         self.act = np.array(mech.actuated, dtype=int)
         self.free = np.setdiff1d(np.arange(mech.nv), self.act)
@@ -179,6 +189,12 @@ def _residual(pt: _Points, H: FloatArray) -> tuple[FloatArray, FloatArray]:
     P = np.zeros((m, 3 * (k + 1)))
     P[:, : 3 * k] = ((Hs[:, :, :9].reshape(m, k, 3, 3) * pt.r[None, :, :, None]).sum(axis=2) + Hs[:, :, 9:]).reshape(m, -1)
     return P, P[:, pt.c_b] - P[:, pt.c_a] + pt.const
+
+
+def _residual_rows(pt: _Points, H: FloatArray) -> FloatArray:
+    """The residual rows c (m, rows) from the placements H (m, slots, 12) as one product by the
+    constant ``_Points.W`` (the same sums as :func:`_residual` in another order: equal to rounding)."""
+    return H.reshape(H.shape[0], -1) @ pt.W + pt.const
 
 
 def _stacked(pt: _Points, J: FloatArray, H: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -451,11 +467,13 @@ def _window(mech: Mechanism, qa: FloatArray, Q: FloatArray, knots: FloatArray, t
         seg = np.searchsorted(knots, idx) - 1  # segment of each sample
         k0, k1 = knots[seg], knots[seg + 1]
         w = ((idx - k0) / (k1 - k0))[:, None]
-        start = (1 - w) * Q[k0] + w * Q[k1]
+        lin = (1 - w) * Q[k0] + w * Q[k1]
+        start = _cubic(Q, knots, idx, seg, lin)
         try:
-            Q[idx] = solve_from_starts(mech, qa[idx], start, tol, max_iter, offset, data, frozen=True)
-        except ModelError:
+            Q[idx] = _interior(mech, qa[idx], start, knots, idx, seg, Q, tol, max_iter, offset, data)
+        except (ModelError, np.linalg.LinAlgError):
             return a
+        start = lin
         # per segment: deviation from the chord below chord + second difference + 100 tol
         dev = np.abs(Q[idx] - start).max(axis=1)
         chord = np.abs(Q[knots[1:]] - Q[knots[:-1]]).max(axis=1)
@@ -469,3 +487,80 @@ def _window(mech: Mechanism, qa: FloatArray, Q: FloatArray, knots: FloatArray, t
         if bad.any():
             return int(knots[seg[np.flatnonzero(bad)[0]]])
     return int(knots[-1])
+
+
+def _cubic(Q: FloatArray, knots: FloatArray, idx: FloatArray, seg: FloatArray, lin: FloatArray) -> FloatArray:
+    """Starts of the samples between anchors: the cubic through the four anchors around each
+    segment (Lagrange; error :math:`O(K^4h^4|q^{(4)}|)` against the line's
+    :math:`K^2h^2|\\ddot q|/8`), the line ``lin`` in the first and last segments."""
+    start = lin.copy()
+    inner = (seg >= 1) & (seg + 2 < knots.size)
+    if inner.any():
+        s, t = seg[inner], idx[inner].astype(float)
+        x = np.stack([knots[s - 1], knots[s], knots[s + 1], knots[s + 2]], axis=1).astype(float)
+        out = np.zeros((s.size, Q.shape[1]))
+        for j in range(4):
+            wj = np.ones(s.size)
+            for m in range(4):
+                if m != j:
+                    wj *= (t - x[:, m]) / (x[:, j] - x[:, m])
+            out += wj[:, None] * Q[knots[s - 1 + j]]
+        start[inner] = out
+    return start
+
+
+def _interior(mech: Mechanism, qa: FloatArray, start: FloatArray, knots: FloatArray, idx: FloatArray,
+              seg: FloatArray, Q: FloatArray,
+              tol: float, max_iter: int, offset: int, data: pin.Data) -> FloatArray:
+    """The samples between anchors: chord steps with the Jacobian of the nearest anchor (square
+    systems: :math:`\\delta q_a = e_a`, :math:`\\delta q_w = J_{c,w}^{-1}(c - J_{c,a}e_a)`, the
+    inverse per anchor, once), at most ``_CHORD + 1`` of them; the samples not converged then by
+    :func:`solve_from_starts` (Newton, frozen) from where they are. The chord method with an
+    approximate Jacobian :math:`\\tilde A` converges linearly at the rate
+    :math:`\\rho = \\|\\tilde A^{-1}(\\tilde A - A)\\|` (anchor half a segment away: about
+    :math:`K h |\\dot q|\\,L\\|A^{-1}\\|/2`, 1e-3 on the benchmark's motion), and a step below
+    ``tol`` leaves :math:`|q - q^*| \\le \\mathrm{tol}/(1 - \\rho)`."""
+    pt = _points(mech)
+    if not pt.square:
+        return solve_from_starts(mech, qa, start, tol, max_iter, offset, data, frozen=True)
+    model, nv = mech.pin_model, mech.nv
+    view = _layout(mech, pt, data)
+    act, free = pt.act, pt.free
+    # the anchors' matrices (their solutions: one Jacobian pass each)
+    J = np.empty((knots.size, 6, nv))
+    H = np.empty((knots.size, len(pt.joints), 12))
+    for k, i in enumerate(knots):
+        J[k] = pin.computeJointJacobians(model, data, Q[i])
+        _placements(pt, data, view, H[k])
+    Jc = _stacked(pt, J, H)[1]
+    inv_all, jca_all = np.linalg.inv(Jc[:, :, free]), Jc[:, :, act]
+    near = np.where(idx - knots[seg] <= knots[seg + 1] - idx, seg, seg + 1)  # the nearest anchor
+    Qi = np.array(start, dtype=float)
+    todo = np.arange(qa.shape[0])
+    fk = pin.forwardKinematics
+    for _ in range(_CHORD + 1):
+        m = todo.size
+        if not m:
+            break
+        Hs = np.empty((m, len(pt.joints), 12))
+        if view is not None:
+            jsel = pt.jsel
+            for k, i in enumerate(todo):
+                fk(model, data, Qi[i])
+                Hs[k] = view[jsel]
+        else:
+            for k, i in enumerate(todo):
+                fk(model, data, Qi[i])
+                _placements(pt, data, view, Hs[k])
+        c = _residual_rows(pt, Hs)
+        ea = Qi[todo][:, act] - qa[todo]
+        a_ = near[todo]
+        step = np.empty((m, nv))
+        step[:, act] = ea
+        step[:, free] = np.einsum("mij,mj->mi", inv_all[a_], c - np.einsum("mra,ma->mr", jca_all[a_], ea))
+        big = ~(np.abs(step).max(axis=1) < tol)
+        Qi[todo[big]] -= step[big]
+        todo = todo[big]
+    if todo.size:
+        Qi[todo] = solve_from_starts(mech, qa[todo], Qi[todo], tol, max_iter, offset, data, frozen=True)
+    return Qi
