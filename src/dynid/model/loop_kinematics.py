@@ -813,7 +813,11 @@ def actuator_states(
 
     What a log of a parallel robot gives: the actuated joints only. Positions by
     Gauss–Newton on :math:`[c(q); S_a q - q_a] = 0` (independent constraint rows),
-    warm-started from the previous sample (the first from ``q0``, default ``q_ref``);
+    warm-started along the log (the first sample from ``q0``, default ``q_ref``): for point
+    closures batched over samples (:mod:`dynid.model.loop_batch`: anchors one after the other,
+    the samples between them at once from the anchors' cubic; the same roots as the
+    sample-by-sample loop to ``3 tol``, checked, with that loop as the fallback; some 17 times
+    faster on the hexapod), for ``6d`` closures sample by sample from the previous sample;
     velocities and accelerations as the least-squares solutions of
 
     .. math::
