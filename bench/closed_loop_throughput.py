@@ -34,9 +34,12 @@ Method
   tolerance 1e-10, warm-started from the first configuration): ``sequential`` (the
   sample-by-sample Gauss-Newton loop, the route before issue 37) against ``batched`` (the
   continuation of :mod:`dynid.model.loop_batch`: anchors one after the other, the samples
-  between them at once). Checked: the two within 2 tol of each other (both stop when a Newton
-  step is below tol); reported: the median of the per-round ratios. Target: at least
-  ``SOLVE_TARGET`` (10) times faster (exit 1 below it, not with ``--quick``).
+  between them at once). Checked: the two within 3 tol of each other (the loop stops after a
+  Newton step below tol, the batched route after a chord step below tol: error at most
+  tol / (1 - rho), tests/test_actuator_positions_batched.py); reported: the median of the
+  per-round ratios. Target: at least ``SOLVE_TARGET`` (10) times faster (exit 1 below it, not
+  with ``--quick``, whose 2000-sample motion is sampled at 100 Hz, ten times coarser: fewer
+  samples between anchors converge by the chord steps, about 10 x there).
 * After a warm-up, ``--repeats`` rounds run every variant once in a rotating order, with the
   garbage collector off during a timed call. Reported: median and min microseconds per
   sample, samples per second (from the median) and the hexapod/serial ratio per round
@@ -175,9 +178,9 @@ def position_solve(mech, q: np.ndarray, args) -> bool:
     speedup = median([a / b for a, b in zip(times["sequential"], times["batched"])])
     rows = [(k, f"{median(v):.1f}", f"{min(v):.1f}", f"{1e6 / median(v):,.0f}") for k, v in times.items()]
     print(table(["position solve", "median us/sample", "min", "samples/s"], rows))
-    ok = speedup >= SOLVE_TARGET and diff <= 2 * SOLVE_TOL
+    ok = speedup >= SOLVE_TARGET and diff <= 3 * SOLVE_TOL
     print(f"batched position solve: {speedup:.1f} x the sequential loop (median of paired rounds; target >= "
-          f"{SOLVE_TARGET:g} x), max |q_batched - q_sequential| = {diff:.2g} (<= 2 tol = {2 * SOLVE_TOL:g}): "
+          f"{SOLVE_TARGET:g} x), max |q_batched - q_sequential| = {diff:.2g} (<= 3 tol = {3 * SOLVE_TOL:g}): "
           f"{'PASS' if ok else 'FAIL'}")
     return ok
 
