@@ -68,7 +68,7 @@ from dynid.errors import ModelError
 if TYPE_CHECKING:
     from dynid.model.mechanism import Mechanism
 
-__all__ = ["continuation", "solve_from_starts"]
+__all__ = ["continuation", "placement_view", "solve_from_starts"]
 
 STRIDE = 32  # samples between anchors (at most; halved after a failed segment)
 _WINDOW = 32  # anchors per window
@@ -83,10 +83,11 @@ class _Layout:
     at two configurations; where the check fails (another layout), None and the per-joint reads."""
 
     @staticmethod
-    def view(mech: Mechanism, data: pin.Data, joints: list[int]) -> FloatArray | None:
+    def view(mech: Mechanism, data: pin.Data) -> FloatArray | None:
         oMi = data.oMi
         nj = len(oMi)
-        if nj < 2 or not joints:
+        joints = list(range(nj))
+        if nj < 2:
             return None
         try:
             rot = [oMi[j].rotation for j in range(nj)]
@@ -111,7 +112,7 @@ class _Layout:
                         and np.array_equal(got[:, 9:], want[:, :3, 3])):
                     return None
             return flat
-        except (AttributeError, ValueError, TypeError, IndexError):  # pragma: no cover - another binding
+        except (AttributeError, ValueError, TypeError, IndexError, RuntimeError):  # pragma: no cover - another binding
             return None
 
 
@@ -245,12 +246,19 @@ def solve_from_starts(mech: Mechanism, qa: FloatArray, q_start: FloatArray, tol:
 _CHORD = 3  # chord steps after the first Newton step of a frozen solve
 
 
-def _layout(mech: Mechanism, pt: _Points, data: pin.Data) -> FloatArray | None:
+def placement_view(mech: Mechanism, data: pin.Data) -> FloatArray | None:
+    """The placements of all joints in ``data`` (after a kinematics pass) as a read-only view
+    (n_joints, 12): column-major rotation (that is :math:`R^T` row-major), then translation;
+    None where pinocchio's layout is not the one expected (:class:`_Layout`). Kept with ``data``."""
     view = data.__dict__.get("_oMi_view", False)
     if view is False:
-        view = _Layout.view(mech, data, pt.joints)
+        view = _Layout.view(mech, data)
         data.__dict__["_oMi_view"] = view
     return view
+
+
+def _layout(mech: Mechanism, pt: _Points, data: pin.Data) -> FloatArray | None:
+    return placement_view(mech, data)
 
 
 def _placements(pt: _Points, data: pin.Data, view: FloatArray | None, out: FloatArray) -> None:
