@@ -883,24 +883,32 @@ def actuator_states(
             raise InputError(f"starting joint positions must be finite, shape ({n}, {mech.nv}); got {q_start.shape}")
     Q = _actuator_positions(mech, qa, q0, tol, max_iter, sample_offset, data, q_start)
     resid = np.sqrt(np.mean((Q[:, act] - qa) ** 2, axis=1))
-    # velocities and accelerations: least squares on [J_c; S_a] (normal equations, batched)
+    # velocities and accelerations: least squares on [J_c; S_a] (normal equations, batched); where
+    # the actuated joints are the independent joint coordinates the system is square and its
+    # solution is the velocity map's (states(): only the dependent block inverted, no normal
+    # equations; equal to rounding, better conditioned)
     Jrows, (J, p) = _velocity_rows(mech, Q, data)
-    sd = _sides(mech)
-    Jc = np.empty((n, nc, mech.nv))
-    Jc[:, :, sd.order] = Jrows[:, :nc]
-    A = np.concatenate([Jc, np.broadcast_to(Sa, (n, na, mech.nv))], axis=1)
-    At = A.transpose(0, 2, 1)
-    N = np.matmul(At, A)
-    rhs_v = np.concatenate([np.zeros((n, nc)), dqa], axis=1)
-    dq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_v)[..., None])[..., 0]
-    drift = _drift(mech, Q, dq, J, p, data)[:, :nc]
-    rhs_a = np.concatenate([-drift, ddqa], axis=1)
-    ddq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_a)[..., None])[..., 0]
-    dq, ddq = _check(mech, dq, (n, mech.nv), "dq"), _check(mech, ddq, (n, mech.nv), "ddq")
     try:  # the velocity map from the rows above (what kinematic_state would compute again)
         maps = _Maps(mech, Jrows, max_cond)
     except ModelError as exc:
         raise ModelError(f"samples {sample_offset}..{sample_offset + n - 1}: {exc}") from None
+    ind = mech.independent
+    if isinstance(ind, JointCoordinates) and tuple(ind.joints) == tuple(act):
+        dq = np.einsum("nij,nj->ni", maps.G, dqa)
+        ddq = maps.accelerations(ddqa, _drift(mech, Q, dq, J, p, data))
+    else:
+        sd = _sides(mech)
+        Jc = np.empty((n, nc, mech.nv))
+        Jc[:, :, sd.order] = Jrows[:, :nc]
+        A = np.concatenate([Jc, np.broadcast_to(Sa, (n, na, mech.nv))], axis=1)
+        At = A.transpose(0, 2, 1)
+        N = np.matmul(At, A)
+        rhs_v = np.concatenate([np.zeros((n, nc)), dqa], axis=1)
+        dq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_v)[..., None])[..., 0]
+        drift = _drift(mech, Q, dq, J, p, data)[:, :nc]
+        rhs_a = np.concatenate([-drift, ddqa], axis=1)
+        ddq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_a)[..., None])[..., 0]
+    dq, ddq = _check(mech, dq, (n, mech.nv), "dq"), _check(mech, ddq, (n, mech.nv), "ddq")
     return KinematicState(q=Q, dq=dq, ddq=ddq, G=maps.G, cond=maps.cond), resid
 
 
