@@ -99,3 +99,37 @@ def test_an_unreachable_sample_still_raises_with_its_number(bad):
                 lk._actuator_positions(mech, qa, q[0], TOL, 30, 100, mech.pin_model.createData(), sequential=True)
             else:
                 lk.actuator_states(mech, qa, zeros, zeros, q0=q[0], tol=TOL, sample_offset=100)
+
+
+@pytest.mark.parametrize("name", ["hexapod", "rps3", "fivebar", "shang2dof", "shang2dof grounded"])
+def test_batched_rows_equal_the_closure_residual_and_jacobian(name):
+    """The batched route's rows (the Jacobian on its non-zero entries, the residual as one product
+    by a constant matrix) at unassembled configurations: the same differences of the same
+    products as :func:`closure_residual` and :func:`closure_jacobian`, to rounding (1e-15 m for
+    the residual's sums in another order). "grounded": one closure side on the fixed base."""
+    import dataclasses
+
+    import pinocchio as pin
+
+    from dynid.model import loop_batch as lb
+
+    mech = build_mechanism(name.split()[0])
+    if name.endswith("grounded"):
+        cl = list(mech.closures)
+        cl[1] = dataclasses.replace(cl[1], joint_a=0, placement_a=pin.SE3(np.eye(3), np.array([0.1, 0.2, 0.0])))
+        mech = dataclasses.replace(mech, closures=tuple(cl))
+    pt = lb._points(mech)
+    data = mech.pin_model.createData()
+    view = lb.placement_view(mech, data)
+    rows = mech.constraint_rows
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        q = mech.q_ref + 0.2 * rng.standard_normal(mech.nv)
+        J = pin.computeJointJacobians(mech.pin_model, data, q).copy()
+        H = np.empty((1, len(pt.joints), 12))
+        lb._placements(pt, data, view, H[0])
+        c, Jc = lb._stacked(pt, J[None], H)
+        ref_c, ref_J = lk.closure_residual(mech, q, data)[rows], lk.closure_jacobian(mech, q, data)[rows]
+        np.testing.assert_allclose(c[0], ref_c, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(lb._residual_rows(pt, H)[0], ref_c, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(Jc[0], ref_J, rtol=0, atol=1e-15)

@@ -476,7 +476,7 @@ def _window(mech: Mechanism, qa: FloatArray, Q: FloatArray, knots: FloatArray, t
             q = solve_one(mech, qa[i], start, tol, max_iter, offset + i, data)
         except ModelError:
             q = None
-        if q is None or np.abs(q - start).max() > (1 + ratio) * np.abs(prev1 - prev2).max() + 100 * tol:
+        if q is None or not np.abs(q - start).max() <= (1 + ratio) * np.abs(prev1 - prev2).max() + 100 * tol:
             knots = knots[:s]
             break
         Q[i] = q
@@ -502,7 +502,7 @@ def _window(mech: Mechanism, qa: FloatArray, Q: FloatArray, knots: FloatArray, t
             second[:-1] = d2
             second[1:] = np.maximum(second[1:], d2)
         bound = chord + second + 100 * tol
-        bad = dev > bound[seg]
+        bad = ~(dev <= bound[seg])  # NaN fails too
         if bad.any():
             return int(knots[seg[np.flatnonzero(bad)[0]]])
     return int(knots[-1])
