@@ -37,7 +37,7 @@ CASES = {
     "rps3": (0.05, 600, 1.2),
     "fivebar": (0.15, 600, 1.2),
     "shang2dof": (0.02, 600, 1.2),  # redundant actuation: least-squares steps
-    "hexapod coarse": (0.03, 150, 3.0),  # 50 Hz: the checks and the fallback to the loop
+    "hexapod coarse": (0.03, 150, 6.0),  # 25 Hz: the checks fail on some segments, the loop solves them
 }
 
 
@@ -83,7 +83,28 @@ def test_batched_position_solve_equals_the_sequential_loop(name, monkeypatch):
 
 
 @pytest.mark.numerics
-@pytest.mark.parametrize("bad", [1, 33, 200, 299])
+def test_a_coarse_log_falls_back_to_the_loop_where_the_checks_fail(monkeypatch):
+    """On a log sampled at 25 Hz the anchors' extrapolation or the samples' deviation from the
+    line between anchors fails the branch checks on some segments: those are solved by the loop
+    (counted here), the others batched, and all agree with the loop (the test above)."""
+    mech, q, qa = _log("hexapod coarse")
+    solved = []
+    loop = lk._positions_loop
+
+    def counting(*args, **kw):
+        solved.append(args[1].shape[0])
+        return loop(*args, **kw)
+
+    monkeypatch.setattr(lk, "_positions_loop", counting)
+    bat = lk._actuator_positions(mech, qa, q[0], TOL, 30, 0, mech.pin_model.createData())
+    assert 2 < sum(solved) < qa.shape[0]  # beyond the first two samples, and not all
+    monkeypatch.setattr(lk, "_positions_loop", loop)
+    seq = lk._actuator_positions(mech, qa, q[0], TOL, 30, 0, mech.pin_model.createData(), sequential=True)
+    assert np.abs(bat - seq).max() <= 3 * TOL + 1e-12
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("bad", [1, 65, 200, 299])
 def test_an_unreachable_sample_still_raises_with_its_number(bad):
     """A sample whose actuator positions no assembly reaches (one strut 3 m longer): the same
     one-line ModelError from both routes, naming the sample (with ``sample_offset``) and the

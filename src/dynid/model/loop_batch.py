@@ -45,9 +45,9 @@ linearly at the rate :math:`\\rho = \\|\\tilde A^{-1}(\\tilde A - A)\\|` (about
 benchmark's motion) and stop with an error at most :math:`\\mathrm{tol}/(1-\\rho)`: the two
 routes agree within :math:`3\\,\\mathrm{tol}` (tests/test_actuator_positions_batched.py).
 
-Speed (bench/closed_loop_throughput.py, hexapod, 4000 samples at 1 kHz, one core): about 11 us
-per sample against 190 us for the loop (17 x, paired rounds): per sample between anchors about
-two forward-kinematics passes and products; per anchor (one in 32) one Jacobian pass and LU.
+Speed (bench/closed_loop_throughput.py, hexapod, 4000 samples at 1 kHz, one core): about 20 us
+per sample against 390 us for the loop under load 6 (20 x, paired rounds): per sample between anchors about
+two forward-kinematics passes and products; per anchor (one in 64) one Jacobian pass and LU.
 
 The module reads only the mechanism's closures and pinocchio model (no import of
 :mod:`~dynid.model.loop_kinematics`, which calls it).
@@ -70,7 +70,7 @@ if TYPE_CHECKING:
 
 __all__ = ["continuation", "placement_view", "solve_from_starts"]
 
-STRIDE = 32  # samples between anchors (at most; halved after a failed segment)
+STRIDE = 64  # samples between anchors (at most; halved after a failed segment)
 _WINDOW = 32  # anchors per window
 _BLOCK = 256  # samples per batched solve (the per-side Jacobians stay in cache)
 

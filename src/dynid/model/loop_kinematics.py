@@ -830,7 +830,7 @@ def actuator_states(
     warm-started along the log (the first sample from ``q0``, default ``q_ref``): for point
     closures batched over samples (:mod:`dynid.model.loop_batch`: anchors one after the other,
     the samples between them at once from the anchors' cubic; the same roots as the
-    sample-by-sample loop to ``3 tol``, checked, with that loop as the fallback; some 17 times
+    sample-by-sample loop to ``3 tol``, checked, with that loop as the fallback; some 20 times
     faster on the hexapod), for ``6d`` closures sample by sample from the previous sample;
     velocities and accelerations as the least-squares solutions of
 
