@@ -28,6 +28,18 @@ Method
   ``hexapod FK``          (informational, ``--fk`` samples only) numeric forward kinematics
                           ``mech.solve_positions`` from the six slider positions, warm-started
                           along the motion.
+* Position solve from actuator coordinates (issue 37 item 1), timed in its own paired rounds:
+  the first ``--solve`` samples (default 4000, 4 s at the motion's 1 kHz) of the hexapod motion,
+  the six slider positions in, all 24 joint positions out (``loop_kinematics._actuator_positions``,
+  tolerance 1e-10, warm-started from the first configuration): ``sequential`` (the
+  sample-by-sample Gauss-Newton loop, the route before issue 37) against ``batched`` (the
+  continuation of :mod:`dynid.model.loop_batch`: anchors one after the other, the samples
+  between them at once). Checked: the two within 3 tol of each other (the loop stops after a
+  Newton step below tol, the batched route after a chord step below tol: error at most
+  tol / (1 - rho), tests/test_actuator_positions_batched.py); reported: the median of the
+  per-round ratios. Target: at least ``SOLVE_TARGET`` (10) times faster (exit 1 below it, not
+  with ``--quick``, whose 2000-sample motion is sampled at 100 Hz, ten times coarser: fewer
+  samples between anchors converge by the chord steps, about 10 x there).
 * After a warm-up, ``--repeats`` rounds run every variant once in a rotating order, with the
   garbage collector off during a timed call. Reported: median and min microseconds per
   sample, samples per second (from the median) and the hexapod/serial ratio per round
@@ -51,6 +63,7 @@ from _util import median, print_machine, rounds, table
 from dynid.model import load_robot
 from dynid.model.base_parameters import random_states
 from dynid.model.closed_loop import actuator_regressor
+from dynid.model.loop_kinematics import _actuator_positions
 from dynid.model.serial_dynamics import regressor
 from dynid.model.robots import build_mechanism
 from dynid.model.robots import hexapod
@@ -58,6 +71,8 @@ from dynid.model.robots import hexapod
 # the project's 20 000 samples/s, set on a machine whose serial 6R regressor ran at 248 835 samples/s
 # (4.02 us/sample, bench/README section 3): 12.4 serial samples' time per hexapod sample
 TARGET_RATIO = 12.4
+SOLVE_TARGET = 10.0  # issue 37 item 1: the batched position solve at least 10x the sample-by-sample loop
+SOLVE_TOL = 1e-10
 
 
 def hexapod_motion(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -76,10 +91,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=7, help="timed rounds (default 7)")
     ap.add_argument("--chunk", type=int, default=1000, help="samples per chunk of the hexapod variants (default 1000)")
     ap.add_argument("--fk", type=int, default=500, help="samples for the forward-kinematics figure (default 500)")
+    ap.add_argument("--solve", type=int, default=4000, help="samples of the position-solve comparison (default 4000)")
+    ap.add_argument("--solve-only", action="store_true", help="only the position-solve comparison")
     ap.add_argument("--quick", action="store_true", help="smoke run: n=2000, 3 rounds; the target is not enforced")
     args = ap.parse_args(argv)
     if args.quick:
-        args.n, args.repeats, args.fk = 2_000, 3, 100
+        args.n, args.repeats, args.fk, args.solve = 2_000, 3, 100, 1000
     n = args.n
     print_machine()
     rng = np.random.default_rng(2026)
@@ -112,6 +129,9 @@ def main(argv: list[str] | None = None) -> int:
             st = mech.states(q[a:b], du[a:b], ddu[a:b])
             actuator_regressor(mech, st, data=mdata, out=out[: b - a])
 
+    solve_ok = position_solve(mech, q, args)
+    if args.solve_only:
+        return 0 if solve_ok or args.quick else 1
     variants = {"serial 6R": serial, "hexapod states": states, "hexapod regressor": full}
     names = list(variants)
     with threadpool_limits(1):
@@ -135,7 +155,34 @@ def main(argv: list[str] | None = None) -> int:
     ok = ratio <= TARGET_RATIO
     print(f"\nhexapod actuator-space regressor: {rate:,.0f} samples/s on one core, {ratio:.2f} x a serial 6R sample "
           f"(paired rounds; target <= {TARGET_RATIO:g} x): {'PASS' if ok else 'FAIL'}")
-    return 0 if ok or args.quick else 1
+    return 0 if (ok and solve_ok) or args.quick else 1
+
+
+def position_solve(mech, q: np.ndarray, args) -> bool:
+    """Sequential against batched position solve from the slider positions, paired rounds."""
+    m = min(args.solve, q.shape[0])
+    qa = q[:m, list(mech.actuated)]
+    out = {}
+
+    def run(sequential: bool):
+        def fn() -> None:
+            data = mech.pin_model.createData()
+            out[sequential] = _actuator_positions(mech, qa, q[0], SOLVE_TOL, 30, 0, data, sequential=sequential)
+        return fn
+
+    print(f"\nposition solve from actuator coordinates: {m} samples of the motion, tol {SOLVE_TOL:g}, "
+          f"{args.repeats} rounds, 1 BLAS thread")
+    with threadpool_limits(1):
+        times = rounds({"sequential": run(True), "batched": run(False)}, args.repeats, m)
+    diff = float(np.abs(out[True] - out[False]).max())
+    speedup = median([a / b for a, b in zip(times["sequential"], times["batched"])])
+    rows = [(k, f"{median(v):.1f}", f"{min(v):.1f}", f"{1e6 / median(v):,.0f}") for k, v in times.items()]
+    print(table(["position solve", "median us/sample", "min", "samples/s"], rows))
+    ok = speedup >= SOLVE_TARGET and diff <= 3 * SOLVE_TOL
+    print(f"batched position solve: {speedup:.1f} x the sequential loop (median of paired rounds; target >= "
+          f"{SOLVE_TARGET:g} x), max |q_batched - q_sequential| = {diff:.2g} (<= 3 tol = {3 * SOLVE_TOL:g}): "
+          f"{'PASS' if ok else 'FAIL'}")
+    return ok
 
 
 if __name__ == "__main__":

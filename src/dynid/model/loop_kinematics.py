@@ -29,6 +29,7 @@ from scipy.linalg import lapack as sla_lapack
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
+from dynid.model import loop_batch
 from dynid.model.closures import JointCoordinates, KinematicState
 from dynid.tolerances import scaled
 
@@ -390,14 +391,28 @@ def _sides(mech: Mechanism) -> _Sides:
 def _placements(mech: Mechanism, q: FloatArray, data: pin.Data) -> tuple[FloatArray, FloatArray]:
     """World Jacobians (n, 6, n_v) and homogeneous placements (n, k, 4, 4) of the side joints.
 
-    ``oMi[j].homogeneous`` is read rather than ``.translation`` and ``.rotation``: one
-    conversion instead of two (about 1 us against 4 us per joint with pinocchio 4.1)."""
+    The placements through :func:`dynid.model.loop_batch.placement_view` (one copy per sample,
+    0.3 us, instead of 1 us per joint); where that view is not available ``oMi[j].homogeneous``
+    rather than ``.translation`` and ``.rotation``: one conversion instead of two (about 1 us
+    against 4 us per joint with pinocchio 4.1)."""
     sd = _sides(mech)
     model = mech.pin_model
     n, nv = q.shape
     J = np.empty((n, 6, nv))
-    H = np.zeros((n, max(len(sd.joints), 1), 4, 4))
+    k = len(sd.joints)
+    H = np.zeros((n, max(k, 1), 4, 4))
     cjj = pin.computeJointJacobians
+    view = loop_batch.placement_view(mech, data) if k else None
+    if view is not None:  # one copy per sample through the strided view (the same numbers)
+        jsel = np.array(sd.joints, dtype=int)
+        flat = np.empty((n, k, 12))
+        for i in range(n):
+            J[i] = cjj(model, data, q[i])
+            flat[i] = view[jsel]
+        H[:, :, :3, :3] = flat[:, :, :9].reshape(n, k, 3, 3).transpose(0, 1, 3, 2)
+        H[:, :, :3, 3] = flat[:, :, 9:]
+        H[:, :, 3, 3] = 1.0
+        return J, H
     oMi = data.oMi
     joints = list(enumerate(sd.joints))
     for i in range(n):
@@ -812,7 +827,11 @@ def actuator_states(
 
     What a log of a parallel robot gives: the actuated joints only. Positions by
     Gauss–Newton on :math:`[c(q); S_a q - q_a] = 0` (independent constraint rows),
-    warm-started from the previous sample (the first from ``q0``, default ``q_ref``);
+    warm-started along the log (the first sample from ``q0``, default ``q_ref``): for point
+    closures batched over samples (:mod:`dynid.model.loop_batch`: anchors one after the other,
+    the samples between them at once from the anchors' cubic; the same roots as the
+    sample-by-sample loop to ``3 tol``, checked, with that loop as the fallback; some 20 times
+    faster on the hexapod), for ``6d`` closures sample by sample from the previous sample;
     velocities and accelerations as the least-squares solutions of
 
     .. math::
@@ -858,17 +877,75 @@ def actuator_states(
     Sa = mech.actuator_selection()
     act = list(mech.actuated)
     nc = rows.size
-    q = np.array(mech.q_ref if q0 is None else q0, dtype=float)
-    Q = np.empty((n, mech.nv))
     if q_start is not None:
         q_start = np.asarray(q_start, dtype=float)
         if q_start.shape != (n, mech.nv) or not np.all(np.isfinite(q_start)):
             raise InputError(f"starting joint positions must be finite, shape ({n}, {mech.nv}); got {q_start.shape}")
-    batched = q_start is not None and _closures(mech).all_3d
-    for a in range(0, n, _BLOCK) if batched else ():  # independent samples: Gauss-Newton on blocks of them
-        b = min(a + _BLOCK, n)
-        Q[a:b] = _solve_from_starts(mech, qa[a:b], q_start[a:b], tol, max_iter, sample_offset + a, data)
-    for i in range(0 if not batched else n, n):
+    Q = _actuator_positions(mech, qa, q0, tol, max_iter, sample_offset, data, q_start)
+    resid = np.sqrt(np.mean((Q[:, act] - qa) ** 2, axis=1))
+    # velocities and accelerations: least squares on [J_c; S_a] (normal equations, batched); where
+    # the actuated joints are the independent joint coordinates the system is square and its
+    # solution is the velocity map's (states(): only the dependent block inverted, no normal
+    # equations; equal to rounding, better conditioned)
+    Jrows, (J, p) = _velocity_rows(mech, Q, data)
+    try:  # the velocity map from the rows above (what kinematic_state would compute again)
+        maps = _Maps(mech, Jrows, max_cond)
+    except ModelError as exc:
+        raise ModelError(f"samples {sample_offset}..{sample_offset + n - 1}: {exc}") from None
+    ind = mech.independent
+    if isinstance(ind, JointCoordinates) and tuple(ind.joints) == tuple(act):
+        dq = np.einsum("nij,nj->ni", maps.G, dqa)
+        ddq = maps.accelerations(ddqa, _drift(mech, Q, dq, J, p, data))
+    else:
+        sd = _sides(mech)
+        Jc = np.empty((n, nc, mech.nv))
+        Jc[:, :, sd.order] = Jrows[:, :nc]
+        A = np.concatenate([Jc, np.broadcast_to(Sa, (n, na, mech.nv))], axis=1)
+        At = A.transpose(0, 2, 1)
+        N = np.matmul(At, A)
+        rhs_v = np.concatenate([np.zeros((n, nc)), dqa], axis=1)
+        dq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_v)[..., None])[..., 0]
+        drift = _drift(mech, Q, dq, J, p, data)[:, :nc]
+        rhs_a = np.concatenate([-drift, ddqa], axis=1)
+        ddq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_a)[..., None])[..., 0]
+    dq, ddq = _check(mech, dq, (n, mech.nv), "dq"), _check(mech, ddq, (n, mech.nv), "ddq")
+    return KinematicState(q=Q, dq=dq, ddq=ddq, G=maps.G, cond=maps.cond), resid
+
+
+def _actuator_positions(mech: Mechanism, qa: FloatArray, q0: FloatArray | None, tol: float, max_iter: int,
+                        offset: int, data: pin.Data, q_start: FloatArray | None = None,
+                        sequential: bool = False) -> FloatArray:
+    """:func:`actuator_states`' position solve. Point closures ("3d"): from ``q_start`` all
+    samples at once (:func:`dynid.model.loop_batch.solve_from_starts`), without it the
+    continuation along the log (anchors solved one after the other, the samples between them at
+    once, :func:`dynid.model.loop_batch.continuation`: the same roots as the sample-by-sample
+    loop to ``2 tol``). ``6d`` closures, and ``sequential=True`` (the reference of
+    tests/test_closed_loop_fast_paths.py and bench/closed_loop_throughput.py): the
+    sample-by-sample loop :func:`_positions_loop`."""
+    q = np.array(mech.q_ref if q0 is None else q0, dtype=float)
+    if sequential or not _closures(mech).all_3d:
+        return _positions_loop(mech, qa, q, tol, max_iter, offset, data, q_start)
+    if q_start is not None:
+        return loop_batch.solve_from_starts(mech, qa, q_start, tol, max_iter, offset, data, accept_starts=True)
+
+    def loop(qa_part: FloatArray, q_part: FloatArray, offset_part: int) -> FloatArray:
+        return _positions_loop(mech, qa_part, np.array(q_part, dtype=float), tol, max_iter, offset_part, data)
+
+    return loop_batch.continuation(mech, qa, q, tol, max_iter, offset, data, loop)
+
+
+def _positions_loop(mech: Mechanism, qa: FloatArray, q: FloatArray, tol: float, max_iter: int, offset: int,
+                    data: pin.Data, q_start: FloatArray | None = None) -> FloatArray:
+    """The sample-by-sample Gauss-Newton loop, warm-started from the previous sample (the first
+    from ``q``) or from ``q_start`` (a start whose residual is below ``tol`` taken as it is):
+    the QR least-squares step of :math:`[J_c; S_a]` (:func:`lstsq_full_rank`), stop when the
+    step is below ``tol`` (not taken); an unreachable sample raises naming it (``offset`` added)."""
+    n = qa.shape[0]
+    rows = mech.constraint_rows
+    Sa = mech.actuator_selection()
+    act = list(mech.actuated)
+    Q = np.empty((n, mech.nv))
+    for i in range(n):
         if q_start is not None:
             q = q_start[i].copy()
         for it in range(max_iter + 1):
@@ -885,98 +962,11 @@ def actuator_states(
             if it == max_iter:
                 cond = np.linalg.cond(A)
                 raise ModelError(
-                    f"sample {sample_offset + i}: actuator positions {np.array2string(qa[i], precision=4)} cannot be assembled "
+                    f"sample {offset + i}: actuator positions {np.array2string(qa[i], precision=4)} cannot be assembled "
                     f"(residual {np.linalg.norm(F, np.inf):.3g} after {max_iter} Gauss-Newton steps, condition number {cond:.3g})"
                 )
             q = q - step
         Q[i] = q
-    resid = np.sqrt(np.mean((Q[:, act] - qa) ** 2, axis=1))
-    # velocities and accelerations: least squares on [J_c; S_a] (normal equations, batched)
-    Jrows, (J, p) = _velocity_rows(mech, Q, data)
-    sd = _sides(mech)
-    Jc = np.empty((n, nc, mech.nv))
-    Jc[:, :, sd.order] = Jrows[:, :nc]
-    A = np.concatenate([Jc, np.broadcast_to(Sa, (n, na, mech.nv))], axis=1)
-    At = A.transpose(0, 2, 1)
-    N = np.matmul(At, A)
-    rhs_v = np.concatenate([np.zeros((n, nc)), dqa], axis=1)
-    dq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_v)[..., None])[..., 0]
-    drift = _drift(mech, Q, dq, J, p, data)[:, :nc]
-    rhs_a = np.concatenate([-drift, ddqa], axis=1)
-    ddq = np.linalg.solve(N, np.einsum("nij,nj->ni", At, rhs_a)[..., None])[..., 0]
-    dq, ddq = _check(mech, dq, (n, mech.nv), "dq"), _check(mech, ddq, (n, mech.nv), "ddq")
-    try:  # the velocity map from the rows above (what kinematic_state would compute again)
-        maps = _Maps(mech, Jrows, max_cond)
-    except ModelError as exc:
-        raise ModelError(f"samples {sample_offset}..{sample_offset + n - 1}: {exc}") from None
-    return KinematicState(q=Q, dq=dq, ddq=ddq, G=maps.G, cond=maps.cond), resid
-
-
-def _solve_from_starts(mech: Mechanism, qa: FloatArray, q_start: FloatArray, tol: float, max_iter: int, offset: int,
-                       data: pin.Data) -> FloatArray:
-    """:func:`actuator_states`' position solve from a starting point per sample, for point
-    closures ("3d"): the samples do not depend on each other then, so each Gauss–Newton
-    iteration runs on all the samples still iterating at once (pinocchio per sample, the
-    residuals, Jacobians and steps batched). Per sample the same iteration, stopping rules and
-    error as the sample-by-sample loop: a start whose residual is below ``tol`` is taken as it
-    is, a step below ``tol`` is not taken; steps by LU on the square stacked matrix (the least
-    squares of its normal equations when actuation is redundant), where the loop solves by QR:
-    the two differ by rounding."""
-    cl = _closures(mech)
-    model = mech.pin_model
-    rows = mech.constraint_rows
-    act = list(mech.actuated)
-    Sa = mech.actuator_selection()
-    nv, K = mech.nv, cl.moving.size
-    Q = np.array(q_start, dtype=float)
-    todo = np.arange(qa.shape[0])
-    cjj, oMi, joints = pin.computeJointJacobians, data.oMi, list(enumerate(cl.joints))
-    for it in range(max_iter + 1):
-        m = todo.size
-        if not m:
-            break
-        J = np.empty((m, 6, nv))
-        H = np.zeros((m, max(len(cl.joints), 1), 4, 4))
-        for k, i in enumerate(todo):
-            J[k] = cjj(model, data, Q[i])
-            Hk = H[k]
-            for s, j in joints:
-                Hk[s] = oMi[j].homogeneous
-        P = np.matmul(H[:, cl.slot, :3], cl.r1)[..., 0]  # (m, sides, 3): R r + t
-        if cl.any_ground:
-            P[:, cl.ground] = cl.r[cl.ground]
-        c = (P[:, 1::2] - P[:, 0::2]).reshape(m, -1)[:, rows]
-        ea = Q[todo][:, act] - qa[todo]
-        if it == 0:  # starts that solve it already are taken as they are
-            go = np.maximum(np.abs(c).max(axis=1, initial=0.0), np.abs(ea).max(axis=1)) >= tol
-            todo, J, P, c, ea, m = todo[go], J[go], P[go], c[go], ea[go], int(go.sum())
-            if not m:
-                break
-        Jk = J[:, None] * cl.mask[None]  # (m, moving sides, 6, n_v)
-        Jw = Jk[:, :, 3:]
-        lin = Jk[:, :, :3] - _skew(P[:, cl.moving].reshape(-1, 3)).reshape(m, K, 3, 3) @ Jw
-        Jc = (cl.T @ np.concatenate([lin, Jw], axis=2).reshape(m, 6 * K, nv))[:, rows]
-        A = np.concatenate([Jc, np.broadcast_to(Sa, (m, Sa.shape[0], nv))], axis=1)
-        F = np.concatenate([c, ea], axis=1)
-        try:
-            if A.shape[1] == nv:
-                step = np.linalg.solve(A, F[..., None])[..., 0]
-            else:
-                At = A.transpose(0, 2, 1)
-                step = np.linalg.solve(At @ A, (At @ F[..., None]))[..., 0]
-        except np.linalg.LinAlgError:  # a singular sample: each by the loop's solver (SVD where rank deficient)
-            step = np.array([lstsq_full_rank(Ak, Fk) for Ak, Fk in zip(A, F)])
-        big = ~(np.abs(step).max(axis=1) < tol)  # the steps not taken: below tol
-        if it == max_iter and big.any():
-            k = int(np.flatnonzero(big)[0])
-            i = int(todo[k])
-            raise ModelError(
-                f"sample {offset + i}: actuator positions {np.array2string(qa[i], precision=4)} cannot be assembled "
-                f"(residual {np.abs(F[k]).max():.3g} after {max_iter} Gauss-Newton steps, condition number "
-                f"{np.linalg.cond(A[k]):.3g})"
-            )
-        Q[todo[big]] -= step[big]
-        todo = todo[big]
     return Q
 
 
