@@ -56,7 +56,7 @@ The module reads only the mechanism's closures and pinocchio model (no import of
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -65,8 +65,8 @@ from scipy.linalg import lapack as sla_lapack
 from dynid._typing import FloatArray
 from dynid.errors import ModelError
 
-if TYPE_CHECKING:
-    from dynid.model.mechanism import Mechanism
+# a dynid.model.mechanism.Mechanism, named, not imported (no import cycle through loop_kinematics)
+Mechanism = Any
 
 __all__ = ["continuation", "placement_view", "solve_from_starts"]
 

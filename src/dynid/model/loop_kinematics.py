@@ -21,7 +21,7 @@ coordinates form the square matrix :math:`A = [J_c; J_u]`, inverted in batch:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -33,8 +33,9 @@ from dynid.model import loop_batch
 from dynid.model.closures import JointCoordinates, KinematicState
 from dynid.tolerances import scaled
 
-if TYPE_CHECKING:  # Mechanism.states and Mechanism.kinematic_state call this module
-    from dynid.model.mechanism import Mechanism
+# The functions here take a dynid.model.mechanism.Mechanism, whose methods call them: the type is
+# named, not imported, so that the two modules do not import each other (not even for typing).
+Mechanism = Any
 
 __all__ = ["actuator_states", "kinematic_state", "platform_pose", "pose_states", "states"]
 
