@@ -324,27 +324,37 @@ def joint_problem(problems: Sequence[RegressionProblem], mounted: Sequence[bool]
                              expressions=None, standard=standard, meta=dict(first.meta))
 
 
-def fit_joint(stacked: RegressionProblem, *, physical: bool = False, solver: str = "CLARABEL",
-              rank_tol: float = RANK_TOL) -> IdentificationResult:
-    """WLS (Gautier's weights per (experiment, channel)) of :func:`joint_problem`'s stacked factors, or with
-    ``physical`` the physically consistent WLS (every body of the arm and the payload: pseudo-inertia
-    :math:`\\succeq 0`; needs the standard map). Refuses a stack in which the payload is not identifiable
-    from the arm (the rank of the stacked columns is checked first, naming the directions that are not)."""
+def fit_joint(stacked: RegressionProblem, *, physical: bool = False, mass: float | None = None,
+              weighting: str = "wls", solver: str = "CLARABEL", rank_tol: float = RANK_TOL) -> IdentificationResult:
+    """WLS (Gautier's weights per (experiment, channel); ``weighting = "ols"``: one weight) of
+    :func:`joint_problem`'s stacked factors, or with ``physical`` the physically consistent fit: with the arm's
+    standard map in the stack every body of the arm and the payload (pseudo-inertia :math:`\succeq 0`), without
+    it the payload block only (the arm's base parameters free); ``mass``: a known payload mass, an equality
+    (``physical`` only). Refuses a stack in which the payload is not identifiable from the arm (the rank of the
+    stacked columns is checked first, naming the directions that are not)."""
     R = _stacked_r(stacked)
     base = _base_from_r(R, stacked.names, rank_tol, int(np.sum(stacked.n_obs)), 0)
     if base.n_base < stacked.n_params:
         lost = [stacked.names[i] for i in base.dependent]
         raise InputError(f"the experiments do not identify {', '.join(lost)} (the stacked columns have rank "
                          f"{base.n_base} of {stacked.n_params}): excite the arm without the payload and with it")
+    if mass is not None and not physical:
+        raise InputError("a known payload mass is an equality of the physically consistent fit (physical=True)")
     if physical:
-        from dynid.estimation.physical import PhysicalLS
+        from dynid.estimation.physical import BodyBounds, PhysicalConstraints, PhysicalLS
 
-        if stacked.standard is None:
-            raise InputError("physically consistent joint fit: the problems carry no standard map")
-        return PhysicalLS(weighting="wls", solver=solver).fit(stacked)
-    from dynid.estimation.linear import WLS
+        own = stacked.standard is None
+        if own:  # the payload block only: the arm's base parameters are their own "standard"
+            p = stacked.n_params
+            sm = StandardMap(standard_names=tuple(stacked.names), B=np.eye(p),
+                             body_blocks=(np.arange(p - 10, p),), nonnegative=np.zeros(0, dtype=int), reference=None)
+            stacked = dataclasses.replace(stacked, standard=sm)
+        bounds = {"payload": BodyBounds(mass=(mass, mass))} if mass is not None else {}
+        kw = {"constraints": PhysicalConstraints(bodies=bounds, sign=False)} if (own or bounds) else {}
+        return PhysicalLS(weighting=weighting, solver=solver, **kw).fit(stacked)
+    from dynid.estimation.linear import OLS, WLS
 
-    return WLS().fit(stacked)
+    return (OLS() if weighting == "ols" else WLS()).fit(stacked)
 
 
 # ------------------------------------------------------------------------------------ physical description

@@ -291,11 +291,17 @@ def identify_payload(cfg: PayloadConfig, progress: Progress = _no_progress) -> P
 # ------------------------------------------------------------------------------------ outputs
 def write_payload(outcome: PayloadOutcome, out_dir: str | Path) -> list[str]:
     """payload.json, payload.urdf, payload.xml and summary.txt, staged (all or none); the files written."""
+    with staged_output(out_dir) as stage:
+        write_payload_files(outcome, stage)
+    return list(PAYLOAD_FILES)
+
+
+def write_payload_files(outcome: PayloadOutcome, stage: Path, summary: str = "summary.txt") -> None:
+    """payload.json, payload.urdf, payload.xml and the summary (named ``summary``) into an existing folder."""
     cfg = outcome.cfg
     fr = outcome.in_payload_frame()
     R, p = rpy_matrix(cfg.origin_rpy), np.asarray(cfg.origin_xyz, dtype=float)
-    # the payload frame in the parent link's frame: placement^-1 * (R, p)
-    P = outcome.parent_placement
+    P = outcome.parent_placement  # the payload frame in the parent link's frame: placement^-1 * (R, p)
     Rp, pp = P.rotation.T @ R, P.rotation.T @ (p - P.translation)
     import pinocchio as pin
 
@@ -303,13 +309,10 @@ def write_payload(outcome: PayloadOutcome, out_dir: str | Path) -> list[str]:
     comment = f"identified by dynid {__version__} payload from {', '.join(_log_files(outcome.log_meta))}"
     urdf = payload_urdf(cfg.name, outcome.parent_link, pp, rpy_parent, fr["mass"], fr["com"], fr["inertia_com"], comment)
     mjcf = payload_mjcf(cfg.name, outcome.body, p, R, fr["mass"], fr["com"], fr["inertia_com"], comment)
-    doc = outcome.to_dict()
-    with staged_output(out_dir) as stage:
-        (stage / "payload.json").write_text(json.dumps(_finite(doc), indent=2) + "\n")
-        (stage / "payload.urdf").write_text(urdf)
-        (stage / "payload.xml").write_text(mjcf)
-        (stage / "summary.txt").write_text(outcome.summary_text())
-    return list(PAYLOAD_FILES)
+    (stage / "payload.json").write_text(json.dumps(_finite(outcome.to_dict()), indent=2) + "\n")
+    (stage / "payload.urdf").write_text(urdf)
+    (stage / "payload.xml").write_text(mjcf)
+    (stage / summary).write_text(outcome.summary_text())
 
 
 def _log_files(meta: dict[str, Any]) -> list[str]:
