@@ -95,13 +95,15 @@ def fit_experiments(cfg, system, base: BaseParameters, exps, mount, collapse) ->
     r = base.n_base
     cov = None if out.cov_params is None else np.asarray(out.cov_params)
     arm = dataclasses.replace(out, names=tuple(base.names), params=np.asarray(out.params)[:r],
-                              cov_params=None if cov is None else cov[:r, :r], expressions=base.expressions())
+                              cov_params=None if cov is None else cov[:r, :r], expressions=base.expressions(),
+                              solver={k: v for k, v in out.solver.items() if k != "standard_params"})
     loaded = [e.index for e in exps if e.payload]
     arm = arm.with_notes(f"joint arm + payload fit: the arm's base parameters from every experiment, the payload's "
                          f"10 parameters (the columns of {mount[0]}'s body) from the experiments with it "
                          f"(data{loaded}); this result is the arm's block (payload.json the payload's)")
     pres = dataclasses.replace(out, names=PAYLOAD_NAMES, params=np.asarray(out.params)[r:],
-                               cov_params=None if cov is None else cov[r:, r:], expressions=None)
+                               cov_params=None if cov is None else cov[r:, r:], expressions=None,
+                               notes=tuple(n for n in out.notes if not n.startswith("standard parameters:")))
     if pl.mass is not None and pres.cov_params is not None:
         c = np.array(pres.cov_params)
         c[0, :] = c[:, 0] = 0.0
