@@ -328,7 +328,7 @@ def fit_joint(stacked: RegressionProblem, *, physical: bool = False, mass: float
               weighting: str = "wls", solver: str = "CLARABEL", rank_tol: float = RANK_TOL) -> IdentificationResult:
     """WLS (Gautier's weights per (experiment, channel); ``weighting = "ols"``: one weight) of
     :func:`joint_problem`'s stacked factors, or with ``physical`` the physically consistent fit: with the arm's
-    standard map in the stack every body of the arm and the payload (pseudo-inertia :math:`\succeq 0`), without
+    standard map in the stack every body of the arm and the payload (pseudo-inertia :math:`\\succeq 0`), without
     it the payload block only (the arm's base parameters free); ``mass``: a known payload mass, an equality
     (``physical`` only). Refuses a stack in which the payload is not identifiable from the arm (the rank of the
     stacked columns is checked first, naming the directions that are not)."""
