@@ -31,7 +31,7 @@ from dynid.estimation.payload import (PAYLOAD_NAMES, describe_payload, fit_given
 from dynid.model.loading import load_model
 from dynid.model.serial_dynamics import regressor
 from dynid.model.system import as_system
-from dynid.pipeline.payload import Z95
+from dynid.pipeline.payload_outcome import Z95
 
 ROOT = Path(__file__).resolve().parents[1]
 ARM3 = ROOT / "examples" / "several_logs" / "arm3.urdf"

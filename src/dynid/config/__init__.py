@@ -899,7 +899,7 @@ def _joint_payload(doc: Mapping[str, Any], payloads: list, val_payloads: list, m
             raise ConfigError(f"{marked[0]}.payload = true but there is no [payload] table (body, optional mass, "
                               "origin): give it to identify the payload jointly with the arm")
         return None
-    from dynid.config.payload import parse_joint_payload
+    from dynid.config._payload import parse_joint_payload
 
     if isinstance(doc["payload"], dict) and "arm" in doc["payload"]:
         raise ConfigError("payload.arm: dynid identify identifies the arm itself (jointly); 'arm' is read by "

@@ -59,7 +59,7 @@ def check_joint(cfg, system) -> None:
 
 def payload_columns(system, body: str | None):
     """(joint name, body block, parent link, placement) of the mount (:func:`dynid.pipeline.payload._mount`)."""
-    from dynid.pipeline.payload import _mount
+    from dynid.pipeline.payload_outcome import _mount
 
     return _mount(system, body)
 
@@ -84,7 +84,7 @@ def fit_experiments(cfg, system, base: BaseParameters, exps, mount, collapse) ->
     """The joint fit of the experiments (each ``problem`` with the [base | payload] columns): the arm's result
     (collapsed to the robot's channels by ``collapse(result, stacked, exps)``) and the payload's
     :class:`~dynid.pipeline.payload.PayloadOutcome`."""
-    from dynid.pipeline.payload import PayloadOutcome
+    from dynid.pipeline.payload_outcome import PayloadOutcome
 
     pl = cfg.payload
     mounted = [bool(e.payload) for e in exps]
