@@ -381,6 +381,24 @@ def test_the_joint_mode_recovers_the_payload_and_the_arm(joint, example):
     assert [e["payload"] for e in arm["provenance"]["experiments"]] == [False, True]
 
 
+@pytest.mark.numerics
+def test_the_joint_mode_keeps_a_known_mass(joint, example):
+    """``mass = 2.0`` in [payload]: an equality; the other 9 estimated with their intervals (the unconstrained
+    optimum is consistent, so the covariance stays), each truth within 3 of its std."""
+    from conftest import run_dynid
+
+    text = (example / "joint.toml").read_text().replace('body = "joint_6"', 'body = "joint_6"\nmass = 2.0', 1)
+    (example / "joint_mass.toml").write_text(text)
+    p = run_dynid(["identify", "joint_mass.toml", "--out", "joint_mass"], example)
+    assert p.returncode == 0, p.stderr
+    doc = json.loads((example / "joint_mass" / "payload.json").read_text())
+    truth = json.loads((example / "loaded" / "truth.json").read_text())["payload"]
+    phi = pin.Inertia(truth["mass"], np.array(truth["com"]), np.diag(truth["inertia"])).toDynamicParameters()
+    assert doc["mass"]["value"] == 2.0 and doc["mass"]["known"] and doc["mass"]["std"] == 0.0
+    z = [abs(q["value"] - t) / q["std"] for q, t in zip(doc["parameters"][1:], phi[1:])]
+    assert all(v <= 3.0 for v in z), z
+
+
 def test_bad_joint_configs_are_refused_in_one_line(joint, example, tmp_path):
     from conftest import run_dynid, snapshot
 

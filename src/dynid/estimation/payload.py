@@ -340,6 +340,8 @@ def fit_joint(stacked: RegressionProblem, *, physical: bool = False, mass: float
                          f"{base.n_base} of {stacked.n_params}): excite the arm without the payload and with it")
     if mass is not None and not physical:
         raise InputError("a known payload mass is an equality of the physically consistent fit (physical=True)")
+    if mass is not None and stacked.standard is None:
+        return _fit_joint_known_mass(stacked, mass, weighting, solver)
     if physical:
         from dynid.estimation.physical import BodyBounds, PhysicalConstraints, PhysicalLS
 
@@ -355,6 +357,37 @@ def fit_joint(stacked: RegressionProblem, *, physical: bool = False, mass: float
     from dynid.estimation.linear import OLS, WLS
 
     return (OLS() if weighting == "ols" else WLS()).fit(stacked)
+
+
+def _fit_joint_known_mass(stacked: RegressionProblem, mass: float, weighting: str, solver: str) -> IdentificationResult:
+    """The joint fit with the payload's mass known: its column moved to the output (``y - m Y_m``), the other
+    columns fitted by the physically consistent WLS whose payload body is ``[m, the 9 estimated]`` (the mass an
+    equality of the pseudo-inertia constraint, not an active bound), so that an unconstrained optimum that is
+    consistent keeps its covariance; the result has the problem's columns, the mass's row and column zero."""
+    from dynid.estimation.physical import BodyBounds, PhysicalConstraints, PhysicalLS
+
+    p = stacked.n_params
+    keep = [k for k in range(p) if k != p - 10]
+    T = np.zeros((p, p - 1))
+    T[keep, np.arange(p - 1)] = 1.0
+    off = np.zeros(p)
+    off[p - 10] = mass
+    names = [stacked.names[k] for k in keep]
+    sub = _transform(stacked, names, T, off)
+    B = np.zeros((p - 1, p))
+    B[np.arange(p - 1), keep] = 1.0
+    sm = StandardMap(standard_names=tuple(stacked.names), B=B, body_blocks=(np.arange(p - 10, p),),
+                     nonnegative=np.zeros(0, dtype=int), reference=None)
+    sub = dataclasses.replace(sub, standard=sm)
+    res = PhysicalLS(weighting=weighting, solver=solver, constraints=PhysicalConstraints(
+        bodies={"payload": BodyBounds(mass=(mass, mass))}, sign=False)).fit(sub)
+    params = np.insert(np.asarray(res.params, float), p - 10, mass)
+    cov = None
+    if res.cov_params is not None:
+        cov = np.zeros((p, p))
+        cov[np.ix_(keep, keep)] = res.cov_params
+    return dataclasses.replace(res, names=tuple(stacked.names), params=params, cov_params=cov).with_notes(
+        f"known payload mass {mass:g} kg: its column moved to the output, the other parameters estimated")
 
 
 # ------------------------------------------------------------------------------------ physical description

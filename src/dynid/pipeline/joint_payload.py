@@ -97,7 +97,8 @@ def fit_experiments(cfg, system, base: BaseParameters, exps, mount, collapse) ->
     arm = dataclasses.replace(out, names=tuple(base.names), params=np.asarray(out.params)[:r],
                               cov_params=None if cov is None else cov[:r, :r], expressions=base.expressions(),
                               solver={k: v for k, v in out.solver.items() if k != "standard_params"},
-                              method=cfg.identification.method.upper())  # the LMI (if any) is on the payload only
+                              method=cfg.identification.method.upper(),  # the LMI (if any) is on the payload only
+                              notes=tuple(n for n in out.notes if not n.startswith("standard parameters:")))
     loaded = [e.index for e in exps if e.payload]
     arm = arm.with_notes(f"joint arm + payload fit: the arm's base parameters from every experiment, the payload's "
                          f"10 parameters (the columns of {mount[0]}'s body) from the experiments with it "

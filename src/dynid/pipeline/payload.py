@@ -8,9 +8,8 @@ body's 10 standard-regressor columns (the payload regressor) are compressed with
 them (for the arm's share of the covariance). Outputs (staged: all or none): ``payload.json``, ``payload.urdf``,
 ``payload.xml``, ``summary.txt``.
 
-Joint identification with the arm (experiments with and without the payload in one ``[[data]]`` identification)
-is :func:`dynid.estimation.payload.joint_problem` / :func:`~dynid.estimation.payload.fit_joint`; its hook in
-``dynid identify`` is described in the README ("Payloads")."""
+Joint identification with the arm (experiments with and without the payload in one ``[[data]]`` identification,
+``[payload]`` in ``dynid identify``'s config) is :mod:`dynid.pipeline.joint_payload`."""
 
 from __future__ import annotations
 
