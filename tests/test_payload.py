@@ -399,6 +399,23 @@ def test_the_joint_mode_keeps_a_known_mass(joint, example):
     assert all(v <= 3.0 for v in z), z
 
 
+def test_the_joint_mode_predicts_a_loaded_held_out_log_with_the_payload(joint, example):
+    """A [[validation]] log with payload = true (after one without) is predicted with the identified payload: its
+    held-out error is of the unloaded log's size (the 2 kg payload's torques, tens of N*m, are not left over)."""
+    from conftest import run_dynid
+
+    text = (example / "joint.toml").read_text()
+    text = text.replace('file = "loaded/log.csv"\n', 'file = "loaded/log.csv"\nrows = [0, 3750]\n', 1)
+    text = text.replace("[payload]", '[[validation]]\nfile = "loaded/log.csv"\nrows = [3750, 5001]\npayload = true\n\n'
+                        "[payload]", 1)
+    (example / "joint_valid.toml").write_text(text)
+    p = run_dynid(["identify", "joint_valid.toml", "--out", "joint_valid"], example)
+    assert p.returncode == 0, p.stderr
+    logs = json.loads((example / "joint_valid" / "result.json").read_text())["provenance"]["validation_logs"]
+    assert [v["label"] for v in logs] == ["validation[0]", "validation[1] (with the payload)"]
+    assert max(logs[1]["relative_rmse"]) < 0.15, logs[1]
+
+
 def test_bad_joint_configs_are_refused_in_one_line(joint, example, tmp_path):
     from conftest import run_dynid, snapshot
 

@@ -517,7 +517,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     metrics, prior, other, selected, full = scored
     if several or len(cfg.validation_logs) > 1:
         result = _per_log_validation(cfg, system, base, result, force_model, pcfg, metrics, parallel, names, readers,
-                                     progress)
+                                     progress, payload_outcome)
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and (tr is None or np.all(tr.drive_gains == 1.0)))
     learned = None
@@ -587,7 +587,8 @@ def _several(cfg: Config, system: System, base: BaseParameters, train: Dataset, 
 
 
 def _per_log_validation(cfg: Config, system: System, base: BaseParameters, result: IdentificationResult, force_model,
-                        pcfg, first: ValidationMetrics, parallel, names, readers, progress) -> IdentificationResult:
+                        pcfg, first: ValidationMetrics, parallel, names, readers, progress,
+                        payload=None) -> IdentificationResult:
     """A held-out table per ``[[validation]]`` log (each processed on its own) and the pooled one."""
     per_log = [_experiments.validation_record("validation[0]", cfg.validation_logs[0], first)]
     for i, spec in enumerate(cfg.validation_logs[1:], start=1):
@@ -595,7 +596,13 @@ def _per_log_validation(cfg: Config, system: System, base: BaseParameters, resul
         raw = read_log(spec, system.n_actuators, names, label, readers)
         a, _ = to_actuator_space(raw, system, label)
         ds, _ = preprocess(a, pcfg, label)
-        m = validate(result, system, base, ds, force_model=force_model, parallel_decimate=parallel,
+        res_i, base_i = result, base
+        if spec.payload and payload is not None:  # predicted with the identified payload (joint mode)
+            from dynid.pipeline.joint_payload import with_payload
+
+            res_i, base_i = with_payload(result, base, payload, system)
+            label += " (with the payload)"
+        m = validate(res_i, system, base_i, ds, force_model=force_model, parallel_decimate=parallel,
                      chunk_size=cfg.identification.chunk_size, progress=progress)
         per_log.append(_experiments.validation_record(label, spec, m))
     pooled = _experiments.pooled_validation(per_log, first.channel_names)

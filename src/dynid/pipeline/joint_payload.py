@@ -27,6 +27,19 @@ from dynid.pipeline.rows import _chunks, row_mask
 __all__ = ["check_joint", "JointColumns", "compress_joint", "fit_experiments", "payload_columns"]
 
 
+def with_payload(result, base: BaseParameters, outcome, system):
+    """(result, columns) predicting a held-out log with the payload mounted: the arm's base parameters then the
+    identified payload's 10, on the columns [base | mount body] (for :func:`dynid.pipeline.identification.validate`)."""
+    cols = JointColumns(base, outcome_block(system, outcome))
+    ext = dataclasses.replace(result, names=tuple(base.names) + PAYLOAD_NAMES,
+                              params=np.r_[np.asarray(result.params, float), outcome.values()], cov_params=None)
+    return ext, cols
+
+
+def outcome_block(system, outcome):
+    return payload_columns(system, outcome.body)[1]
+
+
 class JointColumns:
     """The arm's base columns then the mount body's 10 (duck-types what :func:`~dynid.pipeline.rows._chunks`
     reads of :class:`~dynid.model.base_parameters.BaseParameters`)."""
@@ -34,6 +47,7 @@ class JointColumns:
     def __init__(self, base: BaseParameters, block) -> None:
         self.index = np.r_[np.asarray(base.independent, dtype=int), np.asarray(block, dtype=int)]
         self.n_base, self.n_standard = len(self.index), int(base.n_standard)
+        self.names = tuple(base.names) + PAYLOAD_NAMES
 
     def regressor(self, W):
         return np.asarray(W)[..., self.index]
@@ -49,10 +63,10 @@ def check_joint(cfg, system) -> None:
            else None)
     if why is None and cfg.payload.mass is not None and not cfg.payload.physical:
         why = "payload.mass with payload.physical = false (the known mass is an equality of the constrained fit)"
-    held = [i for i, v in enumerate(cfg.validation_logs) if v.payload]
-    if why is None and held:
-        raise ConfigError(f"validation[{held[0]}].payload = true: held-out logs are predicted with the arm alone "
-                          "(the payload's prediction in validation is not supported yet); validate on logs without it")
+    if why is None and cfg.validation_logs[0].payload:
+        raise ConfigError("validation[0].payload = true: the first held-out log is scored with the arm alone (its "
+                          "nominal and row-selection tables); put a log without the payload first, the loaded ones "
+                          "after it (those are predicted with the payload)")
     if why is not None:
         raise ConfigError(f"payload: the joint arm + payload identification does not support {why}")
 
