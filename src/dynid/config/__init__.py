@@ -355,6 +355,8 @@ class Config:
     # empty with a single [data] / [validation] table (dynid.pipeline.experiments)
     experiments: tuple[DataConfig, ...] = ()
     validations: tuple[DataConfig, ...] = ()
+    # [payload] of dynid identify: the joint arm + payload mode (dynid.config.payload.PayloadConfig; None: no payload)
+    payload: Any = None
 
     @property
     def training_logs(self) -> tuple[DataConfig, ...]:
@@ -883,7 +885,7 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
 def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = None) -> Config:
     """Validate a parsed TOML document into a :class:`Config`."""
     doc = _table(dict(doc), "config", {"robot", "data", "validation", "processing", "identification", "output", "learning",
-                                       "data_root"}, {"robot", "data", "validation"})
+                                       "data_root", "payload"}, {"robot", "data", "validation"})
     data_base = data_root(doc, base_dir)
     data_list, val_list = _tables_or_array(doc["data"], "data"), _tables_or_array(doc["validation"], "validation")
     many = isinstance(doc["data"], list) or isinstance(doc["validation"], list)
@@ -898,8 +900,13 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
         payloads.append(_bool(t.pop("payload"), f"{where}.payload") if "payload" in t else None)
     experiments = tuple(dataclasses.replace(_parse_data(t, f"data[{i}]", data_base), payload=pl)
                         for i, (t, pl) in enumerate(zip(data_list, payloads))) if many else ()
-    validations = tuple(_validation_spec(data_list[0], v, data_base, f"validation[{i}]")
-                        for i, v in enumerate(val_list)) if many else ()
+    val_payloads = []
+    for i, t in enumerate(val_list):
+        where = f"validation[{i}]" if isinstance(doc["validation"], list) else "validation"
+        val_payloads.append(_bool(t.pop("payload"), f"{where}.payload") if "payload" in t else None)
+    validations = tuple(dataclasses.replace(_validation_spec(data_list[0], v, data_base, f"validation[{i}]"), payload=pl)
+                        for i, (v, pl) in enumerate(zip(val_list, val_payloads))) if many else ()
+    payload = _joint_payload(doc, payloads, val_payloads, method)
     if many:
         for i, v in enumerate(validations):
             for j, d in enumerate(experiments):
@@ -907,6 +914,8 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
     data, validation = _validation_pair(data_list[0], val_list[0], data_base)
     if payloads[0] is not None:
         data = dataclasses.replace(data, payload=payloads[0])
+    if val_payloads[0] is not None:
+        validation = dataclasses.replace(validation, payload=val_payloads[0])
     out_t = _table(doc.get("output", {}), "output", {"plots"})
     processing = _parse_processing(doc.get("processing", {}))
     for label, spec in (("data", data), ("validation", validation), *((f"data[{i}]", d) for i, d in enumerate(experiments)),
@@ -928,7 +937,38 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
         learning=_learning(doc.get("learning")),
         experiments=experiments,
         validations=validations,
+        payload=payload,
     )
+
+
+def _joint_payload(doc: Mapping[str, Any], payloads: list, val_payloads: list, method: Any):
+    """``[payload]`` of ``dynid identify`` (the joint mode, :mod:`dynid.pipeline.joint_payload`) and its refusals."""
+    loaded = [i for i, v in enumerate(payloads) if v]
+    if "payload" not in doc:
+        marked = [f"data[{i}]" for i in loaded] + [f"validation[{i}]" for i, v in enumerate(val_payloads) if v]
+        if marked:
+            raise ConfigError(f"{marked[0]}.payload = true but there is no [payload] table (body, optional mass, "
+                              "origin): give it to identify the payload jointly with the arm")
+        return None
+    from dynid.config._payload import parse_joint_payload
+
+    if isinstance(doc["payload"], dict) and "arm" in doc["payload"]:
+        raise ConfigError("payload.arm: dynid identify identifies the arm itself (jointly); 'arm' is read by "
+                          "dynid payload (the given-arm mode)")
+    spec = parse_joint_payload(doc["payload"])
+    if not isinstance(doc["data"], list):
+        raise ConfigError("payload: the joint mode needs [[data]] experiments, some with payload = true and some "
+                          "without; a single [data] table cannot tell the payload from its body")
+    if not loaded:
+        raise ConfigError("payload: a [payload] table but no [[data]] experiment has payload = true (mark the "
+                          "experiments recorded with the payload mounted)")
+    if len(loaded) == len(payloads):
+        raise ConfigError("payload: every [[data]] experiment has payload = true; the arm and the payload cannot be "
+                          "told apart (their mount body's columns coincide): add an experiment without it")
+    if method not in (None, "ols", "wls"):
+        raise ConfigError(f"payload: identification.method = {method!r}; the joint arm + payload fit supports "
+                          "'ols' and 'wls' (the payload block physically consistent with payload.physical)")
+    return spec
 
 
 def _tables_or_array(v: Any, where: str) -> list[dict[str, Any]]:

@@ -16,34 +16,17 @@
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from pathlib import Path
 from typing import Any
 
-from dynid.config import DataConfig, _bool, _list, _num, _parse_data, _str, _table, read_toml
+from dynid.config import _parse_data, _table, read_toml
+from dynid.config._payload import PAYLOAD_KEYS as _PAYLOAD_KEYS
+from dynid.config._payload import PayloadConfig, parse_joint_payload, payload_fields
 from dynid.config._schema import _path
 from dynid.errors import ConfigError
 
-__all__ = ["PayloadConfig", "parse_payload_config", "load_payload_config"]
+__all__ = ["PayloadConfig", "parse_payload_config", "load_payload_config", "payload_fields", "parse_joint_payload"]
 
-_PAYLOAD_KEYS = {"arm", "body", "mass", "origin", "name", "physical"}
-
-
-@dataclasses.dataclass(frozen=True)
-class PayloadConfig:
-    """``dynid payload``'s configuration (module docstring)."""
-
-    arm: Path
-    data: DataConfig
-    body: str | None = None
-    mass: float | None = None
-    origin_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    origin_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    name: str = "payload"
-    physical: bool = True
-    source: Path | None = None
-    raw: dict[str, Any] = dataclasses.field(default_factory=dict, compare=False)
 
 
 def parse_payload_config(doc: dict[str, Any], base: Path, source: Path | None = None) -> PayloadConfig:
@@ -60,21 +43,8 @@ def parse_payload_config(doc: dict[str, Any], base: Path, source: Path | None = 
         raise ConfigError("data: give one [data] table (the log with the payload mounted), not [[data]]")
     p = _table(doc["payload"], "payload", _PAYLOAD_KEYS, {"arm"})
     arm = _path(p["arm"], "payload.arm", base)
-    mass = _num(p["mass"], "payload.mass", True) if "mass" in p else None
-    xyz, rpy = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-    if "origin" in p:
-        o = _table(p["origin"], "payload.origin", {"xyz", "rpy"})
-        xyz = _list(o.get("xyz", [0.0, 0.0, 0.0]), "payload.origin.xyz", _num, 3)
-        rpy = _list(o.get("rpy", [0.0, 0.0, 0.0]), "payload.origin.rpy", _num, 3)
-        if not all(math.isfinite(v) for v in (*xyz, *rpy)):
-            raise ConfigError("payload.origin: xyz and rpy must be finite")
-    name = _str(p.get("name", "payload"), "payload.name")
-    if not name or not all(ch.isalnum() or ch in "_-" for ch in name):
-        raise ConfigError(f"payload.name {name!r}: letters, digits, '_' and '-' only (a URDF link / MJCF body name)")
-    return PayloadConfig(arm=arm, data=_parse_data(doc["data"], "data", base),
-                         body=_str(p["body"], "payload.body") if "body" in p else None, mass=mass,
-                         origin_xyz=tuple(xyz), origin_rpy=tuple(rpy), name=name,
-                         physical=_bool(p.get("physical", True), "payload.physical"), source=source, raw=dict(doc))
+    return PayloadConfig(arm=arm, data=_parse_data(doc["data"], "data", base), source=source, raw=dict(doc),
+                         **payload_fields(p))
 
 
 def load_payload_config(path: str | Path) -> PayloadConfig:

@@ -324,27 +324,70 @@ def joint_problem(problems: Sequence[RegressionProblem], mounted: Sequence[bool]
                              expressions=None, standard=standard, meta=dict(first.meta))
 
 
-def fit_joint(stacked: RegressionProblem, *, physical: bool = False, solver: str = "CLARABEL",
-              rank_tol: float = RANK_TOL) -> IdentificationResult:
-    """WLS (Gautier's weights per (experiment, channel)) of :func:`joint_problem`'s stacked factors, or with
-    ``physical`` the physically consistent WLS (every body of the arm and the payload: pseudo-inertia
-    :math:`\\succeq 0`; needs the standard map). Refuses a stack in which the payload is not identifiable
-    from the arm (the rank of the stacked columns is checked first, naming the directions that are not)."""
+def fit_joint(stacked: RegressionProblem, *, physical: bool = False, mass: float | None = None,
+              weighting: str = "wls", solver: str = "CLARABEL", rank_tol: float = RANK_TOL) -> IdentificationResult:
+    """WLS (Gautier's weights per (experiment, channel); ``weighting = "ols"``: one weight) of
+    :func:`joint_problem`'s stacked factors, or with ``physical`` the physically consistent fit: with the arm's
+    standard map in the stack every body of the arm and the payload (pseudo-inertia :math:`\\succeq 0`), without
+    it the payload block only (the arm's base parameters free); ``mass``: a known payload mass, an equality
+    (``physical`` only). Refuses a stack in which the payload is not identifiable from the arm (the rank of the
+    stacked columns is checked first, naming the directions that are not)."""
     R = _stacked_r(stacked)
     base = _base_from_r(R, stacked.names, rank_tol, int(np.sum(stacked.n_obs)), 0)
     if base.n_base < stacked.n_params:
         lost = [stacked.names[i] for i in base.dependent]
         raise InputError(f"the experiments do not identify {', '.join(lost)} (the stacked columns have rank "
                          f"{base.n_base} of {stacked.n_params}): excite the arm without the payload and with it")
+    if mass is not None and not physical:
+        raise InputError("a known payload mass is an equality of the physically consistent fit (physical=True)")
+    if mass is not None and stacked.standard is None:
+        return _fit_joint_known_mass(stacked, mass, weighting, solver)
     if physical:
-        from dynid.estimation.physical import PhysicalLS
+        from dynid.estimation.physical import BodyBounds, PhysicalConstraints, PhysicalLS
 
-        if stacked.standard is None:
-            raise InputError("physically consistent joint fit: the problems carry no standard map")
-        return PhysicalLS(weighting="wls", solver=solver).fit(stacked)
-    from dynid.estimation.linear import WLS
+        own = stacked.standard is None
+        if own:  # the payload block only: the arm's base parameters are their own "standard"
+            p = stacked.n_params
+            sm = StandardMap(standard_names=tuple(stacked.names), B=np.eye(p),
+                             body_blocks=(np.arange(p - 10, p),), nonnegative=np.zeros(0, dtype=int), reference=None)
+            stacked = dataclasses.replace(stacked, standard=sm)
+        bounds = {"payload": BodyBounds(mass=(mass, mass))} if mass is not None else {}
+        kw = {"constraints": PhysicalConstraints(bodies=bounds, sign=False)} if (own or bounds) else {}
+        return PhysicalLS(weighting=weighting, solver=solver, **kw).fit(stacked)
+    from dynid.estimation.linear import OLS, WLS
 
-    return WLS().fit(stacked)
+    return (OLS() if weighting == "ols" else WLS()).fit(stacked)
+
+
+def _fit_joint_known_mass(stacked: RegressionProblem, mass: float, weighting: str, solver: str) -> IdentificationResult:
+    """The joint fit with the payload's mass known: its column moved to the output (``y - m Y_m``), the other
+    columns fitted by the physically consistent WLS whose payload body is ``[m, the 9 estimated]`` (the mass an
+    equality of the pseudo-inertia constraint, not an active bound), so that an unconstrained optimum that is
+    consistent keeps its covariance; the result has the problem's columns, the mass's row and column zero."""
+    from dynid.estimation.physical import BodyBounds, PhysicalConstraints, PhysicalLS
+
+    p = stacked.n_params
+    keep = [k for k in range(p) if k != p - 10]
+    T = np.zeros((p, p - 1))
+    T[keep, np.arange(p - 1)] = 1.0
+    off = np.zeros(p)
+    off[p - 10] = mass
+    names = [stacked.names[k] for k in keep]
+    sub = _transform(stacked, names, T, off)
+    B = np.zeros((p - 1, p))
+    B[np.arange(p - 1), keep] = 1.0
+    sm = StandardMap(standard_names=tuple(stacked.names), B=B, body_blocks=(np.arange(p - 10, p),),
+                     nonnegative=np.zeros(0, dtype=int), reference=None)
+    sub = dataclasses.replace(sub, standard=sm)
+    res = PhysicalLS(weighting=weighting, solver=solver, constraints=PhysicalConstraints(
+        bodies={"payload": BodyBounds(mass=(mass, mass))}, sign=False)).fit(sub)
+    params = np.insert(np.asarray(res.params, float), p - 10, mass)
+    cov = None
+    if res.cov_params is not None:
+        cov = np.zeros((p, p))
+        cov[np.ix_(keep, keep)] = res.cov_params
+    return dataclasses.replace(res, names=tuple(stacked.names), params=params, cov_params=cov).with_notes(
+        f"known payload mass {mass:g} kg: its column moved to the output, the other parameters estimated")
 
 
 # ------------------------------------------------------------------------------------ physical description

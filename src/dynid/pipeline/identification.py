@@ -449,6 +449,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     n_eff = -(-train.n_samples // parallel)
     meta = _run_meta(cfg, system, force_model, base, len(channels), n_eff, raw_train.meta, raw_valid.meta, steps)
     periodic, fj = pcfg.periodic, None
+    payload_outcome = None  # the joint arm + payload mode: the payload (dynid.pipeline.joint_payload)
     if icfg.method == "ml" and pcfg.periodic is None:
         result, pcfg, worst = _maximum_likelihood_time(cfg, system, base, train_a, force_model, progress, meta)
         if "coulomb_width" in result.solver:  # the smooth sign of the chosen cut-off, in prediction too
@@ -475,8 +476,8 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     elif icfg.method in ("iv", "didim"):
         result, worst = _control_loop(cfg, system, base, train, force_model, parallel, meta, progress)
     elif several:
-        result, worst = _several(cfg, system, base, train, steps, raw_train.meta, force_model, parallel, meta, progress,
-                                 names, readers)
+        result, worst, payload_outcome = _several(cfg, system, base, train, steps, raw_train.meta, force_model,
+                                                  parallel, meta, progress, names, readers)
     else:
         blocks = block_builder(icfg.covariance, base.names, channels, n_eff)
         problem, worst = _compress(system, base, train, force_model=force_model, min_velocity=pcfg.min_velocity,
@@ -521,7 +522,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     metrics, prior, other, selected, full = scored
     if several or len(cfg.validation_logs) > 1:
         result = _per_log_validation(cfg, system, base, result, force_model, pcfg, metrics, parallel, names, readers,
-                                     progress)
+                                     progress, payload_outcome)
     tr = system.transmission
     comparable = not (raw_train.meta["effort_kind"] == "current" and raw_train.meta.get("drive_gains") is None
                       and (tr is None or np.all(tr.drive_gains == 1.0)))
@@ -543,19 +544,29 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
     return IdentifyOutcome(cfg, system.model, base, result, metrics, train, held_out, tuple(notes), train_a,
                            warnings=alarms,
                            nominal_validation=prior, prior=prior_comparison(metrics, prior, comparable), system=system,
-                           other_view=other, selected=selected, full_rate=full, learning=learned,
+                           other_view=other, selected=selected, full_rate=full, learning=learned, payload=payload_outcome,
                            units=effort_units(system, force_model, raw_train.meta["effort_kind"]), prediction=prediction,
                            data_path={**data_path, "training_samples": train.n_samples}, structure=structure)
 
 
 def _several(cfg: Config, system: System, base: BaseParameters, train: Dataset, steps, raw_meta, force_model, parallel,
-             meta, progress, names, readers) -> tuple[IdentificationResult, float]:
+             meta, progress, names, readers) -> tuple[IdentificationResult, float, Any]:
     """The ``[[data]]`` experiments, each processed and compressed on its own, their factors stacked
     (:mod:`dynid.pipeline.experiments`); the configured estimator (OLS or WLS) on the stacked factors."""
     pcfg, icfg = cfg.processing, cfg.identification
     worst = [0.0]
 
+    joint = cfg.payload is not None  # the joint arm + payload mode (dynid.pipeline.joint_payload)
+    if joint:
+        from dynid.pipeline import joint_payload as _jp
+
+        _jp.check_joint(cfg, system)
+        mount = _jp.payload_columns(system, cfg.payload.body)
+
     def compress(ds: Dataset) -> RegressionProblem:
+        if joint:
+            return _jp.compress_joint(system, base, mount[1], ds, force_model=force_model, pcfg=pcfg, icfg=icfg,
+                                      parallel=parallel, progress=progress, meta=meta)
         problem, w = _compress(system, base, ds, force_model=force_model, min_velocity=pcfg.min_velocity,
                                parallel_decimate=parallel, chunk_size=icfg.chunk_size, progress=progress, meta=meta,
                                cross=False, periodic=None, min_velocity_passive=pcfg.min_velocity_passive,
@@ -572,14 +583,18 @@ def _several(cfg: Config, system: System, base: BaseParameters, train: Dataset, 
 
     first = _experiments.Experiment(0, cfg.training_logs[0], train, compress(train), dict(raw_meta), steps)
     exps = _experiments.build_experiments(cfg, first, compress, read)
+    if joint:
+        arm, outcome = _jp.fit_experiments(cfg, system, base, exps, mount, _experiments.collapse)
+        return arm, worst[0], outcome
     stacked = _experiments.stack(exps)
     nominal = base.from_standard(system.nominal_parameters()) if icfg.nominal_weighting else None
     estimator = configured_estimator(icfg, steps, stacked.channel_names, tuple(names), nominal)
-    return _experiments.collapse(estimator.fit(stacked), stacked, exps), worst[0]
+    return _experiments.collapse(estimator.fit(stacked), stacked, exps), worst[0], None
 
 
 def _per_log_validation(cfg: Config, system: System, base: BaseParameters, result: IdentificationResult, force_model,
-                        pcfg, first: ValidationMetrics, parallel, names, readers, progress) -> IdentificationResult:
+                        pcfg, first: ValidationMetrics, parallel, names, readers, progress,
+                        payload=None) -> IdentificationResult:
     """A held-out table per ``[[validation]]`` log (each processed on its own) and the pooled one."""
     per_log = [_experiments.validation_record("validation[0]", cfg.validation_logs[0], first)]
     for i, spec in enumerate(cfg.validation_logs[1:], start=1):
@@ -587,7 +602,13 @@ def _per_log_validation(cfg: Config, system: System, base: BaseParameters, resul
         raw = read_log(spec, system.n_actuators, names, label, readers)
         a, _ = to_actuator_space(raw, system, label)
         ds, _ = preprocess(a, pcfg, label)
-        m = validate(result, system, base, ds, force_model=force_model, parallel_decimate=parallel,
+        res_i, base_i = result, base
+        if spec.payload and payload is not None:  # predicted with the identified payload (joint mode)
+            from dynid.pipeline.joint_payload import with_payload
+
+            res_i, base_i = with_payload(result, base, payload, system)
+            label += " (with the payload)"
+        m = validate(res_i, system, base_i, ds, force_model=force_model, parallel_decimate=parallel,
                      chunk_size=cfg.identification.chunk_size, progress=progress)
         per_log.append(_experiments.validation_record(label, spec, m))
     pooled = _experiments.pooled_validation(per_log, first.channel_names)

@@ -127,6 +127,8 @@ class IdentifyOutcome:
     # which path ran (result.json "data_path"): "in-memory", or "streamed" (dynid.pipeline.streaming: then
     # train, held_out and raw_train are None and the validation metrics keep no arrays)
     data_path: dict[str, Any] | None = None
+    # the joint arm + payload mode: dynid.pipeline.payload.PayloadOutcome (payload.json/.urdf/.xml), None without
+    payload: Any = None
     # the report's figures, under way beside the run (dynid.report.worker; plots only)
     jobs: Any = dataclasses.field(default=None, repr=False, compare=False)
     # a streamed run with plots: (raw, processed) training signals for plot_processing, thinned and with Welch

@@ -249,6 +249,10 @@ def write_files(outcome: IdentifyOutcome, stage: Path) -> None:
     if exported is not None and found is not None and found[1]:
         warn = [f"exported {exported.name}: " + "; ".join(found[1]), *warn]
     (stage / "summary.txt").write_text(outcome.summary_text() + "\n" + "".join(f"\n{w}\n" for w in warn))
+    if outcome.payload is not None:  # the joint arm + payload mode (dynid.pipeline.joint_payload)
+        from dynid.pipeline.payload_outcome import write_payload_files
+
+        write_payload_files(outcome.payload, stage, "payload_summary.txt")
     if outcome.learning is not None:
         from dynid.pipeline.learning import LEARNING_FILE
 
