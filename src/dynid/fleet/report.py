@@ -60,7 +60,7 @@ def plot_spread(result: FleetResult, path: Path) -> Path:
         ax.set_xticklabels(m.names, rotation=90, fontsize=7)
         ax.set_ylabel("(estimate - fleet median) / spread")
         ax.set_title(f"{m.model}: {len(robots)} robots, pooled estimates against the fleet", fontsize=10)
-        ax.legend(fontsize=7, ncol=min(8, len(robots)), loc="upper right")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -109,7 +109,7 @@ def plot_drift(result: FleetResult, path: Path) -> Path:
         ax.plot(tt, line, color="C3", lw=1, label=f"trend {d['slope_per_year']:+.3g}/yr")
         lo, hi = d["slope_interval"]
         ax.fill_between(tt, d["intercept"] + lo * (tt - d["t0_days"]), d["intercept"] + hi * (tt - d["t0_days"]),
-                        color="C3", alpha=0.15, lw=0)
+                        color="C3", alpha=0.15, lw=0, label="slope interval")
         flags = [w for w, on in (("drift", d["drift"]), ("change", d["change"])) if on]
         ax.set_title(f"{r.robot} {d['name']} ({', '.join(flags)})", fontsize=9)
         ax.set_xlabel(f"days since {result.first_date}")
