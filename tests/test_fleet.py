@@ -122,6 +122,78 @@ def _rows(cfg, base, path):
     return base.regressor(r.W), r.y
 
 
+def _homogeneous(rng, n: int, p: int, sig: float):
+    """A fleet of ``n`` robots from one population: unit spread per parameter about 5, each robot's own
+    estimation error N(0, C_i) with C_i a random correlated matrix of scale ``sig``^2 (robots differ by e^±1)."""
+    A = rng.standard_normal((n, p, p))
+    covs = (np.einsum("nij,nkj->nik", A, A) / p + 0.1 * np.eye(p)) * (sig**2 * np.exp(rng.uniform(-1, 1, n)))[:, None, None]
+    x = 5.0 + rng.standard_normal((n, p)) + np.einsum("nij,nj->ni", np.linalg.cholesky(covs), rng.standard_normal((n, p)))
+    return x, covs
+
+
+def test_the_leave_one_out_distances_are_those_of_their_definition():
+    from dynid.fleet.statistics import MAD_TO_STD, _loo_d2
+
+    rng = np.random.default_rng(seed(7))
+    for n in (4, 5, 8, 9):  # both parities of the k = n - 1 others (the medians' two cases)
+        x, covs = _homogeneous(rng, n, 4, 0.5)
+        xs = x + rng.standard_normal((3, n, 4))
+        d2 = _loo_d2(xs, covs)[0]
+        for b in range(3):
+            for r in range(n):
+                others = xs[b, [j for j in range(n) if j != r]]
+                ref = np.median(others, axis=0)
+                s = MAD_TO_STD * np.median(np.abs(others - ref), axis=0)
+                total = covs[r] + np.diag((1 + np.pi / (2 * (n - 1))) * s**2)
+                want = (xs[b, r] - ref) @ np.linalg.solve(total, xs[b, r] - ref)
+                assert d2[b, r] == pytest.approx(want, rel=1e-9)
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("sig", [0.1, 1.0])
+def test_the_outlier_test_flags_a_homogeneous_fleet_at_most_alpha_of_the_time(sig):
+    """100 homogeneous fleets of 8 robots x 10 parameters, the robots' own errors 10 x smaller than their spread
+    (``sig`` = 0.1) or as large: the number of fleets with any robot flagged is Binomial(100, q) with q <= alpha
+    (conservative: 0.077 and 0.030 measured over 300 fleets); it exceeds the bound below with probability
+    below 1e-3 when q = alpha."""
+    from scipy.stats import binom
+
+    from dynid.fleet.statistics import outliers
+
+    trials, n, p, alpha = 100, 8, 10, 0.1
+    rng = np.random.default_rng(seed(35 + int(10 * sig)))
+    flagged = chi2 = 0
+    for _ in range(trials):
+        res = outliers(*_homogeneous(rng, n, p, sig), alpha)
+        flagged += any(o.outlier for o in res)
+        chi2 += any(o.d2 > o.chi2_threshold for o in res)
+    bound = binom.isf(1e-3, trials, alpha)
+    assert flagged <= bound, (flagged, bound)
+    if sig == 0.1:
+        # why the threshold is simulated: against chi2_p(1 - alpha / n) nearly every such fleet has an "outlier"
+        # (0.99 of 300 fleets measured); more than the bound has probability 1e-3 at a rate alpha
+        assert chi2 > bound, (chi2, bound)
+
+
+@pytest.mark.numerics
+def test_a_planted_outlier_is_flagged_and_the_threshold_is_reproducible():
+    """One robot of a homogeneous fleet moved by 80 population standard deviations in one parameter: its d2
+    from that parameter alone is 6400 / ((1 + pi/14) s^2), with s the others' robust spread (relative standard
+    error sqrt(1.36 / 7) = 0.44, so s < 2.5 but with probability ~1e-4): above 840, against a simulated
+    threshold of about 260 for 8 robots x 10 parameters at alpha = 0.05 (the heavy tail of a MAD of 7 values)."""
+    from dynid.fleet.statistics import outliers
+
+    rng = np.random.default_rng(seed(36))
+    x, covs = _homogeneous(rng, 8, 10, 0.1)
+    x[3, 6] += 80.0
+    res = outliers(x, covs, 0.05)
+    assert res[3].outlier and res[3].p_value <= 0.05, res[3]
+    assert int(np.argmax(res[3].contributions)) == 6
+    # a rerun (same machine) gives the same threshold to the bit: the simulation's seed is fixed
+    again = outliers(x, covs, 0.05)
+    assert [o.threshold for o in again] == [o.threshold for o in res] and [o.p_value for o in again] == [o.p_value for o in res]
+
+
 @pytest.mark.numerics
 def test_pooling_is_the_wls_of_the_stacked_rows(run, fleet_dir):
     from dynid.pipeline import identify

@@ -66,7 +66,8 @@ def _robot_dict(r: RobotSummary, result: FleetResult) -> dict[str, Any]:
         "nominal_heldout": r.nominal.to_dict() | {"rows_per_joint": _num(r.nominal.rows_per_channel)},
         "prior_comparison": r.prior,
         "outlier": None if r.outlier is None else {
-            "d2": r.outlier.d2, "dof": r.outlier.dof, "threshold": r.outlier.threshold, "p_value": r.outlier.p_value,
+            "d2": r.outlier.d2, "dof": r.outlier.dof, "threshold": r.outlier.threshold,
+            "chi2_threshold": r.outlier.chi2_threshold, "p_value": r.outlier.p_value,
             "outlier": r.outlier.outlier, "contributions": _num(r.outlier.contributions)},
         "drift": None if r.drift is None else list(r.drift),
         "drifting_parameters": list(r.drift_params),
@@ -101,7 +102,9 @@ def fleet_dict(result: FleetResult, source: Path | None = None) -> dict[str, Any
                                "relative to their variances (>= 1); the variances of the drift tests and the pooled "
                                "covariance are scaled by it (dynid.fleet.statistics.scatter_factors)",
             "outliers": "Mahalanobis distance to the other robots' median with the robot's own (scaled) covariance "
-                        "plus the others' robust spread, against chi2_p(1 - alpha / n_robots)",
+                        "plus the others' robust spread, against the 1 - alpha quantile of the largest such distance of "
+                        "simulated homogeneous fleets (parametric bootstrap, single-step max-T, fixed seed; the "
+                        "population spread at its 95 % upper bound: conservative); p_value family-wise over the robots",
             "drift": "per parameter a weighted linear trend over the dated logs (interval at 1 - alpha / p) and a "
                      "change-point test (max of the standardized mean shifts, Bonferroni bound), each Bonferroni over "
                      "the p parameters",
