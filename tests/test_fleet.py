@@ -327,6 +327,7 @@ def test_the_cli_reruns_byte_identical_and_refuses_bad_input(fleet_dir, cluster,
         assert len(p.stderr.strip().splitlines()) == 1 and not (tmp_path / "never").exists()
 
 
+@pytest.mark.numerics
 def test_the_fleet_example_runs_as_the_readme_says(tmp_path):
     """README "Fleets": its commands, as written there, in a copy of examples/fleet (a LocalCluster of its own)."""
     import subprocess
