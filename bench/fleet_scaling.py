@@ -19,8 +19,10 @@ Method
   BLAS thread). The template is in ``CONFIG``.
 * **Loop**: the jobs of the first ``n`` logs run one after the other in this process
   (``[run_log(job) for job in jobs]``), after one warm-up job (imports, caches).
-* **Dask**: a ``LocalCluster`` of 2 process workers, one thread each (what ``dynid fleet`` starts),
-  started fresh for each measurement and warmed by one job on every worker (imports), then the same
+* **Dask**: a ``LocalCluster`` of 2 process workers, one thread each, started by
+  :func:`dynid.fleet.run.fleet_client` as ``dynid fleet`` starts it (without Dask's
+  ``MALLOC_TRIM_THRESHOLD_``, which made each job 1.6-2.4x slower on a worker:
+  :func:`dynid.fleet.run.local_cluster`), started fresh for each measurement and warmed by one job on every worker (imports), then the same
   jobs through :func:`dynid.fleet.run.run_jobs` (the code ``dynid fleet`` uses: ``client.map``,
   results by key). Timed: the jobs alone; the cluster's start-up is printed beside it (a fixed cost of
   a few seconds that a fleet of 64 logs amortizes).
@@ -33,6 +35,9 @@ Method
   (Dask's own buffers). The fleet's total data is 64 x 1e5 x 13 x 8 B = 666 MB, above that bound; a
   worker that held the logs it ran, or their regressors, would exceed it. Also printed: the ratio of
   the worker peaks at the largest and smallest sizes (near 1: memory does not grow with the logs).
+* Per job, the median of its own identification time (``LogResult.seconds``, measured where it
+  ran) in the loop and on the workers: equal when the 2 cores are free; larger on the workers when
+  other processes take a core (then no run on this machine can show the 2-core speed-up).
 * Exit status 1 when the speed-up is below 1.7, the slope above 1.05, a worker's peak above its
   bound, or a job fails.
 
@@ -44,7 +49,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import shutil
 import subprocess
@@ -165,17 +169,15 @@ def run_loop(jobs) -> tuple[float, list]:
     return time.perf_counter() - t0, res
 
 
-def run_dask(jobs, warm) -> tuple[float, float, list, list[int]]:
-    """(jobs time, cluster start time, results, per-worker peak RSS kB) on a fresh LocalCluster."""
-    import distributed
-
+def run_dask(cfg, jobs, warm) -> tuple[float, float, list, list[int]]:
+    """(jobs time, cluster start time, results, per-worker peak RSS kB) on a fresh LocalCluster,
+    started as ``dynid fleet`` starts it (:func:`dynid.fleet.run.fleet_client`)."""
     from dynid.fleet.jobs import run_log
-    from dynid.fleet.run import run_jobs
+    from dynid.fleet.run import fleet_client, run_jobs
 
     t0 = time.perf_counter()
-    with distributed.LocalCluster(n_workers=WORKERS, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  silence_logs=logging.ERROR) as cluster, \
-            distributed.Client(cluster, set_as_default=False) as client:
+    with fleet_client(cfg) as (client, _, n):
+        assert n == WORKERS, n
         workers = sorted(client.scheduler_info()["workers"])
         for w in workers:  # each worker imports dynid and runs one job before the clock starts
             client.submit(run_log, warm, workers=[w], pure=False, allow_other_workers=False).result()
@@ -213,7 +215,8 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         write_logs(folder, sizes[-1], n)
         print(f"{sizes[-1]} logs x {n} samples x 6 joints in {folder} ({time.perf_counter() - t0:.1f} s, not timed)")
-        jobs, _ = build_jobs(load_fleet_config(folder / "fleet.toml"))
+        cfg = load_fleet_config(folder / "fleet.toml")  # workers = 2, the default
+        jobs, _ = build_jobs(cfg)
         foot = one_log_footprint(folder / "fleet.toml")
         bound_kb = foot["base_kb"] + 1.5 * (foot["one_kb"] - foot["base_kb"]) + 100 * 1024
         from dynid.fleet.jobs import run_log
@@ -225,21 +228,25 @@ def main(argv: list[str] | None = None) -> int:
         peaks: dict[int, list[int]] = {}
         for size in sizes:
             reps = args.repeats if size == sizes[-1] else 1
-            lt, dt, st, pk = [], [], [], []
+            lt, dt, st, pk, lj, dj = [], [], [], [], [], []
             for _ in range(reps):
                 t, res = run_loop(jobs[:size])
                 failed += sum(not r.ok for r in res)
                 lt.append(t)
-                t, start, res, p = run_dask(jobs[:size], jobs[0])
+                lj.append(median([r.seconds for r in res]))
+                t, start, res, p = run_dask(cfg, jobs[:size], jobs[0])
                 failed += sum(not r.ok for r in res)
                 dt.append(t)
+                dj.append(median([r.seconds for r in res]))
                 st.append(start)
                 pk.append(max(p))
             loop_t[size], dask_t[size], peaks[size] = median(lt), median(dt), pk
             rows.append([str(size), str(reps), f"{loop_t[size]:.2f}", f"{loop_t[size] / size:.3f}",
-                         f"{dask_t[size]:.2f}", f"{median(st):.1f}", f"{loop_t[size] / dask_t[size]:.2f}",
+                         f"{median(lj):.3f}", f"{dask_t[size]:.2f}", f"{median(dj):.3f}", f"{median(st):.1f}",
+                         f"{loop_t[size] / dask_t[size]:.2f}",
                          f"{max(pk) / 1024:.0f}"])
-        print(table(["logs", "runs", "loop s", "loop s/log", "dask s (2 workers)", "cluster start s", "speed-up",
+        print(table(["logs", "runs", "loop s", "loop s/log", "job s (loop)", "dask s (2 workers)", "job s (worker)",
+                     "cluster start s", "speed-up",
                      "worker peak MB"], rows))
         x = np.log(np.array(sizes, float))
         slope = float(np.polyfit(x, np.log([dask_t[s] for s in sizes]), 1)[0]) if len(sizes) > 1 else float("nan")

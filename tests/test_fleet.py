@@ -97,10 +97,9 @@ def fleet_dir(tmp_path_factory):
 @pytest.fixture(scope="module")
 def cluster():
     """A real LocalCluster: 2 process workers, one thread each (what `dynid fleet` starts by default)."""
-    import logging
+    from dynid.fleet.run import local_cluster
 
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  silence_logs=logging.ERROR) as c, distributed.Client(c, set_as_default=False) as client:
+    with local_cluster(2) as c, distributed.Client(c, set_as_default=False) as client:
         yield c, client
 
 

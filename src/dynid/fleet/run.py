@@ -28,7 +28,7 @@ from dynid.errors import InputError, require
 from dynid.fleet.analysis import FleetResult, analyse
 from dynid.fleet.jobs import LogJob, LogResult, run_log
 
-__all__ = ["build_jobs", "run_fleet", "fleet_client", "SCHEDULER_TIMEOUT_S"]
+__all__ = ["build_jobs", "run_fleet", "fleet_client", "local_cluster", "SCHEDULER_TIMEOUT_S"]
 
 SCHEDULER_TIMEOUT_S = 10.0
 """Seconds to wait for a Dask scheduler before giving up."""
@@ -50,6 +50,24 @@ def build_jobs(cfg: FleetConfig) -> tuple[list[LogJob], str | None]:
     return jobs, None if first is None else first.isoformat()
 
 
+def local_cluster(n: int) -> Any:
+    """A ``distributed.LocalCluster`` of ``n`` process workers with one thread each, without Dask's
+    ``MALLOC_TRIM_THRESHOLD_=65536`` in the workers' environment.
+
+    Dask's nanny sets that variable (``distributed.nanny.pre-spawn-environ``) so that long-lived
+    workers give freed memory back to the system. Setting it at all switches off glibc's dynamic
+    mmap threshold: every array above 128 kB is then mapped and unmapped on each allocation, and an
+    identification, which makes many such temporaries, ran 1.6-2.4 times slower on a worker than in
+    one process (``bench/fleet_scaling.py``, 2e4 samples x 6 joints). A fleet's workers live for one
+    run, so the glibc default is kept (a value the user set in the environment still wins)."""
+    import dask
+
+    distributed = require("distributed", "montecarlo")
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        return distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                        silence_logs=logging.ERROR)
+
+
 @contextlib.contextmanager
 def fleet_client(cfg: FleetConfig) -> Iterator[tuple[Any, str, int]]:
     """A ``distributed.Client``: on ``cfg.scheduler``, or on a LocalCluster of ``cfg.n_workers``
@@ -66,8 +84,7 @@ def fleet_client(cfg: FleetConfig) -> Iterator[tuple[Any, str, int]]:
             client.close()
         return
     n = max(1, min(cfg.n_workers, len(cfg.logs)))
-    cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                       silence_logs=logging.ERROR)
+    cluster = local_cluster(n)
     try:
         client = distributed.Client(cluster, set_as_default=False)
         try:
