@@ -274,7 +274,7 @@ def outliers(estimates: np.ndarray, covs: np.ndarray, alpha: float, draws: int |
     covariances dominate; the chi-square threshold: 0.99, 0.27, 0.01; with the plain estimate of
     ``tau``: 0.13, 0.15, 0.03, too many). ``draws`` defaults to ``max(1000, 20 / alpha)`` (at most
     20 000): some 20 simulated maxima beyond the threshold. The leave-one-out medians come from one
-    sort per fleet, not a loop over the robots: 20 robots with 15 parameters take about 0.2 s.
+    sort per fleet, not a loop over the robots: 20 robots with 15 parameters take 0.2-0.5 s (2 cores).
 
     The spread is diagonal (a few robots cannot estimate a p x p population covariance):
     correlated variation between robots is not modelled. Robots with a non-finite estimate or
