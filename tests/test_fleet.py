@@ -316,11 +316,19 @@ def test_the_cli_reruns_byte_identical_and_refuses_bad_input(fleet_dir, cluster,
     assert doc["n_failed"] == 3 and [r["robot"] for r in doc["robots"]] == list(ROBOTS)
     # bad input: one line, exit 2, no output folder
     bad = tmp_path / "bad.toml"
-    for text, says in ((f'[fleet]\nlogs = "{fleet_dir / "logs.csv"}"\nspeed = 2\n[models]\narm3 = "{fleet_dir / "arm3.toml"}"\n',
+    (tmp_path / "bad.csv").write_text(f"robot,model,file,weight\na,arm3,{fleet_dir / 'logs' / 'a0.npz'},3\n")
+    for text, says in ((None, "cannot read config file"),
+                       (f'[fleet]\nlogs = "bad.csv"\n[models]\narm3 = "{fleet_dir / "arm3.toml"}"\n',
+                        "unknown column ['weight']"),
+                       (f'[fleet]\nlogs = "{fleet_dir / "logs.csv"}"\nalpha = 1.5\n[models]\narm3 = "{fleet_dir / "arm3.toml"}"\n',
+                        "fleet.alpha: must be in (0, 1)"),
+                       (f'[fleet]\nlogs = "{fleet_dir / "logs.csv"}"\nspeed = 2\n[models]\narm3 = "{fleet_dir / "arm3.toml"}"\n',
                         "unknown key fleet.speed"),
                        (f'[fleet]\nlogs = "{fleet_dir / "logs.csv"}"\n[models]\narm4 = "{fleet_dir / "arm3.toml"}"\n',
                         "'arm3' is not in [models]")):
-        bad.write_text(text)
+        bad.unlink(missing_ok=True)
+        if text is not None:
+            bad.write_text(text)
         p = run_dynid(["fleet", str(bad), "--out", str(tmp_path / "never")], tmp_path)
         assert p.returncode == 2 and p.stderr.startswith("dynid: error:") and says in p.stderr, p.stderr
         assert len(p.stderr.strip().splitlines()) == 1 and not (tmp_path / "never").exists()
