@@ -32,7 +32,7 @@ Method
   by ``client.run`` after the jobs; a fresh cluster per measurement, so the peak is that run's). The
   bound is derived from one log: in a fresh process, the resident set after the imports (``base``)
   and the peak after one ``run_log`` (``one``); a worker may hold ``base + 1.5 (one - base) + 100 MB``
-  (Dask's own buffers). The fleet's total data is 64 x 1e5 x 13 x 8 B = 666 MB, above that bound; a
+  (Dask's own buffers). The fleet's total data is 64 x 1e5 x 13 x 8 B = 635 MiB, above that bound; a
   worker that held the logs it ran, or their regressors, would exceed it. Also printed: the ratio of
   the worker peaks at the largest and smallest sizes (near 1: memory does not grow with the logs).
 * Per job, the median of its own identification time (``LogResult.seconds``, measured where it
