@@ -17,6 +17,7 @@ PKG = Path(dynid.__file__).resolve().parent
 LAYERS = {
     "cli": 10,
     "studies": 9,  # a study composes pipeline runs (simulate, identify) on the papers' set-ups
+    "fleet": 9,  # many robots x many logs: pipeline runs on Dask and the fleet statistics
     "pipeline": 8,
     "config": 7,
     "report": 6,

@@ -385,6 +385,31 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_fleet(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from dynid.config.fleet import load_fleet_config
+    from dynid.config.montecarlo import parse_scheduler, parse_workers
+
+    _check_out(args.out)
+    cfg = load_fleet_config(args.config)  # config errors come before the heavy imports below
+    if args.workers is not None:
+        cfg = dataclasses.replace(cfg, workers=parse_workers(args.workers, "--workers"))
+    if args.scheduler is not None:
+        cfg = dataclasses.replace(cfg, scheduler=parse_scheduler(args.scheduler, "--scheduler"))
+    from dynid.fleet.output import summary_text, write_fleet
+    from dynid.fleet.run import run_fleet
+
+    with _progress_bar(not args.quiet) as progress:
+        result = run_fleet(cfg, progress)
+    written = write_fleet(result, args.out, source=cfg.source)
+    if not args.quiet:
+        print(summary_text(result))
+        print()
+    print(f"outputs in {Path(args.out)}: {', '.join(written)}")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from dynid.pipeline.demo import run_demo
 
@@ -592,6 +617,17 @@ def build_parser() -> argparse.ArgumentParser:
                     help="run the trials on a Dask cluster, e.g. tcp://host:8786 (default: local processes)")
     pm.add_argument("--no-progress", action="store_true", help="no progress bar")
     pm.set_defaults(func=_cmd_montecarlo)
+
+    pl = sub.add_parser("fleet", help="many robots x many logs on Dask: per robot the pooled estimate and its verdict "
+                                      "against the prior; over the fleet the spread, outliers and drift")
+    pl.add_argument("config", help="TOML configuration (schema in the README, 'Fleets')")
+    pl.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
+    pl.add_argument("--workers", type=_workers, default=None, metavar="K",
+                    help="process workers of the local Dask cluster; 0 or 'auto': all cores (default: the config's, 2)")
+    pl.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run on an existing Dask cluster, e.g. tcp://host:8786 (default: a local cluster)")
+    pl.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+    pl.set_defaults(func=_cmd_fleet)
 
     pd = sub.add_parser("demo", help="simulate builtin:shang2dof under control, identify it, validate, track again (needs nothing else)")
     pd.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
