@@ -317,7 +317,7 @@ def test_the_cli_reruns_byte_identical_and_refuses_bad_input(fleet_dir, cluster,
     # bad input: one line, exit 2, no output folder
     bad = tmp_path / "bad.toml"
     (tmp_path / "bad.csv").write_text(f"robot,model,file,weight\na,arm3,{fleet_dir / 'logs' / 'a0.npz'},3\n")
-    for text, says in ((None, "cannot read config file"),
+    for text, says in ((None, "config file not found"),
                        (f'[fleet]\nlogs = "bad.csv"\n[models]\narm3 = "{fleet_dir / "arm3.toml"}"\n',
                         "unknown column ['weight']"),
                        (f'[fleet]\nlogs = "{fleet_dir / "logs.csv"}"\nalpha = 1.5\n[models]\narm3 = "{fleet_dir / "arm3.toml"}"\n',
