@@ -130,7 +130,14 @@ def test_mechanism_parallel_decimation_and_min_velocity(rps3_motor_logs):
     chunked = build_problem(system, base, ds, parallel_decimate=5, chunk_size=300)
     n_dec = -(-ds.n_samples // 5)
     assert list(whole.n_obs) == list(chunked.n_obs) == [n_dec] * 3
-    np.testing.assert_allclose(OLS().fit(chunked).params, OLS().fit(whole).params, rtol=1e-7, atol=1e-9)
+    # chunking changes where the batched position solve puts its anchors (dynid.model.loop_batch), so
+    # the joint positions of the two routes agree to the solve's tolerance (POSITION_TOL, 1e-10 m), not
+    # to rounding; what that moves is far below the noise the estimate's std reflects (current noise
+    # 2.3 N of leg force): seen 1.5e-7 to 7e-7 std over three draws; 1e-4 std leaves a factor 140 (14
+    # with the tolerances loosened 10x), and a wrong chunk join (rows lost or repeated, a filter
+    # restarted) moves it by whole std
+    a, b = OLS().fit(chunked), OLS().fit(whole)
+    assert np.max(np.abs(a.params - b.params) / b.bse) < 1e-4, np.max(np.abs(a.params - b.params) / b.bse)
     # the config route: parallel decimation of regressor and forces (Gautier) recovers the truth as
     # well as the full-rate fit (the filter removes only noise above the motion's band)
     doc = _leg_doc(d)
