@@ -128,6 +128,17 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: invalid TOML ({exc})") from None
 
 
+def usable_cores(workers: int) -> int:
+    """Local process workers for a ``workers`` setting: itself when positive, else (``0``) the cores
+    this process may use."""
+    if workers > 0:
+        return workers
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
 def parse_workers(value: Any, where: str) -> int:
     """``workers``: an integer >= 0 or ``"auto"`` (0: all cores)."""
     if value == "auto":

@@ -32,12 +32,12 @@ from __future__ import annotations
 import csv
 import dataclasses
 import datetime
-import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from dynid.config import Config, _int, _num, _path, _str, _table, parse_config, read_toml
+from dynid.config._schema import usable_cores
 from dynid.config.montecarlo import parse_scheduler, parse_workers
 from dynid.errors import ConfigError, decode_text, read_file_bytes
 
@@ -81,12 +81,7 @@ class FleetConfig:
     @property
     def n_workers(self) -> int:
         """Local process workers (``workers = 0``: the cores this process may use)."""
-        if self.workers > 0:
-            return self.workers
-        try:
-            return len(os.sched_getaffinity(0))
-        except AttributeError:  # pragma: no cover - not Linux
-            return os.cpu_count() or 1
+        return usable_cores(self.workers)
 
     @property
     def robots(self) -> tuple[str, ...]:

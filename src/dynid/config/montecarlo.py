@@ -28,13 +28,12 @@ the dotted key):
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from dynid.config import Config, _bool, _int, _num, _str, _table, parse_config, read_toml
-from dynid.config._schema import parse_scheduler, parse_workers  # noqa: F401  (re-exported)
+from dynid.config._schema import parse_scheduler, parse_workers, usable_cores  # noqa: F401  (re-exported)
 from dynid.config.simulate import SimulateConfig, load_simulate_config, parse_simulate_config
 from dynid.errors import ConfigError, InputError
 
@@ -68,12 +67,7 @@ class MonteCarloConfig:
     @property
     def n_workers(self) -> int:
         """Local worker processes (``workers = 0``: the cores this process may use)."""
-        if self.workers > 0:
-            return self.workers
-        try:
-            return len(os.sched_getaffinity(0))
-        except AttributeError:  # pragma: no cover - not Linux
-            return os.cpu_count() or 1
+        return usable_cores(self.workers)
 
     def identify_config(self, log: Path, actuators: Sequence[str], effort_kind: str, n_samples: int) -> Config:
         """The ``dynid identify`` configuration of one trial whose log is ``log`` (the columns of

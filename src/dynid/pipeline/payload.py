@@ -25,6 +25,7 @@ from dynid.estimation.payload import PAYLOAD_NAMES, fit_given_arm
 from dynid.io.output import staged_output
 from dynid.pipeline.data import build_system, check_units, preprocess, read_log, to_actuator_space
 from dynid.pipeline.payload_outcome import PayloadOutcome, _mount, write_payload_files
+from dynid.pipeline.predict import result_system
 from dynid.pipeline.rows import Progress, _chunks, _no_progress, row_mask
 
 __all__ = ["PayloadOutcome", "identify_payload", "write_payload", "PAYLOAD_FILES"]
@@ -76,14 +77,8 @@ def identify_payload(cfg: PayloadConfig, progress: Progress = _no_progress) -> P
     """The payload of ``cfg`` (module docstring)."""
     saved, robot_cfg, icfg, pcfg = _arm(cfg)
     inp = saved.inputs
-    system = build_system(robot_cfg)
-    auto = icfg.structure == "auto"
-    system = system.with_structure("full" if auto else icfg.structure, None if auto else icfg.identical_chains)
-    force_model = system.force_model(icfg.force_model)
-    names = system.actuator_names
-    if list(names) != list(inp["actuators"]):
-        raise InputError(f"the robot description {robot_cfg.model} changed since the arm's identification: actuators "
-                         f"{list(names)}, the result's {inp['actuators']}")
+    system, force_model, names = result_system(build_system(robot_cfg), icfg, inp, robot_cfg.model,
+                                               "the arm's identification")
     body, block, parent, placement = _mount(system, cfg.body)
     check_units(cfg.data, system.actuator_kinds(), names, "data")
     raw = read_log(cfg.data, system.n_actuators, names, "data", {})

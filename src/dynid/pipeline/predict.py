@@ -246,6 +246,22 @@ def _hierarchical_curves(result: IdentificationResult, joints: tuple[str, ...]):
     return HierarchicalFriction(info["family"], info["model"], joints, tuple(fits), projection)
 
 
+
+def result_system(system, icfg, inp: dict, model: str, since: str):
+    """The system a result was identified with: ``system`` (built from its robot config) with the
+    result's parameter structure and force model, checked against the result's actuators.
+    Returns ``(system, force_model, actuator names)``; ``since`` names the identification in the
+    message ("identification", "the arm's identification")."""
+    # "auto" here: a record that names no structure (before "auto" was the default, a streamed log, or a
+    # mechanism without identical chains): the result was identified with every body its own parameters
+    auto = icfg.structure == "auto"
+    system = system.with_structure("full" if auto else icfg.structure, None if auto else icfg.identical_chains)
+    names = system.actuator_names
+    if list(names) != list(inp["actuators"]):
+        raise InputError(f"the robot description {model} changed since {since}: actuators "
+                         f"{list(names)}, the result's {inp['actuators']}")
+    return system, system.force_model(icfg.force_model), names
+
 def predict(result_path: str | Path, log_config: str | Path, progress: Progress = _no_progress, *,
             index: int | None = None, processing_from: str | Path | None = None) -> PredictOutcome:
     """Score the saved model of ``result_path`` on the log of ``log_config`` (module docstring); ``index``: that
@@ -290,15 +306,7 @@ def predict(result_path: str | Path, log_config: str | Path, progress: Progress 
     system = build_system(cfg.robot)
     if icfg.hierarchical:
         system = rigid_system(system)
-    # "auto" here: a record that names no structure (before "auto" was the default, a streamed log, or a
-    # mechanism without identical chains): the result was identified with every body its own parameters
-    auto = icfg.structure == "auto"
-    system = system.with_structure("full" if auto else icfg.structure, None if auto else icfg.identical_chains)
-    force_model = system.force_model(icfg.force_model)
-    names = system.actuator_names
-    if list(names) != list(inp["actuators"]):
-        raise InputError(f"the robot description {robot_cfg.model} changed since identification: actuators "
-                         f"{list(names)}, the result's {inp['actuators']}")
+    system, force_model, names = result_system(system, icfg, inp, robot_cfg.model, "identification")
     check_units(data, system.actuator_kinds(), names, "data")
     raw = read_log(data, system.n_actuators, names, "data", {})
     log_a, _ = to_actuator_space(raw, system, "data")
