@@ -111,3 +111,35 @@ def tx40_data(data, files) -> "Path | str":
     if missing:
         return f"TX40 data not found in {data} (missing {', '.join(missing)}); give --data"
     return data
+
+
+PUMA_CONFIG = """\
+# written by bench/{script}: {n} samples, train on [0, {n_train}), hold out [{n_train}, {n})
+[robot]
+model = "builtin:puma560"
+
+[data]
+{file_line}time = {{ column = "t" }}
+position = {{ columns = "q" }}
+effort = {{ columns = "tau" }}
+rows = [0, {n_train}]
+
+[validation]
+rows = [{n_train}, {n}]
+
+[processing]
+lowpass = {{ cutoff_hz = 20.0, order = 4, filter_effort = false }}
+
+[identification]
+method = "wls"
+
+[output]
+plots = {plots}
+"""
+
+
+def puma_config(script: str, n: int, *, file: str | None = None, plots: bool = False) -> str:
+    """The identify config the scaling benches use on a simulated PUMA 560 log of ``n`` samples:
+    WLS on the first 80 %, held out on the rest, a 20 Hz low-pass."""
+    return PUMA_CONFIG.format(script=script, n=n, n_train=int(0.8 * n),
+                              file_line=f'file = "{file}"\n' if file else "", plots="true" if plots else "false")

@@ -16,7 +16,7 @@ Method
   logs each. Every log is a full identification: nothing is shared between them but the trajectory.
 * Each log's job is what ``dynid fleet`` runs on a worker (:func:`dynid.fleet.jobs.run_log`: read,
   low-pass at 20 Hz, WLS on the first 80 % of rows, held-out scores and factors on the rest; one
-  BLAS thread). The template is in ``CONFIG``.
+  BLAS thread). The template is ``_util.puma_config``.
 * **Loop**: the jobs of the first ``n`` logs run one after the other in this process
   (``[run_log(job) for job in jobs]``), after one warm-up job (imports, caches).
 * **Dask**: a ``LocalCluster`` of 2 process workers, one thread each, started by
@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _util import median, print_machine, table
+from _util import median, print_machine, puma_config, table
 
 FS = 1000.0
 TORQUE_NOISE = (1.0, 1.5, 0.6, 0.08, 0.08, 0.05)  # N*m, as in `dynid demo`
@@ -70,29 +70,6 @@ MIN_SPEEDUP = 1.7
 MAX_SLOPE = 1.05
 WORKERS = 2
 
-CONFIG = """\
-# written by bench/fleet_scaling.py: {n} samples, train on [0, {n_train}), hold out [{n_train}, {n})
-[robot]
-model = "builtin:puma560"
-
-[data]
-time = {{ column = "t" }}
-position = {{ columns = "q" }}
-effort = {{ columns = "tau" }}
-rows = [0, {n_train}]
-
-[validation]
-rows = [{n_train}, {n}]
-
-[processing]
-lowpass = {{ cutoff_hz = 20.0, order = 4, filter_effort = false }}
-
-[identification]
-method = "wls"
-
-[output]
-plots = false
-"""
 
 # One log's footprint in a fresh interpreter: argv = fleet.toml. Prints base and peak VmHWM (kB).
 ONE_LOG = r"""
@@ -142,7 +119,7 @@ def write_logs(folder: Path, n_logs: int, n: int) -> None:
                                      "tau": tau + np.asarray(TORQUE_NOISE) * rng.standard_normal(tau.shape)})
         rows.append(f"r{i % ROBOTS},puma,{name}")
     (folder / "logs.csv").write_text("\n".join(rows) + "\n")
-    (folder / "puma.toml").write_text(CONFIG.format(n=n, n_train=int(0.8 * n)))
+    (folder / "puma.toml").write_text(puma_config("fleet_scaling.py", n))
     (folder / "fleet.toml").write_text('[fleet]\nlogs = "logs.csv"\n\n[models]\npuma = "puma.toml"\n')
 
 

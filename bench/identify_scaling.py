@@ -67,7 +67,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _util import median, print_machine, table
+from _util import median, print_machine, puma_config, table
 
 from dynid.model import load_robot
 from dynid.model.serial_dynamics import regressor
@@ -83,30 +83,6 @@ MAX_SLOPE = 1.1
 MEMORY_LIMIT_MB = 1500.0
 MAX_FLOOR_RATIO = 1.5  # identify / (regressor pass + per-joint QR) at the floor size (issue 20 item 8)
 
-CONFIG = """\
-# written by bench/identify_scaling.py: {n} samples, train on [0, {n_train}), validate on [{n_train}, {n})
-[robot]
-model = "builtin:puma560"
-
-[data]
-file = "log.npz"
-time = {{ column = "t" }}
-position = {{ columns = "q" }}
-effort = {{ columns = "tau" }}
-rows = [0, {n_train}]
-
-[validation]
-rows = [{n_train}, {n}]
-
-[processing]
-lowpass = {{ cutoff_hz = 20.0, order = 4, filter_effort = false }}
-
-[identification]
-method = "wls"
-
-[output]
-plots = {plots}
-"""
 
 # Runs in a fresh interpreter: argv = config, out_dir, "time" | "profile".
 WRAPPER = r"""
@@ -256,7 +232,7 @@ def prepare(workdir: Path, n: int, plots: bool = False) -> tuple[Path, bool]:
         write_log(log, n)
         written = True
     cfg = d / "config.toml"
-    cfg.write_text(CONFIG.format(n=n, n_train=int(0.8 * n), plots="true" if plots else "false"))
+    cfg.write_text(puma_config("identify_scaling.py", n, file="log.npz", plots=plots))
     return cfg, written
 
 
