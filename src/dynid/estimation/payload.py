@@ -49,6 +49,9 @@ Experiments with and without the payload identify the arm and the payload togeth
 factors hold the arm's base columns (shared) and the 10 payload columns (zero where the payload is not
 mounted), the experiments' factors are stacked per (experiment, channel) as :mod:`dynid.pipeline.experiments`
 stacks them, and WLS (or the physically consistent WLS over every body and the payload) runs on them.
+``dynid identify`` reaches it through ``[[data]] payload = true`` and a ``[payload]`` table
+(:mod:`dynid.pipeline.joint_payload`: the configured OLS or WLS, the pseudo-inertia constraint on the
+payload block only; README "Payloads").
 """
 
 from __future__ import annotations
