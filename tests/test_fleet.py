@@ -235,6 +235,8 @@ def test_pooling_is_the_wls_of_the_stacked_rows(run, fleet_dir):
     from dynid.fleet.jobs import factor_sse
 
     for log in logs:
+        # the residual sum from the R factor against identify's from the rows: both rounding, amplified by the
+        # cancellation |y|^2 / rss (~1e4 with 1 % noise) to ~1e-12 relative; 1e-9 leaves 1e3
         np.testing.assert_allclose(np.sqrt(factor_sse(log.factors, log.params) / log.rows), log.rmse, rtol=1e-9)
 
 
