@@ -12,6 +12,13 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("DYNID_SHARED_DATA", REPO.parent / "shared" / "data"))
+GUIDE = REPO / "docs" / "guide"  # the user guide: one MyST page per topic (README.md points into it)
+
+
+def doc_text(name: str) -> str:
+    """The text of the user guide's page ``docs/guide/<name>.md`` (a page starts with its ``#`` title;
+    the README's ``##`` sections are page titles there, its ``###`` sections ``##``)."""
+    return (GUIDE / f"{name}.md").read_text()
 
 
 _BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")

@@ -231,7 +231,8 @@ def test_stewart_from_its_mjcf_is_simulated_and_identified_from_configs(tmp_path
     intervals: at most 11 of the 118 base parameters outside (8 in this draw), none beyond 4.5 std.
 
     The seeds stay the example's (not conftest.seed): the test checks the walk-through as shipped,
-    whose figures README.md records (the ball's 27, 5.7 and 20 deg; 3.0 % against 9.0 %; 8 outside).
+    whose figures docs/guide/parallel-robots.md records (the ball's 27, 5.7 and 20 deg; 3.0 % against 9.0 %;
+    8 outside).
     They are properties of this draw, not of every one: over 10 other draws of the two motions the
     identified model's held-out error was 0.23-0.92 of the nominal one's and worse on one or two
     struts in two of them (the held-out motion leaves the training motion's excitation), and for

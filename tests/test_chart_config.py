@@ -159,8 +159,9 @@ IDENTIFY = _example_body("identify.toml").replace("{", "{{").replace("}", "}}") 
 
 @pytest.mark.numerics
 def test_a_redundant_robot_from_its_own_files_is_simulated_and_identified_from_configs(fivebar3, capsys):
-    """The walk-through as shipped: its seeds stay the example's (not conftest.seed), as README.md
-    records its figures (2.6 % against 33.7 %, 0 of 19 outside): those are this draw's."""
+    """The walk-through as shipped: its seeds stay the example's (not conftest.seed), as
+    docs/guide/parallel-robots.md records its figures (2.6 % against 33.7 %, 0 of 19 outside): those
+    are this draw's."""
     d = fivebar3.parent
     (d / "sim.toml").write_text(ROBOT.format(model=fivebar3.name) + SIMULATE)
     assert main(["simulate", str(d / "sim.toml"), "--out", str(d / "sim")]) == 0

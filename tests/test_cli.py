@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import dynid_command, snapshot
+from conftest import doc_text, dynid_command, snapshot
 
 from dynid.model import load_robot, robot_base_parameters
 from dynid.simulation import FourierTrajectory, simulate_serial
@@ -76,7 +76,7 @@ def write_log(path: Path, table: np.ndarray) -> Path:
 
 
 def config(train: Path | str, valid: Path | str, *, plots: bool = False, lowpass: bool = True, extra: str = "") -> str:
-    """A configuration of builtin:puma560 logs (the shape of README's example)."""
+    """A configuration of builtin:puma560 logs (the shape of docs/guide/configuration.md's example)."""
     lp = "lowpass = { cutoff_hz = 5.0, order = 4, filter_effort = false }" if lowpass else ""
     return f"""\
 [robot]
@@ -269,7 +269,7 @@ case("info_hexapod_text")(lambda d, logs: [["info", "builtin:hexapod"]])
 
 
 def _readme_mjcf(d: Path, name: str, old: str, new: str) -> str:
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text().split("## Parallel robots", 1)[1]
+    text = doc_text("parallel-robots")  # the guide's MJCF example (docs/guide/parallel-robots.md)
     xml = re.search(r"```xml\n(.*?)```", text, re.S).group(1)
     assert old in xml
     (d / name).write_text(xml.replace(old, new))

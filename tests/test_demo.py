@@ -23,7 +23,7 @@ from dynid.pipeline.demo import DEMO_SEED
 def _run(root: Path, name: str) -> tuple[subprocess.CompletedProcess, Path]:
     (root / name).mkdir()
     out = root / name / "out"
-    # the sensor noise from conftest.seed (the README's figures with the default 2026); the true robot is fixed
+    # the sensor noise from conftest.seed (docs/guide/demo.md's figures with the default 2026); the true robot is fixed
     return run_dynid(["demo", "--out", str(out), "--seed", str(seed(DEMO_SEED)), "-q"], root / name), out
 
 

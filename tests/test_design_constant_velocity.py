@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import seed
+from conftest import doc_text, seed
 from dynid.cli import main
 from dynid.config.design import parse_design_config
 from dynid.config.simulate import parse_simulate_config
@@ -290,15 +290,15 @@ def test_no_speed_fits_is_an_error(tmp_path):
 
 
 def test_readme_block_and_example_design():
-    """The README's constant_velocity block and examples/friction/design.toml run (no files
-    written), and the example's simulate config replays a design.json."""
+    """The guide's constant_velocity block (docs/guide/excitation.md) and examples/friction/design.toml
+    run (no files written), and the example's simulate config replays a design.json."""
     import re
 
     from dynid.config.design import load_design_config
     from dynid.config.simulate import load_simulate_config
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    text = readme.split('### Friction experiments: `kind = "constant_velocity"`', 1)[1].split("\n## ", 1)[0]
+    page = doc_text("excitation")  # the guide's page "Excitation design"
+    text = page.split('\n## Friction experiments: `kind = "constant_velocity"`', 1)[1].split("\n## ", 1)[0]
     block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
     out = run_design(parse_design_config(tomllib.loads(block), EXAMPLES))
     assert len(out.design.joints) == 6 and all(len(j.levels) + len(j.dropped) == 16 for j in out.design.joints)

@@ -1,24 +1,25 @@
-"""The README's configuration example is a valid configuration (the docs stay in step)."""
+"""The documentation's examples are valid (the docs stay in step): the configuration example of the user
+guide (docs/guide/configuration.md), its parallel-robot, simulate and design examples, and README.md's
+opening commands."""
 
 from __future__ import annotations
 
 import re
 import tomllib
 
-from conftest import REPO
+from conftest import REPO, doc_text
 
 from dynid.config import parse_config
 
 
 def test_readme_config_example_parses():
-    text = (REPO / "README.md").read_text()
-    section = text.split("## Configuration", 1)[1]
+    section = doc_text("configuration")  # the guide's page "Configuration"
     block = re.search(r"```toml\n(.*?)```", section, re.S).group(1)
     cfg = parse_config(tomllib.loads(block), REPO / "examples" / "tx40")
     assert cfg.robot.couplings[0].joints == (5, 6)
     assert cfg.processing.decimate_method == "parallel"
     assert cfg.validation.rows == (29250, 45000)
-    # every key the README shows uncommented is understood, and the README mentions every section
+    # every key the page shows uncommented is understood, and the page mentions every section
     for section_name in ("[robot]", "[data]", "[validation]", "[processing]", "[identification]", "[output]"):
         assert section_name in block
 
@@ -30,8 +31,7 @@ def test_readme_opens_with_the_two_commands():
 
 
 def _parallel_section() -> str:
-    text = (REPO / "README.md").read_text()
-    return text.split("## Parallel robots", 1)[1].split("\n## ", 1)[0]
+    return doc_text("parallel-robots")  # the guide's page "Parallel robots"
 
 
 def test_readme_mjcf_example_is_a_mechanism(tmp_path):
@@ -62,14 +62,14 @@ def test_readme_closure_yaml_example_loads_the_gepetto_five_bar(tmp_path, shared
 
 def test_readme_python_example_runs(capsys):
     code = re.search(r"```python\n(.*?)```", _parallel_section(), re.S).group(1)
-    exec(compile(code, "README.md", "exec"), {})
+    exec(compile(code, "docs/guide/parallel-robots.md", "exec"), {})
     assert capsys.readouterr().out.strip() == "25 projected (2, 2)"
 
 
 def test_readme_simulate_example_parses_and_matches_the_twin():
     from dynid.config.simulate import load_simulate_config, parse_simulate_config
 
-    text = (REPO / "README.md").read_text().split("## Virtual experiments", 1)[1].split("\n## ", 1)[0]
+    text = doc_text("simulation")  # the guide's page "Virtual experiments"
     block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
     cfg = parse_simulate_config(tomllib.loads(block), REPO)
     twin = load_simulate_config(REPO / "examples" / "twins" / "shang2dof_circle.toml")
@@ -81,7 +81,7 @@ def test_readme_simulate_example_parses_and_matches_the_twin():
 def test_readme_design_example_parses():
     from dynid.config.design import parse_design_config
 
-    text = (REPO / "README.md").read_text().split("## Excitation design", 1)[1].split("\n## ", 1)[0]
+    text = doc_text("excitation")  # the guide's page "Excitation design" (its first block)
     block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
     cfg = parse_design_config(tomllib.loads(block), REPO)
     assert (cfg.criterion, cfg.harmonics, cfg.starts) == ("d_opt", 5, 2)
@@ -89,13 +89,14 @@ def test_readme_design_example_parses():
 
 
 def test_readme_parallel_robot_with_a_drive_train_parses(tmp_path):
-    """The README's 3-RPS through ball screws: a mechanism with gear ratios, drive gains, offsets
-    and motor currents builds one system whose drive train maps motor signals to its legs."""
+    """The guide's 3-RPS through ball screws (docs/guide/parallel-robots.md, "Identifying one"): a
+    mechanism with gear ratios, drive gains, offsets and motor currents builds one system whose drive
+    train maps motor signals to its legs."""
     import numpy as np
 
     from dynid.pipeline.data import build_system
 
-    text = (REPO / "README.md").read_text().split("### Identifying one", 1)[1]
+    text = doc_text("parallel-robots").split("\n## Identifying one", 1)[1]
     block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
     cfg = parse_config(tomllib.loads(block), tmp_path)
     system = build_system(cfg.robot)
@@ -104,3 +105,40 @@ def test_readme_parallel_robot_with_a_drive_train_parses(tmp_path):
     np.testing.assert_allclose(np.diag(tr.matrix), 2 * np.pi / 0.005, rtol=1e-6)
     assert cfg.data.effort.kind == "current" and cfg.data.position.side == "motor"
     assert [t.name for t in system.model.terms] == [f"{e}_P{k}" for k in (1, 2, 3) for e in ("Ia", "fv", "fc")]
+
+
+def test_readme_is_short_and_points_into_the_guide():
+    """README.md is the front page (at most 250 lines); the manual is docs/guide/, whose index lists
+    every page, and every docs/guide link of the README names a page that exists."""
+    text = (REPO / "README.md").read_text()
+    assert len(text.splitlines()) <= 250
+    pages = {p.stem for p in (REPO / "docs" / "guide").glob("*.md")}
+    index = doc_text("index")
+    assert all(f"\n{page}\n" in index for page in pages - {"index"}), sorted(pages)
+    linked = set(re.findall(r"\]\(docs/guide/([\w-]+)\.md", text))
+    assert linked and linked <= pages, sorted(linked - pages)
+
+
+def test_guide_pages_have_one_title_consecutive_levels_and_resolving_links():
+    """Each guide page opens with one ``#`` title, its heading levels never skip one, and its links to
+    other pages of the guide (``page.md#anchor``) name a page and a heading that exist (GitHub-style
+    heading slugs, as MyST's ``myst_heading_anchors`` writes them)."""
+    def slug(heading: str) -> str:
+        return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+    headings = {}
+    for page in sorted((REPO / "docs" / "guide").glob("*.md")):
+        levels, fenced = [], False
+        for line in page.read_text().splitlines():
+            if line.startswith("```"):
+                fenced = not fenced
+            elif not fenced and (m := re.match(r"^(#+) (.*)$", line)):
+                levels.append(len(m.group(1)))
+                headings.setdefault(page.stem, set()).add(slug(m.group(2)))
+        assert levels[0] == 1 and levels.count(1) == 1, page.name
+        assert all(b <= a + 1 for a, b in zip(levels, levels[1:])), page.name
+    for page in sorted((REPO / "docs" / "guide").glob("*.md")):
+        for target, anchor in re.findall(r"\]\(([\w-]*)(?:\.md)?(?:#([\w-]+))?\)", page.read_text()):
+            target = target or page.stem
+            assert target in headings, (page.name, target)
+            assert not anchor or anchor in headings[target], (page.name, target, anchor)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_dynid, seed
+from conftest import doc_text, run_dynid, seed
 
 from dynid._files import save_npz
 from dynid.config.fleet import load_fleet_config
@@ -338,13 +338,13 @@ def test_the_cli_reruns_byte_identical_and_refuses_bad_input(fleet_dir, cluster,
 
 @pytest.mark.numerics
 def test_the_fleet_example_runs_as_the_readme_says(tmp_path):
-    """README "Fleets": its commands, as written there, in a copy of examples/fleet (a LocalCluster of its own)."""
+    """The guide's "Fleets" (docs/guide/fleets.md): its commands, as written there, in a copy of examples/fleet
+    (a LocalCluster of its own)."""
     import subprocess
 
     ex = tmp_path / "fleet"
     shutil.copytree(ROOT / "examples" / "fleet", ex, ignore=shutil.ignore_patterns("logs", "logs.csv", "out"))
-    readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("## Fleets"):]
+    section = doc_text("fleets")
     block = section[section.index("```bash") + 7:section.index("```", section.index("```bash") + 7)]
     commands = [line.split("#")[0].split() for line in block.strip().splitlines() if line.strip()]
     assert [c[0] for c in commands] == ["python", "dynid"]

@@ -7,7 +7,7 @@ plants: :func:`dynid.pipeline.simulate._mechanism_friction`):
 
 * ``builtin:fivebar`` (2 actuators, 2 DOF: the curves reach the channels through the identity,
   per-actuator refits);
-* the README's redundant ``planar3`` (3 actuators, 2 DOF, projected equations
+* the guide's redundant ``planar3`` (docs/guide/friction.md; 3 actuators, 2 DOF, projected equations
   :math:`G_a^T\\tau_a`: each equation mixes the actuators' friction, one joint nonlinear refit
   over all curves).
 

@@ -1,6 +1,6 @@
 """The array API ``dynid.identify_arrays`` (issue 20, item 5): the pipeline of ``dynid identify``
 on arrays, equal to the command on the same data written to CSV; options map to config keys;
-unknown keywords are refused; the notebook view; the README's example runs."""
+unknown keywords are refused; the notebook view; the guide's example (docs/guide/python.md) runs."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import re
 
 import numpy as np
 import pytest
-from conftest import REPO, seed
+from conftest import REPO, doc_text, seed
 
 import dynid
 from dynid.cli import main
@@ -156,20 +156,20 @@ def test_notebook_view_shows_estimates_with_std_and_validation_against_nominal(l
 
 
 def _readme_example() -> str:
-    text = (REPO / "README.md").read_text()
-    section = text.split("### From Python: arrays in, the identify result out", 1)[1].split("\n## ", 1)[0]
+    section = doc_text("python")  # the guide's page "From Python: arrays in, the identify result out"
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
 @pytest.mark.numerics
 def test_readme_array_example_runs(capsys):
-    """The README's example as written: its seeds are the README's (not conftest.seed), one draw."""
+    """The guide's example (docs/guide/python.md) as written: its seeds are the page's (not conftest.seed),
+    one draw."""
     scope: dict = {}
-    exec(compile(_readme_example(), "README.md", "exec"), scope)
+    exec(compile(_readme_example(), "docs/guide/python.md", "exec"), scope)
     out = scope["out"]
     printed = capsys.readouterr().out
     assert out.prior["verdict"] in printed
-    # the story the README tells: the identified model beats the nominal one on held-out data,
+    # the story the page tells: the identified model beats the nominal one on held-out data,
     # its errors are the simulated noise, the true viscous friction lies in the intervals
     assert out.prior["beats_nominal"] and out.validation.label == "held-out"
     np.testing.assert_allclose(out.validation.rmse, 0.3, rtol=0.1)

@@ -102,8 +102,8 @@ def test_shang2dof_with_an_assumed_distribution(shang_logs):
 @pytest.mark.numerics
 def test_fivebar_mjcf_identified(tmp_path):
     """A non-redundant mechanism from MJCF: actuator torques directly, with the row selection the
-    README recommends for parallel robots with Coulomb friction (min_velocity, reversal_guard):
-    without it the simulator's reversals bias the Coulomb terms by 2-11 % (4-16 reported std) and
+    guide recommends for parallel robots with Coulomb friction (docs/guide/parallel-robots.md:
+    min_velocity, reversal_guard): without it the simulator's reversals bias the Coulomb terms by 2-11 % (4-16 reported std) and
     some inertial terms by up to 11 %, depending on the draw of the trajectory (dynid.simulation.control,
     bench/README §7-8); with it the reported intervals are honest (max |z| 1.3-3.7 over 9 draws)."""
     sim = """

@@ -13,18 +13,17 @@ from __future__ import annotations
 import json
 import re
 import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
 from _bad_inputs import IDENTIFY, Work, assert_refused, make_table, snapshot
+from conftest import doc_text
 
 from dynid.cli import main
 
 rosbags = pytest.importorskip("rosbags", reason="the [ros] extra (rosbags) is not installed")
 from _bags import EPOCH_NS, BagWriter, stamps_ns, write_table_bag  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
 
 BAG_DATA = """\
 [data]
@@ -318,12 +317,13 @@ def test_data_root_errors(root, fragments, tmp_path, table, capfd, monkeypatch):
     _refused(tmp_path, table, capfd, CSV_DATA, *fragments, top=f"data_root = {root}\n\n")
 
 
-# ---------------------------------------------------------------------- the README shows each input
+# ------------------------------------------------------------------------ the guide shows each input
 def test_readme_shows_each_new_input(tmp_path, table):
-    """The README's "Other log inputs" snippets: one per input, each a [data] table the schema accepts."""
+    """The guide's "Other log inputs" snippets (docs/guide/data.md): one per input, each a [data] table the
+    schema accepts."""
     from dynid.config import parse_config
 
-    text = (REPO / "README.md").read_text().split("### Other log inputs", 1)[1].split("\n## ", 1)[0]
+    text = doc_text("data").split("\n## Other log inputs", 1)[1].split("\n## ", 1)[0]
     blocks = re.findall(r"```toml\n(.*?)```", text, re.S)
     shown = "\n".join(blocks)
     for needle in ("run.bag", ".mcap", 'topic = "/joint_states"', 'time = "receive"', ".parquet", "header = false",

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import REPO, seed
+from conftest import REPO, doc_text, seed
 from dynid.cli import main
 from dynid.config.montecarlo import load_montecarlo_config, parse_montecarlo_config
 from dynid.config.simulate import load_simulate_config
@@ -227,7 +227,7 @@ def test_example_config_parses():
 
 
 def test_readme_montecarlo_section():
-    text = (REPO / "README.md").read_text().split("## Monte Carlo robustness", 1)[1].split("\n## ", 1)[0]
+    text = doc_text("montecarlo")  # the guide's page "Monte Carlo robustness"
     assert "dynid montecarlo" in text and "the motion is simulated once; each trial redraws the sensor noise" in text
     block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
     cfg = parse_montecarlo_config(tomllib.loads(block), REPO / "examples" / "montecarlo")

@@ -7,7 +7,7 @@
   covariance the intervals cover less (the arm's share is real);
 * a mount that the motion cannot fully excite (arm3's last body) reports which directions it identifies;
 * the joint fit of a log without and a log with the payload recovers the arm and the payload;
-* ``dynid payload`` on the example (README "Payloads"): truth in the intervals, mass within 2 %, payload.urdf
+* ``dynid payload`` on the example (docs/guide/payloads.md): truth in the intervals, mass within 2 %, payload.urdf
   merged into the arm's exported URDF and loaded by pinocchio, payload.xml loaded by MuJoCo, both with the
   identified inertia; bad input refused in one line.
 """
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import seed
+from conftest import doc_text, seed
 from scipy import stats
 
 from dynid.estimation import ProblemBuilder
@@ -217,13 +217,13 @@ def test_joint_fit_of_a_log_without_and_a_log_with_the_payload():
 # ------------------------------------------------------------------------------------ dynid payload (CLI)
 @pytest.fixture(scope="module")
 def example(tmp_path_factory):
-    """README "Payloads": the four commands, as written there, in a copy of examples/payload."""
+    """The guide's "Payloads" (docs/guide/payloads.md): the four commands, as written there, in a copy of
+    examples/payload."""
     from conftest import run_dynid
 
     ex = tmp_path_factory.mktemp("payload") / "payload"
     shutil.copytree(ROOT / "examples" / "payload", ex)
-    readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("## Payloads"):]
+    section = doc_text("payloads")
     block = section[section.index("```bash") + 7:section.index("```", section.index("```bash") + 7)]
     commands = [line.split("#")[0].split()[1:] for line in block.strip().splitlines() if line.startswith("dynid ")]
     assert len(commands) == 4
@@ -334,11 +334,12 @@ def test_an_origin_moves_the_exported_frame_not_the_payload(example):
 # ------------------------------------------------------------------------------------ joint mode (dynid identify)
 @pytest.fixture(scope="module")
 def joint(example):
-    """README "Payloads", "Jointly with the arm": its command run in the example (after the two simulations)."""
+    """The guide's "Payloads", "Jointly with the arm": its command run in the example (after the two
+    simulations)."""
     from conftest import run_dynid
 
-    readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("**Jointly with the arm.**"):]
+    page = doc_text("payloads")
+    section = page[page.index("**Jointly with the arm.**"):]
     block = section[section.index("```bash") + 7:section.index("```", section.index("```bash") + 7)]
     commands = [line.split("#")[0].split()[1:] for line in block.strip().splitlines() if line.startswith("dynid ")]
     assert commands == [["identify", "joint.toml", "--out", "joint_id"]]

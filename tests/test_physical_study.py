@@ -125,8 +125,8 @@ def test_parallel_twin(capsys):
         # nothing beats the noise: every row's noise floor is the configured 5 N a leg (+-10 %)
         assert 0.9 * lim["noise"] < b["noise"] < 1.1 * lim["noise"], (label, b)
         assert b["truth"] > 0.95 * b["noise"] and b["total"] > 0.95 * b["noise"], (label, b)
-    # the README's default selection (min_velocity, guard "auto") keeps rows where the truth is at
-    # the noise, and there the CAD model is within 2x of the noise: the noise alone is above half
+    # the guide's default selection (docs/guide/parallel-robots.md: min_velocity, guard "auto") keeps
+    # rows where the truth is at the noise, and there the CAD model is within 2x of the noise: the noise alone is above half
     # the CAD row, so no model can reach 0.5 x CAD on those rows
     d = sel["WLS+LMI, min_velocity 2 v_S, guard auto"]
     assert d["truth"] < 1.1 * d["noise"], d

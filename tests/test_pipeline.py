@@ -102,7 +102,7 @@ def test_irregular_timestamps_are_resampled_and_recorded(tmp_path):
 
     The truth has no Coulomb friction here: interpolating a torque that jumps at velocity
     reversals from irregular instants misplaces the jump by up to one sample, a bias that
-    the resampling cannot remove (README: "Irregular timestamps").
+    the resampling cannot remove (docs/guide/computes.md, "Processing notes").
     """
     train, truth = _simulate(3, 40.0, jitter=0.3, coulomb=False)
     valid, _ = _simulate(4, 15.0, jitter=0.3, coulomb=False)

@@ -1,4 +1,4 @@
-"""The README's quickstart runs as written: ``dynid init`` + ``dynid identify`` on the shipped log of
+"""The quickstart (docs/guide/quickstart.md) runs as written: ``dynid init`` + ``dynid identify`` on the shipped log of
 examples/serial_arm, then the two commands that made that log (``dynid design`` -> ``dynid
 simulate``), each exiting 0 without a warning, and their outputs agree with each other and with the
 shipped files (the identified base parameters are the truth's, in its order; the simulated
@@ -12,14 +12,13 @@ import shutil
 
 import numpy as np
 
-from conftest import REPO
+from conftest import REPO, doc_text
 from dynid.cli import main
 
 
 def _quickstart() -> list[list[list[str]]]:
-    """The bash blocks of the README's quickstart section, as argument lists."""
-    text = (REPO / "README.md").read_text()
-    section = text.split("## Quickstart", 1)[1].split("\n## ", 1)[0]
+    """The bash blocks of the guide's quickstart page, as argument lists."""
+    section = doc_text("quickstart")
     blocks = [b.split("```", 1)[0] for b in section.split("```bash\n")[1:]]
     return [[shlex.split(line, comments=True) for line in b.splitlines() if line.strip()] for b in blocks]
 
@@ -42,16 +41,16 @@ def test_the_readme_quickstart_runs_as_written(tmp_path, monkeypatch, capsys):
     work = tmp_path / "serial_arm"
     shutil.copytree(REPO / "examples" / "serial_arm", work,
                     ignore=shutil.ignore_patterns("design", "sim", "id", "identify.toml"))
-    monkeypatch.chdir(work)  # the README runs them from inside the folder
+    monkeypatch.chdir(work)  # the page runs them from inside the folder
     _run(first, capsys)
     truth = json.loads((work / "truth.json").read_text())["base_parameters"]
     result = json.loads((work / "id" / "result.json").read_text())
     # init models what the log and the description say: torques and a URDF without rotor inertia give
-    # no Ia (link-side torque sensors, README "Starting a config"); every other base parameter is the truth's
+    # no Ia (link-side torque sensors, docs/guide/init.md); every other base parameter is the truth's
     names = [p["name"] for p in result["params"]]
     assert names == [n for n in truth["names"] if n in names] and set(truth["names"]) - set(names) <= {"Ia1", "Ia2", "Ia3"}
     assert result["validation"]["kind"] == "held-out"
-    # the README's claim: the identified model predicts the held-out quarter better than the URDF's
+    # the page's claim: the identified model predicts the held-out quarter better than the URDF's
     # (4.92 % against 9.31 % mean relative RMSE on the shipped log: the 10 % perturbation is far
     # above the estimate's error)
     assert result["prior_comparison"]["beats_nominal"]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import seed
+from conftest import doc_text, seed
 from scipy import stats
 
 from dynid._files import save_npz
@@ -244,7 +244,8 @@ def test_each_experiment_converts_its_currents_with_its_own_drive_gains(logs, tm
 
 
 def test_the_several_logs_example_runs_as_the_readme_says(tmp_path):
-    """README "Several logs in one identification": the three commands, as written there, in a copy of the folder."""
+    """The guide's "Several logs in one identification" (docs/guide/several-logs.md): the three commands, as
+    written there, in a copy of the folder."""
     import json
     import shutil
 
@@ -252,8 +253,7 @@ def test_the_several_logs_example_runs_as_the_readme_says(tmp_path):
 
     ex = tmp_path / "several_logs"
     shutil.copytree(ROOT / "examples" / "several_logs", ex)
-    readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("## Several logs in one identification"):]
+    section = doc_text("several-logs")
     block = section[section.index("```bash") + 7:section.index("```", section.index("```bash") + 7)]
     commands = [line.split("#")[0].split()[1:] for line in block.strip().splitlines() if line.startswith("dynid ")]
     assert len(commands) == 3
