@@ -71,6 +71,8 @@ def test_required_keys_types_and_choices_come_from_the_parser(sections):
     assert "wls" in ident["method"].choices and "didim" in ident["method"].choices
     assert ident["physical_consistency"].type == "boolean" and ident["physical_consistency"].default == "false"
     assert {"data", "validation", "robot"} == {k.name for k in sections[()].keys if k.required}
+    assert "hac" in ident["covariance_lags"].condition and ident["covariance_lags"].type == "integer"
+    assert "physical_consistency = true" in ident["margin"].condition
 
 
 def test_the_rendered_page_is_valid_restructuredtext_naming_every_key(ref, sections):

@@ -8,7 +8,10 @@ Nothing here lists a key by hand. The schema is asked through the public parser
   included, is found by recursion from the top level;
 * required keys: an empty table is refused with "missing required keys [...]";
 * the type and the allowed values of a key: a value of the wrong type (the string ``"zz_probe"``) is
-  refused with "expected a number", "must be one of [...]", ...;
+  refused with "expected a number", "must be one of [...]", ...; a key that applies only when another
+  is set is refused first for that ("... is for method = 'iv' or 'didim'", "... set
+  identification.physical_consistency = true"): the probe sets it as the message says and asks again,
+  and the reference states the condition;
 * the defaults: the values the parser fills in for a minimal config (``dynid.config.Config`` and its
   dataclasses), and else the default of the matching dataclass field;
 * the description: the comment written beside that field in the dataclass's source, where there is
@@ -53,6 +56,7 @@ class Key:
     default: str = ""
     required: bool = False
     description: str = ""
+    condition: str = ""  # "is for covariance = 'hac'": when the key applies
     table: bool = False  # a nested table, documented as its own section
 
 
@@ -125,20 +129,50 @@ def required_keys(path: tuple[str, ...]) -> set[str]:
     return set(_names(m.group("keys"))) if m else set()
 
 
-def _kind(path: tuple[str, ...], key: str) -> tuple[str, tuple[str, ...]]:
-    """The type a wrong value's error names, and the allowed values it lists."""
-    msg = _error(_with(path, PROBE, key)) or ""
+_SET = re.compile(r"set (?P<key>[\w.]+) = (?P<value>\S+)$")
+_FOR = re.compile(r" is for (?P<key>\w+) = (?P<value>'[^']*')")
+
+
+def _set(doc: dict[str, Any], dotted: str, value: Any) -> None:
+    *tables, key = dotted.split(".")
+    t = doc
+    for name in tables:
+        t = t.setdefault(name, {})
+    t[key] = value
+
+
+def _kind(path: tuple[str, ...], key: str) -> tuple[str, tuple[str, ...], str]:
+    """The type a wrong value's error names, the allowed values it lists, and the condition under which
+    the key applies (when the parser first asked for another key: "is for method = 'iv' ...")."""
+    doc = _with(path, PROBE, key)
     where = ".".join((*path, key))
-    m = _CHOICES.search(msg)
-    if m and where in msg:
-        return "string", tuple(_names(m.group("keys")))
-    for pattern, name in (("expected a finite number", "number"), ("expected a number", "number"),
-                          ("expected an integer", "integer"), ("expected true or false", "boolean"),
-                          ("expected a list", "list"), ("expected a table", "table"),
-                          ("give a number or one per", "number or list"), ("not found", "path")):
-        if pattern in msg and where in msg:
-            return name, ()
-    return "", ()
+    condition = ""
+    for _ in range(3):  # a key that applies only with another key set: set it, as the message says, and ask again
+        msg = _error(doc) or ""
+        m = _CHOICES.search(msg)
+        if m and where in msg:
+            return "string", tuple(_names(m.group("keys"))), condition
+        for pattern, name in (("expected a finite number", "number"), ("expected a number", "number"),
+                              ("expected an integer", "integer"), ("expected true or false", "boolean"),
+                              ("expected a list", "list"), ("expected a table", "table"),
+                              ("give a number or one per", "number or list"), ("not found", "path")):
+            if pattern in msg and where in msg:
+                return name, (), condition
+        needs = _SET.search(msg) if msg.startswith(where) else None
+        if needs is None and msg.startswith(where):
+            needs = _FOR.search(msg)
+            if needs is not None:
+                condition = "only with " + msg[len(where):].split(", not ")[0].strip().removeprefix("is for ")
+        if needs is None:
+            break
+        import tomllib
+
+        target = needs.group("key") if "." in needs.group("key") else ".".join((*path, needs.group("key")))
+        _set(doc, target, tomllib.loads(f"v = {needs.group('value')}")["v"])
+        if not condition:
+            own = target.removeprefix(".".join(path) + ".") if path else target
+            condition = f"only with {own} = {needs.group('value')}"
+    return "", (), condition
 
 
 # ---------------------------------------------------------------------- the dataclasses behind a table
@@ -266,7 +300,7 @@ def collect() -> list[Section]:
                 key.type = "table"
                 subtables.append(name)
             else:
-                key.type, key.choices = _kind(path, name)
+                key.type, key.choices, key.condition = _kind(path, name)
                 key.default = "" if key.required else _default(name, obj, cls)
             key.description = comments.get(name, comments.get(name.removeprefix("covariance_"), ""))
             if not key.type and cls is not None:
@@ -310,8 +344,8 @@ def to_rst(sections: list[Section]) -> str:
     for s in sections:
         title = s.title
         lines += [title, "-" * len(title), ""]
-        if s.doc:
-            lines += [_rst_escape(" ".join(s.doc.split())), ""]
+        if s.doc:  # reStructuredText already (a docstring); its roles as literals, so it reads outside Sphinx too
+            lines += [re.sub(r":[\w:]+:`~?([^`]+)`", r"``\1``", " ".join(s.doc.split())), ""]
         lines += [".. list-table::", "   :header-rows: 1", "   :widths: 18 16 16 50", "",
                   "   * - key", "     - type", "     - default", "     - description"]
         for k in s.keys:
@@ -320,6 +354,8 @@ def to_rst(sections: list[Section]) -> str:
                 type_ += ": " + " | ".join(f"``{c}``" for c in k.choices)
             default = "**required**" if k.required else (f"``{k.default}``" if k.default else "")
             desc = _rst_escape(k.description)
+            if k.condition:
+                desc = f"*({_rst_escape(k.condition)})* " + desc
             if k.table:
                 sub = "[" + ".".join((*s.path, k.name)) + "]"
                 desc = (desc + " " if desc else "") + f"(a table: see `{sub}`_)"
