@@ -7,14 +7,14 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 LOCK   := requirements.lock
-EXTRAS := test,plot,sdp,montecarlo,learning,parquet,ros
+EXTRAS := test,plot,sdp,montecarlo,learning,parquet,ros,docs
 # the constraints reach pip's isolated build environment too (setuptools, wheel)
 PIP    := PIP_CONSTRAINT=$(CURDIR)/$(LOCK) $(BIN)/python -m pip
 # test workers: 2 by default (CI machines have 2 cores), one test module per worker at a time
 # (a module fixture runs once); TEST_WORKERS=0 runs everything in one process
 TEST_WORKERS ?= 2
 
-.PHONY: setup demo test test-robust bench lock clean
+.PHONY: setup demo test test-robust docs docs-clean bench lock clean
 
 setup: $(STAMP)
 
@@ -54,6 +54,16 @@ test: setup
 test-robust: setup
 	TEST_WORKERS=$(TEST_WORKERS) $(BIN)/python tests/robust.py
 
+# the documentation (docs/): Sphinx with the docs extra (part of EXTRAS, so `make setup` installed it from
+# the lock); the config reference and the API stubs are generated, the tutorials executed, at build time;
+# every warning is an error. Output: docs/_build/html. A clean build: `make docs-clean docs`.
+DOCS_OPTS ?=
+docs: setup
+	$(BIN)/python -m sphinx -b html -W --keep-going -q $(DOCS_OPTS) docs docs/_build/html
+
+docs-clean:
+	rm -rf docs/_build docs/auto_tutorials docs/reference/api/generated docs/sg_execution_times.rst
+
 bench: setup
 	$(BIN)/python bench/regressor_throughput.py
 	$(BIN)/python bench/identify_scaling.py
@@ -63,6 +73,6 @@ bench: setup
 	$(BIN)/python bench/montecarlo_scaling.py
 
 clean:
-	rm -rf $(VENV) out build src/*.egg-info .pytest_cache
+	rm -rf $(VENV) out build src/*.egg-info .pytest_cache docs/_build docs/auto_tutorials docs/reference/api/generated
 
 comma := ,
