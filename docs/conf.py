@@ -33,6 +33,7 @@ extensions = [
     "myst_parser",
     "sphinx_gallery.gen_gallery",
     "dynid_config_reference",
+    "dynid_bench_pages",  # bench/README.md cut into the studies pages (studies/generated/)
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
