@@ -21,7 +21,9 @@ import numpy as np
 from dynid._typing import FloatArray
 from dynid.config import IDENTIFICATION_KEYS, PROCESSING_KEYS, ROBOT_KEYS, parse_config
 from dynid.errors import DynidError, InputError
-from dynid.pipeline.identification import IdentifyOutcome, Progress, identify
+from dynid.pipeline.identification import identify
+from dynid.pipeline.outcome import IdentifyOutcome
+from dynid.pipeline.rows import Progress
 
 __all__ = ["ArrayTable", "identify_arrays", "OPTION_SECTIONS"]
 

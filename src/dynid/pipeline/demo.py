@@ -37,7 +37,10 @@ from dynid.config import load_config
 from dynid.config.simulate import parse_simulate_config
 from dynid.io.output import staged_output
 from dynid.model.robots import build_mechanism
-from dynid.pipeline.identification import IdentifyOutcome, Progress, _no_progress, identify, write_files
+from dynid.pipeline.identification import identify
+from dynid.pipeline.outcome import IdentifyOutcome
+from dynid.pipeline.outputs import write_files
+from dynid.pipeline.rows import Progress, _no_progress
 from dynid.pipeline.simulate import run_simulation, write_simulation
 from dynid.simulation.closed_loop import AugmentedPD, ConstrainedSimulator, simulate_mechanism_control
 from dynid.trajectories import PolylinePath

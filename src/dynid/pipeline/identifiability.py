@@ -66,7 +66,7 @@ from dynid.pipeline.data import (
     read_log,
     to_actuator_space,
 )
-from dynid.pipeline.identification import Progress, _chunks, _no_progress, build_problem, row_mask
+from dynid.pipeline.rows import Progress, _chunks, _no_progress, build_problem, row_mask
 from dynid.stats import average_error
 
 __all__ = ["PAPER_COUNTS", "TestLog", "IdentifiabilityOutcome", "paper_models", "truth_base", "load_truth",

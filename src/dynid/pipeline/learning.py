@@ -13,13 +13,21 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dynid._typing import FloatArray
 from dynid.errors import ConfigError
 from dynid.estimation.validation import ValidationMetrics
+
+if TYPE_CHECKING:
+    from dynid.config import Config
+    from dynid.dataset import Dataset
+    from dynid.estimation import IdentificationResult
+    from dynid.model.base_parameters import BaseParameters
+    from dynid.model.system import System
+    from dynid.pipeline.rows import Progress
 
 __all__ = ["LEARNING_FILE", "LearningOutcome", "check_learning", "linear_friction", "load_networks", "predict",
            "train_and_validate", "LOW_SPEED"]
@@ -143,3 +151,22 @@ def load_networks(result_dir: str | Path):
 def predict(model_torque: FloatArray, dq: FloatArray, ddq: FloatArray, networks) -> FloatArray:
     """Identified model + network: ``Φ_b β̂`` (n, n_j) of a processed motion plus the learned residual."""
     return np.asarray(model_torque, float) + networks.predict(dq, ddq)
+
+
+def _learn(cfg: Config, system: System, base: BaseParameters, result: IdentificationResult, train: Dataset,
+           held_out: Dataset, chunk_size: int, progress: Progress, curves=None):
+    """[learning]: the residual network (paper 003 Sec. 3.4) on the training log's residual.
+    ``curves``: the friction curves of a hierarchical identification (paper 003 Sec. 3.3): the model
+    is then the rigid-body part plus them, and the network's physical loss acts on them."""
+    from dynid.pipeline.rows import _model_rows
+
+    names = tuple(system.actuator_names)
+    y_tr, p_tr = _model_rows(system, base, result.params, train, chunk_size)
+    y_va, p_va = _model_rows(system, base, result.params, held_out, chunk_size)
+    fr = linear_friction(base.names, result.params, len(names))
+    f_tr = None
+    if curves is not None:
+        f_tr = curves.force(train.dq)
+        p_tr, p_va = p_tr + f_tr, p_va + curves.force(held_out.dq)
+    return train_and_validate(cfg.learning, names, train, y_tr, p_tr, held_out, y_va, p_va, fr, progress,
+                              model_friction=f_tr)

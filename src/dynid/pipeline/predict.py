@@ -33,7 +33,9 @@ from dynid.estimation import IdentificationResult
 from dynid.estimation.validation import ValidationMetrics, prior_comparison
 from dynid.io.output import staged_output
 from dynid.pipeline.data import build_system, check_units, preprocess, read_log, to_actuator_space
-from dynid.pipeline.identification import PREDICTION_FORMAT, Progress, _model_rows, _no_progress, score_held_out
+from dynid.pipeline.rows import Progress, _model_rows, _no_progress
+from dynid.pipeline.run_record import PREDICTION_FORMAT
+from dynid.pipeline.validation import score_held_out
 
 __all__ = ["PredictOutcome", "load_saved", "predict", "write_prediction", "PREDICT_FILES"]
 
@@ -214,7 +216,7 @@ class PredictOutcome:
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
-        from dynid.pipeline.identification import _full_rate_dict, _nominal_dict, _selected_dict
+        from dynid.pipeline.outputs import _full_rate_dict, _nominal_dict, _selected_dict
 
         return {"format_version": PREDICTION_FORMAT, "result": str(self.result_dir), "method": self.method,
                 "log": self.source, "per_joint": self.per_joint(),

@@ -250,3 +250,13 @@ def _compress(system: System, base: BaseParameters, ds: Dataset, *, force_model,
             f"{problem.n_total} equations for {base.n_base} base parameters; lower the thresholds or record a "
             "motion with fewer slow stretches and reversals")
     return problem, worst
+
+
+def _model_rows(system: System, base: BaseParameters, params: FloatArray, ds: Dataset,
+                chunk_size: int) -> tuple[FloatArray, FloatArray]:
+    """(measured, predicted) joint torques of a processed serial-robot Dataset at every sample."""
+    meas, pred = [], []
+    for c in _chunks(system, base, ds, None, chunk_size=chunk_size):
+        meas.append(c.y)
+        pred.append(c.W @ params)
+    return np.concatenate(meas), np.concatenate(pred)

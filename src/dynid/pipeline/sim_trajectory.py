@@ -37,7 +37,9 @@ def _coordinate_box(robot) -> tuple[np.ndarray, np.ndarray, list[str]]:
     return u0 - half, u0 + half, names
 
 
-def _trajectory(cfg: SimulateConfig, robot):
+def _trajectory(cfg: SimulateConfig, robot, rng: np.random.Generator | None = None):
+    """The commanded trajectory of ``[trajectory]`` and the names of its coordinates; ``rng``: the
+    generator of a random Fourier series (None: one of ``trajectory.seed``)."""
     tc = cfg.trajectory
     v = tc.values
     lo, hi, names = _coordinate_box(robot)
@@ -73,7 +75,7 @@ def _trajectory(cfg: SimulateConfig, robot):
             rest = robot.coordinates(robot.q_ref)[0] if isinstance(robot, Mechanism) else 0.5 * (lo + hi)
             traj = Embedded(traj, tuple(names.index(a) for a in axes), rest)
         return traj, names
-    rng = np.random.default_rng(v["seed"])
+    rng = np.random.default_rng(v["seed"]) if rng is None else rng
     try:
         four = FourierTrajectory.random(n_u, v["harmonics"], v["base_frequency_hz"], rng, lo, hi,
                                         max_velocity=v["max_velocity"], max_acceleration=v["max_acceleration"],

@@ -32,6 +32,9 @@ Outputs, written together or not at all:
 * ``timing.json``: the wall-clock time of the simulation.
 
 The same configuration (seeds included) gives bit-identical files, ``timing.json`` aside.
+
+A run is set up once from the configuration (:class:`~dynid.pipeline.sim_setup.SimulationSetup`,
+:mod:`dynid.pipeline.sim_setup`), then stepped (:func:`_simulate`) and recorded (:func:`_record`) here.
 """
 
 from __future__ import annotations
@@ -48,23 +51,22 @@ from dynid import __version__
 from dynid._files import TIMING_FILE, save_npz, write_timing
 from dynid.config.simulate import SimulateConfig
 from dynid.dataset import Dataset
-from dynid.errors import ConfigError, InputError, ModelError
+from dynid.errors import ConfigError, InputError
 from dynid.io.output import staged_output
 from dynid.model.closed_loop import mechanism_base_parameters
-from dynid.model.loading import load_model
-from dynid.model.mechanism import JointCoordinates, Mechanism
+from dynid.model.mechanism import Mechanism
 from dynid.model.base_parameters import robot_base_parameters
-from dynid.pipeline.control_model import controller_parameters
-from dynid.simulation.closed_loop import (ActuatorReference, AugmentedPD, ConstrainedSimulator, DecentralizedPID,
-                                          simulate_mechanism_control)
-from dynid.simulation.control import ComputedTorque, FeedforwardPID, JointPID, SerialPlant, model_inverse, simulate_control
+from dynid.simulation.closed_loop import simulate_mechanism_control
+from dynid.simulation.control import simulate_control
 from dynid.trajectories import ConstantVelocityExperiment, zyx_angular_velocity
 from dynid.simulation.sensors import Measurements, Sensors
 from dynid.stats import tracking_errors
 from dynid.pipeline.sim_trajectory import _check_reference_limits, _coordinate_box, _trajectory  # noqa: F401  (tests)
+from dynid.pipeline.sim_setup import (  # noqa: F401  (re-exported: _mechanism_friction for the tests)
+    SimulationSetup, _mechanism_friction, _replaced_friction, _with_payload, load_simulated_robot, simulation_setup)
 
-__all__ = ["SimulationOutcome", "TrueSignals", "actuator_states", "load_simulated_robot", "measure_signals", "run_simulation",
-           "write_simulation", "SIMULATION_FILES"]
+__all__ = ["SimulationOutcome", "SimulationSetup", "TrueSignals", "actuator_states", "load_simulated_robot", "measure_signals",
+           "run_simulation", "simulation_setup", "write_simulation", "SIMULATION_FILES"]
 
 SIMULATION_FILES = ("log.csv", "log.npz", "truth.json", "metadata.json", "config.toml")
 Progress = Callable[[str, int, int], None]
@@ -137,149 +139,6 @@ def measure_signals(signals: TrueSignals, seed: int | None = None) -> tuple[Meas
     return meas, columns
 
 
-def load_simulated_robot(cfg: SimulateConfig):
-    """The model of ``[robot]``: ``model`` with its chart (``actuated``, ``independent``) and its
-    rotor inertias (``rotor_inertia``)."""
-    r = cfg.robot
-    return load_model(r.model, actuated=r.actuated, independent=r.independent, rotor_inertia=r.rotor_inertia)
-
-
-def _true_parameters(robot, nominal: np.ndarray, cfg: SimulateConfig) -> np.ndarray:
-    """The twin's truth: ``perturbation`` away from the nominal model, body by body in mass, centre
-    of mass and principal second moments, so that a physically consistent nominal model gives a
-    physically consistent truth (:func:`dynid.model.base_parameters.perturb_bodies`)."""
-    if cfg.robot.perturbation == 0:
-        return nominal.copy()
-    from dynid.model.base_parameters import perturb_bodies
-
-    return perturb_bodies(nominal, robot.body_blocks(), cfg.robot.perturbation,
-                          np.random.default_rng(cfg.robot.perturbation_seed))
-
-
-def _gains(value, n: int, where: str, what: str = "independent coordinates") -> np.ndarray:
-    g = np.asarray(value, dtype=float)
-    if g.ndim == 1 and g.size != n:
-        raise ConfigError(f"control.{where} has {g.size} entries; the robot has {n} {what}")
-    return np.broadcast_to(g, (n,)).copy()
-
-
-def _payload(cfg: SimulateConfig, robot):
-    """``[robot.payload]``: the name and pinocchio joint index of the body that carries it, and its
-    ``pinocchio.Inertia`` in that joint's frame (None without a payload).
-
-    Serial robots: any joint's body, default the last. Mechanisms: a body with parameters (not a
-    massless virtual body), default the platform (the joint of the last task coordinate)."""
-    pl = cfg.robot.payload
-    if pl is None:
-        return None
-    import pinocchio as pin
-
-    names = list(robot.pin_model.names)
-    if isinstance(robot, Mechanism):
-        carriers = [names[j] for j in robot.bodies]
-        if "body" in pl:
-            body = pl["body"]
-        elif robot.task_coordinates:
-            body = robot.task_coordinates[-1]
-        else:
-            raise ConfigError(f"robot.payload.body: {robot.name!r} declares no platform; name the body that carries the "
-                              f"payload, one of {carriers}")
-        if body not in names[1:]:
-            raise ConfigError(f"robot.payload.body = {body!r} is no joint of {robot.name!r}; one of {carriers}")
-        if names.index(body) not in robot.bodies:
-            raise ConfigError(f"robot.payload.body = {body!r} is a massless (virtual) body of {robot.name!r}; "
-                              f"a payload goes on one of {carriers}")
-    else:
-        body = pl.get("body", names[-1])
-        if body not in names[1:]:
-            raise ConfigError(f"robot.payload.body = {body!r} is no joint of {robot.name!r}; one of {names[1:]}")
-    inertia = pin.Inertia(pl["mass"], np.asarray(pl["com"], float), np.diag(np.asarray(pl["inertia"], float)))
-    return body, names.index(body), inertia
-
-
-def _with_payload(robot, params: np.ndarray, joint: int, payload) -> np.ndarray:
-    """The standard parameters of ``robot`` with the payload's dynamic parameters
-    ``[m, m c, I about the joint origin]`` added to the block of body ``joint`` (pinocchio joint
-    index): the true model of the simulator (a mechanism's plant; a serial plant adds the same
-    inertia to its pinocchio body, :class:`~dynid.simulation.control.SerialPlant`), and truth.json's
-    ``true_parameters_with_payload`` and base ``true_values``."""
-    k = robot.bodies.index(joint) if isinstance(robot, Mechanism) else joint - 1
-    out = np.array(params, dtype=float)
-    out[10 * k : 10 * k + 10] += np.asarray(payload.toDynamicParameters(), dtype=float)
-    return out
-
-
-def _friction_model(spec: dict | None, n: int):
-    """The ground-truth friction model of ``[robot.friction]`` for ``n`` joints, or None."""
-    if spec is None:
-        return None
-    from dynid.model import friction as fr
-
-    cls = {"coulomb_viscous": fr.CoulombViscous, "stribeck": fr.Stribeck, "power_law": fr.PowerLawViscous,
-           "smooth_stribeck": fr.SmoothStribeck}[spec["model"]]
-    kw, memory = {}, None
-    for k, v in spec.items():
-        if k == "model":
-            continue
-        a = np.asarray(v, dtype=float)
-        if a.ndim == 1 and a.size != n:
-            raise ConfigError(f"robot.friction.{k} has {a.size} entries; the friction acts on {n} joints")
-        if k == "memory":
-            memory = a
-            continue
-        kw[k] = a
-    steady = cls(**kw)
-    return steady if memory is None else fr.FrictionMemory(steady, memory)
-
-
-def _replaced_friction(robot, mech: bool) -> list[str]:
-    """The linear friction parameters that ``[robot.friction]`` replaces in the plant: every
-    friction extra of a serial robot (``fv``, ``fc``, their asymmetric forms, ``offset``: the plant
-    uses the configured model instead, :class:`~dynid.simulation.control.SerialPlant`), or every
-    non-inertia joint term acting only on an actuated joint of a mechanism (the passive joints
-    keep theirs, :func:`_mechanism_friction`). truth.json records them as 0 (the plant has no
-    such term beyond the configured model) and lists them: the values the robot description or
-    its perturbation gave them never reached the plant."""
-    if mech:
-        act = set(robot.actuated)
-        return [t.name for t in robot.terms if t.kind != "inertia" and set(t.joints) <= act]
-    lay = robot.layout
-    names = list(robot.parameter_names)
-    return [names[i] for e, idx in lay.extra_index.items() if e != "Ia" for i in idx]
-
-
-def _mechanism_friction(mech: Mechanism, params: np.ndarray, model):
-    """Generalized friction forces: the joint terms' friction on the passive joints and
-    ``model`` on the actuated ones (rotor inertias stay in the simulator)."""
-    from dynid.model.closed_loop import term_columns
-
-    nb = mech.n_body_params
-    theta = np.array(params[nb:], dtype=float)
-    theta[[k for k, t in enumerate(mech.terms) if t.kind == "inertia"]] = 0.0
-    act = list(mech.actuated)
-
-    def forces(dq):
-        f = term_columns(mech, dq[None], np.zeros((1, dq.size)))[0] @ theta
-        f[act] = model.force(dq[act])[0]
-        return f
-
-    return forces
-
-
-def _force_covariance(s, n_a: int) -> np.ndarray:
-    if s.force_covariance is not None:
-        cov = np.array(s.force_covariance, dtype=float)
-        if cov.shape != (n_a, n_a):
-            raise ConfigError(f"sensors.force_covariance must be {n_a} x {n_a}, got {cov.shape}")
-        return cov
-    std = np.asarray(s.force_noise_std, dtype=float)
-    if std.ndim == 1 and std.size != n_a:
-        raise ConfigError(f"sensors.force_noise_std has {std.size} entries for {n_a} actuators")
-    std = np.broadcast_to(std, (n_a,))
-    corr = (1 - s.force_correlation) * np.eye(n_a) + s.force_correlation * np.ones((n_a, n_a))
-    return std[:, None] * corr * std[None, :]
-
-
 def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, robot=None,
                    plant: np.ndarray | None = None, coulomb_band: float | None = None) -> SimulationOutcome:
     """Run the virtual experiment of ``cfg`` (nothing is written).
@@ -307,99 +166,36 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, rob
 
 def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None,
                     plant_params: np.ndarray | None = None, coulomb_band: float | None = None) -> SimulationOutcome:
-    robot = load_simulated_robot(cfg)
-    if variant is not None:
-        if list(variant.parameter_names) != list(robot.parameter_names):
-            raise ModelError(f"the variant of {cfg.robot.model} has other parameters than the model itself")
-        robot = variant
-    mech = isinstance(robot, Mechanism)
-    as_loaded = robot  # the robot dynid identify builds (its base parameters)
-    if cfg.trajectory.values["coordinates"] == "task":
-        if not mech:
-            raise ConfigError("trajectory.coordinates = 'task' is for parallel robots (a serial robot moves in joint space here)")
-        robot = robot.in_task_space()
-    nominal = robot.nominal_parameters()
-    true = _true_parameters(robot, nominal, cfg)
-    payload = _payload(cfg, robot)
-    c = cfg.control
-    model_params, model_used = controller_parameters(c.model, cfg.base_dir, as_loaded, nominal, true)
-    traj, coord_names = _trajectory(cfg, robot)
-    duration = cfg.duration if cfg.duration is not None else float(getattr(traj, "duration", None) or traj.period)
-    dt = 1.0 / c.rate_hz
-    n_u = len(coord_names)
-    if not mech:
-        _check_reference_limits(traj, duration, dt, robot, coord_names)
-    n_act = robot.n_actuators if mech else robot.dof
-    if c.kind == "computed_torque":
-        kp, kd = _gains(c.kp, n_u, "kp"), _gains(c.kd, n_u, "kd")
-    else:  # a PID per joint (serial) or per actuator (mechanism: decentralized, paper 002 Section 5.4)
-        what = "actuators (one PID per actuator)" if mech else "independent coordinates"
-        kp, kd, ki = (_gains(v, n_act, k, what) for v, k in ((c.kp, "kp"), (c.kd, "kd"), (c.ki, "ki")))
-    s = cfg.sensors
-    log_rate = s.log_rate_hz or c.rate_hz
-    ratio = c.rate_hz / log_rate
-    if abs(ratio - round(ratio)) > 1e-9 or ratio < 1:
-        raise ConfigError(f"sensors.log_rate_hz = {log_rate:g} must divide control.rate_hz = {c.rate_hz:g}")
-    for key in ("encoder_resolution", "position_noise_std", "torque_constants"):
-        value = getattr(s, key)
-        if isinstance(value, tuple) and len(value) != n_act:
-            raise ConfigError(f"sensors.{key} has {len(value)} entries for {n_act} actuators")
-    sensors = Sensors(
-        encoder_resolution=s.encoder_resolution, position_noise_std=s.position_noise_std,
-        force_covariance=_force_covariance(s, n_act), torque_constants=s.torque_constants,
-        decimation=int(round(ratio)), time_jitter_std=s.time_jitter_std, seed=s.seed,
-    )
-    sensors.check(n_act)  # refuse a bad covariance now, not after the simulation
-    track_actuators = None
-    if mech:
-        distribution = c.distribution if robot.redundant else None
-        reference = traj.sample
-        if c.kind == "computed_torque":
-            ctrl = AugmentedPD(robot, model_params, kp, kd, distribution)
-        else:
-            reference = ActuatorReference(robot, traj.sample, model_params if c.kind == "feedforward_pid" else None,
-                                          distribution)
-            ctrl = DecentralizedPID(robot, JointPID(kp=kp, kd=kd, ki=ki))
-        if cfg.robot.friction is not None and "memory" in cfg.robot.friction:
-            raise ConfigError("robot.friction.memory: friction with memory is simulated on serial robots only (the "
-                              "constrained simulator has no friction state)")
-        fmodel = _friction_model(cfg.robot.friction, robot.n_actuators)
-        override = None
-        if fmodel is not None and plant_params is None:
-            override = _mechanism_friction(robot, true, fmodel)
-        plant = true if payload is None else _with_payload(robot, true, payload[1], payload[2])
-        if plant_params is not None:
-            plant = np.asarray(plant_params, dtype=float)
-        band = coulomb_band if plant_params is not None else None
-        motion = simulate_mechanism_control(ConstrainedSimulator(robot, plant, friction=override, coulomb_band=band), ctrl,
-                                            reference,
-                                            duration=duration, dt=dt, substeps=c.substeps)
+    setup = simulation_setup(cfg, variant, plant_params, coulomb_band)
+    return _record(setup, *_simulate(setup))
+
+
+def _simulate(setup: SimulationSetup):
+    """Step the set-up loop: (motion, actuator positions, actuator efforts, independent coordinates,
+    actuator names, largest loop-closure error or None, tracking errors of the drives or None)."""
+    robot, c = setup.robot, setup.cfg.control
+    if setup.mech:
+        motion = simulate_mechanism_control(setup.plant, setup.controller, setup.reference, duration=setup.duration,
+                                            dt=setup.dt, substeps=c.substeps)
         q_act = motion.q[:, list(robot.actuated)]
+        track_actuators = None
         if c.kind != "computed_torque":  # the drives' own errors (paper 002, Fig. 10; paper 004, Fig. 6)
-            track_actuators = tracking_errors(reference(motion.t)[3], q_act)
-        tau = motion.tau_a
-        u = robot.coordinates(motion.q)
-        act_names = robot.actuated_names
+            track_actuators = tracking_errors(setup.reference(motion.t)[3], q_act)
         constraint = float(np.abs(robot.constraint_residual(motion.q[:: max(1, motion.t.size // 200)])).max())
-    else:
-        if plant_params is not None:
-            plant = SerialPlant(robot, np.asarray(plant_params, dtype=float))
-        else:
-            plant = SerialPlant(robot, true, friction=_friction_model(cfg.robot.friction, robot.dof),
-                                payload=None if payload is None else payload[2],
-                                payload_joint=None if payload is None else payload[1])
-        inverse = model_inverse(robot, model_params)
-        if c.kind == "computed_torque":
-            ctrl = ComputedTorque(inverse, kp, kd)
-        else:
-            pid = JointPID(kp=kp, kd=kd, ki=ki)
-            ctrl = pid if c.kind == "pid" else FeedforwardPID(inverse, pid)
-        motion = simulate_control(plant, ctrl, traj.sample, duration=duration, dt=dt, substeps=c.substeps)
-        q_act, tau, u = motion.q, motion.tau, motion.q
-        act_names = list(robot.joint_names)
-        constraint = None
+        return motion, q_act, motion.tau_a, robot.coordinates(motion.q), robot.actuated_names, constraint, track_actuators
+    motion = simulate_control(setup.plant, setup.controller, setup.reference, duration=setup.duration, dt=setup.dt,
+                              substeps=c.substeps)
+    return motion, motion.q, motion.tau, motion.q, list(robot.joint_names), None, None
+
+
+def _record(setup: SimulationSetup, motion, q_act: np.ndarray, tau: np.ndarray, u: np.ndarray, act_names: list[str],
+            constraint: float | None, track_actuators: dict | None) -> SimulationOutcome:
+    """The outcome of a stepped set-up: the references, the sensors' measurement, truth.json and
+    metadata.json, the logged Dataset."""
+    cfg, robot, mech, traj, coord_names = setup.cfg, setup.robot, setup.mech, setup.trajectory, setup.coord_names
+    c, s, payload, true = cfg.control, cfg.sensors, setup.payload, setup.true
     u_ref = traj.sample(motion.t)[0]
-    warnings = _loop_warnings(robot, mech, c, motion.t, u_ref, u, coord_names, tau, act_names, replay=plant_params is not None)
+    warnings = _loop_warnings(robot, mech, c, motion.t, u_ref, u, coord_names, tau, act_names, replay=setup.replay)
     references = {f"ref_{name}": u_ref[:, k] for k, name in enumerate(coord_names)}
     if {"RZ", "RY", "RX"} <= set(coord_names):  # commanded angular velocity, paper 004 Eq. 16
         sel = [coord_names.index(n) for n in ("RZ", "RY", "RX")]
@@ -410,22 +206,22 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
     if isinstance(traj, ConstantVelocityExperiment):  # which joint, speed and window each sample belongs to
         references.update(traj.labels(motion.t))
     signals = TrueSignals(t=motion.t, q=q_act, effort=tau, actuators=tuple(act_names), references=references,
-                          sensors=sensors)
+                          sensors=setup.sensors)
     meas, columns = measure_signals(signals)
     effort_prefix = "i" if meas.effort_kind == "current" else "tau"
     base = None
-    if plant_params is None:  # a replay's truth goes without them (run_simulation)
+    if not setup.replay:  # a replay's truth goes without them (run_simulation)
         base = mechanism_base_parameters(robot) if mech else robot_base_parameters(robot)
-    replaced = _replaced_friction(robot, mech) if cfg.robot.friction is not None and plant_params is None else []
+    replaced = _replaced_friction(robot, mech) if cfg.robot.friction is not None and not setup.replay else []
     recorded = np.array(true, dtype=float)
     recorded[[list(robot.parameter_names).index(n) for n in replaced]] = 0.0
     loaded = recorded if payload is None else _with_payload(robot, recorded, payload[1], payload[2])
     truth = {
-        "model": cfg.robot.model if variant is None else f"variant of {cfg.robot.model}",
+        "model": cfg.robot.model if not setup.variant else f"variant of {cfg.robot.model}",
         "parameter_names": list(robot.parameter_names),
         "true_parameters": recorded.tolist(),
         **({"replaced_by_ground_truth_friction": replaced} if replaced else {}),
-        "nominal_parameters": nominal.tolist(),
+        "nominal_parameters": setup.nominal.tolist(),
         "perturbation": cfg.robot.perturbation,
         "ground_truth_friction": (dict(cfg.robot.friction) if cfg.robot.friction is not None else
                                   "the joint terms of true_parameters"),
@@ -454,8 +250,8 @@ def _run_simulation(cfg: SimulateConfig, progress: Progress | None, variant=None
                                                        for k, v in cfg.trajectory.values.items()}},
         "duration_s": float(motion.t[-1]),
         "control": {**dataclasses.asdict(c), "distribution": (c.distribution if mech and robot.redundant else None),
-                    "model_used": model_used},
-        "log_rate_hz": log_rate,
+                    "model_used": setup.model_used},
+        "log_rate_hz": setup.log_rate,
         "n_samples": int(meas.t.size),
         "effort_kind": meas.effort_kind,
         "columns": {

@@ -19,7 +19,8 @@ import numpy as np
 
 from dynid._typing import FloatArray
 from dynid.learning import MODELS, LearningConfig, fit_residual
-from dynid.pipeline.identification import IdentifyOutcome, _model_rows
+from dynid.pipeline.outcome import IdentifyOutcome
+from dynid.pipeline.rows import _model_rows
 from dynid.pipeline.learning import LOW_SPEED, linear_friction
 
 __all__ = ["ablation", "ablation_from_outcome", "table", "QUICK"]

@@ -424,7 +424,8 @@ def paper003_study(*, quick: bool = False, folder: str | Path | None = None,
         with tempfile.TemporaryDirectory() as tmp:
             return paper003_study(quick=quick, folder=tmp, progress=progress, draw=draw)
     from dynid.pipeline.friction import run_friction, write_friction
-    from dynid.pipeline.identification import _model_rows, identify
+    from dynid.pipeline.identification import identify
+    from dynid.pipeline.rows import _model_rows
 
     say = progress or (lambda msg: None)
     d = Path(folder)
