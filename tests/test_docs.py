@@ -117,6 +117,9 @@ def test_readme_is_short_and_points_into_the_guide():
     assert all(f"\n{page}\n" in index for page in pages - {"index"}), sorted(pages)
     linked = set(re.findall(r"\]\(docs/guide/([\w-]+)\.md", text))
     assert linked and linked <= pages, sorted(linked - pages)
+    # every relative link of the README (guide, site sources, bench record) names a file or folder that exists
+    targets = [t.split("#")[0] for t in re.findall(r"\]\(([^)]+)\)", text) if "://" not in t]
+    assert targets and all((REPO / t).exists() for t in targets), [t for t in targets if not (REPO / t).exists()]
 
 
 def test_guide_pages_have_one_title_consecutive_levels_and_resolving_links():

@@ -1,4 +1,4 @@
-"""Simulated logs of a fleet of eight arm3 robots (README "Fleets"), four monthly runs each.
+"""Simulated logs of a fleet of eight arm3 robots (docs/guide/fleets.md), four monthly runs each.
 
 Every robot is the URDF's arm perturbed by 5 % (its own seed: robots differ a little, no payload)
 with Coulomb + viscous joint friction. Robot r4 is an outlier: it was built with a heavier elbow

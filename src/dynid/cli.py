@@ -540,14 +540,14 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the efforts (torques or currents) in a second file with the same rows as LOG")
     pn.add_argument("--drive", default=None, metavar="DRIVE.toml",
                     help="the drive train the description lacks: a [robot] table with gear_ratios, couplings, "
-                         "drive_gains, position_offset, rotor_inertia (README, Configuration)")
+                         "drive_gains, position_offset, rotor_inertia (docs/guide/configuration.md)")
     pn.add_argument("--actuated", default=None, metavar="J1,J2,...", help="parallel robots: the actuated joints, as for info")
     pn.add_argument("--independent", default=None, metavar="J1,J2,...", help="parallel robots: the independent coordinates' joints")
     pn.set_defaults(func=_cmd_init)
 
     pid = sub.add_parser("identify", help="identify base parameters from logs as CONFIG.toml says")
     pid.add_argument("config", nargs="+", metavar="CONFIG | ROBOT LOG",
-                     help="TOML configuration (schema in the README), or a robot and a log: then the config `dynid init "
+                     help="TOML configuration (schema: docs/guide/configuration.md), or a robot and a log: then the config `dynid init "
                           "ROBOT LOG` would write is run and saved as OUT/identify.toml")
     pid.add_argument("--validation", default=None, metavar="LOG",
                      help="with ROBOT LOG: a second run to validate on (else the last quarter of LOG)")
@@ -588,27 +588,27 @@ def build_parser() -> argparse.ArgumentParser:
     pf.set_defaults(func=_cmd_identifiability)
 
     ps = sub.add_parser("simulate", help="run a virtual experiment as CONFIG.toml says; write the log and the truth")
-    ps.add_argument("config", help="TOML configuration (schema in the README, 'Virtual experiments')")
+    ps.add_argument("config", help="TOML configuration (schema: docs/guide/simulation.md)")
     ps.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     ps.add_argument("-q", "--quiet", action="store_true", help="no summary")
     ps.set_defaults(func=_cmd_simulate)
 
     pg = sub.add_parser("design", help="optimize an excitation trajectory under actuator and workspace limits")
-    pg.add_argument("config", help="TOML configuration (schema in the README, 'Excitation design')")
+    pg.add_argument("config", help="TOML configuration (schema: docs/guide/excitation.md)")
     pg.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pg.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
     pg.set_defaults(func=_cmd_design)
 
     pr = sub.add_parser("friction", help="friction curves from a constant-velocity log (paper 003): extracted points, "
                                          "four models fitted with uncertainties, held-out comparison, plot")
-    pr.add_argument("config", help="TOML configuration (schema in the README, 'Friction from constant-velocity runs')")
+    pr.add_argument("config", help="TOML configuration (schema: docs/guide/friction.md)")
     pr.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pr.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no tables")
     pr.set_defaults(func=_cmd_friction)
 
     pm = sub.add_parser("montecarlo", help="repeat a virtual experiment and its identification: coverage of the "
                                            "intervals, chi2 against the confidence ellipsoid")
-    pm.add_argument("config", help="TOML configuration (schema in the README, 'Monte Carlo robustness')")
+    pm.add_argument("config", help="TOML configuration (schema: docs/guide/montecarlo.md)")
     pm.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pm.add_argument("--trials", type=_trials, default=None, metavar="N", help="number of trials (default: the config's, 100)")
     pm.add_argument("--workers", type=_workers, default=None, metavar="K",
@@ -620,7 +620,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     pl = sub.add_parser("fleet", help="many robots x many logs on Dask: per robot the pooled estimate and its verdict "
                                       "against the prior; over the fleet the spread, outliers and drift")
-    pl.add_argument("config", help="TOML configuration (schema in the README, 'Fleets')")
+    pl.add_argument("config", help="TOML configuration (schema: docs/guide/fleets.md)")
     pl.add_argument("--out", required=True, help="output folder (created; files replaced only when all succeed)")
     pl.add_argument("--workers", type=_workers, default=None, metavar="K",
                     help="process workers of the local Dask cluster; 0 or 'auto': all cores (default: the config's, 2)")
@@ -632,7 +632,7 @@ def build_parser() -> argparse.ArgumentParser:
     pd = sub.add_parser("demo", help="simulate builtin:shang2dof under control, identify it, validate, track again (needs nothing else)")
     pd.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     pd.add_argument("--seed", type=_seed_arg, default=None,
-                    help="seed of the sensor noise (default 2026, the README's figures); the true robot stays the same")
+                    help="seed of the sensor noise (default 2026, the figures of docs/guide/demo.md); the true robot stays the same")
     pd.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     pd.set_defaults(func=_cmd_demo)
     return p

@@ -2,7 +2,7 @@
 
 Unknown keys, wrong types and out-of-range values are :class:`~dynid.errors.ConfigError`
 with the dotted key in the message. Relative paths are relative to the config file.
-The complete schema with one example is documented in the README ("Configuration").
+The complete schema with one example is documented in docs/guide/configuration.md.
 
 Each section has its module: ``[robot]`` (:mod:`dynid.config.robot`), ``[data]`` and ``[validation]``
 (:mod:`dynid.config.data`), ``[processing]`` (:mod:`dynid.config.processing`), ``[identification]``

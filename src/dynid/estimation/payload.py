@@ -51,7 +51,7 @@ mounted), the experiments' factors are stacked per (experiment, channel) as :mod
 stacks them, and WLS (or the physically consistent WLS over every body and the payload) runs on them.
 ``dynid identify`` reaches it through ``[[data]] payload = true`` and a ``[payload]`` table
 (:mod:`dynid.pipeline.joint_payload`: the configured OLS or WLS, the pseudo-inertia constraint on the
-payload block only; README "Payloads").
+payload block only; docs/guide/payloads.md).
 """
 
 from __future__ import annotations

@@ -121,7 +121,7 @@ def identify_arrays(robot: str, t: Any, q: Any, effort: Any, *, held_out: tuple[
     method : str
         ``[identification] method`` (default ``"wls"``).
     processing, identification, learning : mapping, optional
-        Sections of the configuration as dictionaries (the README's schema).
+        Sections of the configuration as dictionaries (the schema of docs/guide/configuration.md).
     **options
         Any key of ``[robot]`` (except ``model``), ``[processing]`` or ``[identification]`` as a
         keyword, e.g. ``lowpass={"cutoff_hz": 10.0}``, ``min_velocity=0.05``,

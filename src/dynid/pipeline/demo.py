@@ -61,7 +61,7 @@ _RECTANGLE = [[0.244, 0.286], [0.343, 0.21], [0.343, 0.286], [0.244, 0.21], [0.2
 _POLYLINE = {"kind": "polyline", "vertices": _RECTANGLE, "speed": 0.1, "ramp": 0.1}
 
 _CONFIG = """\
-# dynid demo: identification of builtin:shang2dof (paper 001) from simulated logs (see README)
+# dynid demo: identification of builtin:shang2dof (paper 001) from simulated logs (see docs/guide/demo.md)
 [robot]
 model = "builtin:shang2dof"
 
@@ -172,7 +172,7 @@ def run_demo(out_dir: str | Path, progress: Progress = _no_progress, seed: int |
     """Simulate, identify, validate, track again; write everything into ``out_dir``.
 
     ``seed``: of the sensor noise of the training and validation experiments (``seed`` and
-    ``seed + 1``; None: :data:`DEMO_SEED`, the README's figures). The true robot (the nominal
+    ``seed + 1``; None: :data:`DEMO_SEED`, the figures of docs/guide/demo.md). The true robot (the nominal
     values perturbed with :data:`DEMO_SEED`) is the same for every seed: another seed is another
     experiment on the same robot."""
     seed = DEMO_SEED if seed is None else int(seed)

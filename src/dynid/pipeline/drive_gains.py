@@ -46,7 +46,7 @@ def estimate_drive_gains(system: System, base: BaseParameters, train: Dataset, f
     :math:`C^T i`); the interval of each :math:`k_m` from the fits on :data:`GAIN_BLOCKS`
     contiguous blocks (standard error of the block mean). The prior's own error enters as bias:
     a description 10 % off in mass gives gains about 10 % off, which the identification then
-    carries; a known-payload experiment removes it (README).
+    carries; a known-payload experiment removes it (docs/guide/payloads.md).
     """
     if not system.channels_are_actuators(force_model):
         raise ConfigError("drive gains from the prior: the equations are projected (redundant actuation); give "

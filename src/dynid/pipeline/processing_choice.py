@@ -69,7 +69,7 @@ def cutoff_for(q: FloatArray, fs: float) -> tuple[float, float, float]:
     digits. Paper 001 (Sec. 3) puts the cut-off above 10 x the position loop's bandwidth; a log does
     not give that bandwidth, so the motion's stands in for it: the velocities' (the regressor is made
     of velocities and accelerations, which weigh the higher harmonics more than the positions), twice
-    over the paper's factor so that the filter smears the Coulomb reversals little (README, Starting
+    over the paper's factor so that the filter smears the Coulomb reversals little (docs/guide/init.md, Starting
     a config: the TX40 and the MuJoCo planar twin were 10 % and 46 % worse at 10 x)."""
     band, vband = motion_bandwidth_hz(q, fs), motion_bandwidth_hz(q, fs, derivative=1)
     return band, vband, round2(min(max(BAND_FACTOR * max(band, vband), MIN_CUTOFF_HZ), fs / 5.0))
@@ -129,7 +129,7 @@ def derive_processing(t: FloatArray, q: FloatArray, tau: FloatArray, cutoff_hz: 
       decimated rate's Nyquist frequency stays at twice the cut-off, where the zero-phase
       Butterworth pair has removed :math:`2 \times 6 \times` order dB; the rows kept are as
       informative and far less correlated.
-    * ``reversal_guard = "auto"`` for parallel robots whose equations are per actuator (README
+    * ``reversal_guard = "auto"`` for parallel robots whose equations are per actuator (docs/guide/parallel-robots.md,
       "Which method, when": with ``min_velocity`` it gave 94 % coverage of the 95 % intervals on the
       hexapod, 69 % without selection); not with projected equations (whole samples: a guard
       around every motor's reversals leaves too few) nor on serial arms (the real logs' best
@@ -188,7 +188,7 @@ def derive_processing(t: FloatArray, q: FloatArray, tau: FloatArray, cutoff_hz: 
     reasons["decimate"] = (f"keep one sample in {d}: {fs / d:.4g} Hz keeps the band the {cutoff_hz:g} Hz low-pass passes "
                            "(Nyquist at twice the cut-off); neighbouring rows of a filtered log carry the same information")
     guard = parallel and not projected
-    reasons["reversal_guard"] = ("\"auto\": parallel robot, per-actuator equations (README, Which method, when)" if guard else
+    reasons["reversal_guard"] = ("\"auto\": parallel robot, per-actuator equations (docs/guide/parallel-robots.md, Which method, when)" if guard else
                                  ("not set: projected equations keep whole samples (a guard leaves too few)" if projected
                                   else "not set: serial arm (the real logs' best configurations have none)"))
     return DerivedProcessing(sv, mv, se, steps, not has_steps, d, guard, reasons)

@@ -299,7 +299,7 @@ def _loop_warnings(robot, mech: bool, c, t: np.ndarray, u_ref: np.ndarray, u: np
     if bad is not None:
         raise ConfigError(f"control: the loop is unstable: the state or the efforts are no longer finite from t = "
                           f"{t[bad]:.4g} s ({c.kind} at {c.rate_hz:g} Hz, kp {_short(c.kp)}, kd {_short(c.kd)}); lower the "
-                          "gains or raise control.rate_hz (README 'Virtual experiments' gives the gains' units)")
+                          "gains or raise control.rate_hz (docs/guide/simulation.md gives the gains' units)")
     act = list(robot.actuated) if mech else list(range(robot.dof))
     kinds = joint_kinds(robot.pin_model)
     ind = robot.independent if mech else None

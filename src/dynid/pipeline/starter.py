@@ -194,7 +194,7 @@ def _rel(path: Path, folder: Path) -> str:
 
 DRIVE_KEYS = ("gear_ratios", "couplings", "drive_gains", "position_offset", "rotor_inertia")
 """The keys of ``dynid init --drive FILE``'s ``[robot]`` table: the drive train a robot description
-(URDF, MJCF) does not hold, as ``[robot]`` of the config spells them (README, Configuration)."""
+(URDF, MJCF) does not hold, as ``[robot]`` of the config spells them (docs/guide/configuration.md)."""
 
 
 def read_drive(path: str | Path) -> dict:
@@ -374,7 +374,7 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
                     "joint-side: every position stays within its joint's range (set side = \"motor\" for motor encoders)")
     if validation is not None and ereader is not None:
         raise InputError("--validation with --effort-log: a validation run in two files is not read by init; give "
-                         "the validation run's [validation] by hand (README, Configuration), or one file per run")
+                         "the validation run's [validation] by hand (docs/guide/configuration.md), or one file per run")
     vlog = None
     if validation is not None:
         vreader = TableReader(validation)
@@ -439,8 +439,8 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
         lines.append(f"# the drive train, from --drive {Path(drive).name}:")
         lines += [f"{k} = {_toml_value(drive_table[k])}" for k in DRIVE_KEYS if k in drive_table]
     else:
-        lines.append("# gear_ratios = [...]; couplings; drive_gains; position_offset: for motor-side logs (README, "
-                     "Configuration; dynid init --drive)")
+        lines.append("# gear_ratios = [...]; couplings; drive_gains; position_offset: for motor-side logs (docs/guide/configuration.md; "
+                     "dynid init --drive)")
     lines += [
         "",
         ("[data]                                         # the training log" if vlog is not None else
@@ -535,7 +535,7 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
             lines.append("reversal_guard = \"auto\"                       # the low-pass's settling time around each reversal")
         lines.append(f"# reversal_guard: {derived.reasons['reversal_guard']}")
     else:
-        lines.append("# decimate, min_velocity, reversal_guard: not derived (a column is unmatched); README, Processing")
+        lines.append("# decimate, min_velocity, reversal_guard: not derived (a column is unmatched); docs/guide/configuration.md, [processing]")
     lines += ["", "[identification]",
               "method = \"wls\"                                 # weighted least squares, per-joint noise (paper 001 Eqs. 10-16)",
               *_structure_lines(system)]
@@ -543,7 +543,7 @@ def starting_config(robot: str, log: str | Path, out: str | Path, *, actuated: S
         lines += ["coulomb_smoothing = \"auto\"                     # Coulomb terms as erf(v / (sqrt(2) w)), w the velocity noise",
                   "# the processing leaves: the expected friction of a noisy velocity, 0 at rest instead of +-fc at random"]
         lines.append("physical_consistency = true                    # a model a simulator can use (LMI, Wensing 2017); on the "
-                     "real KUKA log the unconstrained fit does not generalize to another run (README)")
+                     "real KUKA log the unconstrained fit does not generalize to another run (docs/guide/results.md)")
     lines += ["", "[output]", "plots = true", ""]
     text = "\n".join(lines)
     import tomllib

@@ -139,7 +139,7 @@ def twin_documents(quick: bool = False, draw: int = 0) -> dict[str, dict[str, An
         for table in ("trajectory", "sensors"):
             if "seed" in doc.get(table, {}):
                 doc[table]["seed"] = draw_seed(doc[table]["seed"], draw)
-    if quick:  # the friction experiment stays whole: shorter windows bias its low-speed points (see README)
+    if quick:  # the friction experiment stays whole: shorter windows bias its low-speed points (see docs/guide/friction.md)
         docs["VT1"]["simulation"] = {"duration": 6.0}
     return docs
 
