@@ -1,7 +1,8 @@
 """dynid and FIGAROH 1.0.2 side by side on the same Staubli TX40 log: paired wall-time and peak-memory ratios.
 
-Target (project issue 20, item 10): ``dynid identify`` on its TX40 configuration takes at most 0.3x
-FIGAROH's wall time with plots and at most 0.4x its peak memory.
+Targets: ``dynid identify`` on its TX40 configuration takes at most 0.5x FIGAROH's wall time with
+plots and at most 0.4x without (project issue 37, item 5, a cold start as a user runs it; issue 20
+had asked 0.3x with plots), and at most 0.4x its peak memory (issue 20, item 10).
 
 Method
 ------
@@ -35,8 +36,8 @@ Method
   off); odd rounds the reverse. ``--repeats`` rounds (5). Reported: per tool the median wall and
   peak memory, and the medians of the PAIRED ratios dynid/FIGAROH of each round, for wall with plots,
   wall without plots and peak memory (with plots; without plots also shown).
-* PASS when median paired wall ratio with plots <= 0.3 and median paired memory ratio (with plots)
-  <= 0.4; exit 1 on FAIL or when a run fails.
+* PASS when the median paired wall ratio is <= 0.5 with plots and <= 0.4 without, and the median
+  paired memory ratio (with plots) <= 0.4; exit 1 on FAIL or when a run fails.
 
 Run: ``.venv/bin/python bench/vs_figaroh.py`` (``--repeats 1`` for a smoke run; ``--figaroh-venv PATH``).
 """
@@ -61,7 +62,8 @@ DEFAULT_VENV = Path("~/.cache/dynid-bench/figaroh-1.0.2").expanduser()
 TX40_FILES = ("pos_read_data.csv", "curr_data.csv", "tx40_mdh_modified.urdf", "figaroh_TX40_config.yaml")
 TRAIN = (0, 24750)
 VALIDATE = (29250, 45000)
-WALL_TARGET = 0.3
+WALL_TARGET = 0.5      # with plots (issue 37, item 5)
+WALL_OFF_TARGET = 0.4  # without plots
 MEMORY_TARGET = 0.4
 FIGAROH_REF_RMSE = [6.64, 8.32, 4.28, 1.80, 2.65, 1.72]  # shared/data/README.md, FIGAROH's published held-out RMSE
 
@@ -269,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         ["wall, plots on [s]", f"{med('dynid', True, 'wall_s'):.2f}", f"{med('figaroh', True, 'wall_s'):.2f}",
          f"{ratios['wall_on']:.2f}x", f"<= {WALL_TARGET}x", "PASS" if ratios["wall_on"] <= WALL_TARGET else "FAIL"],
         ["wall, plots off [s]", f"{med('dynid', False, 'wall_s'):.2f}", f"{med('figaroh', False, 'wall_s'):.2f}",
-         f"{ratios['wall_off']:.2f}x", "-", "-"],
+         f"{ratios['wall_off']:.2f}x", f"<= {WALL_OFF_TARGET}x", "PASS" if ratios["wall_off"] <= WALL_OFF_TARGET else "FAIL"],
         ["peak memory, plots on [MB]", f"{med('dynid', True, 'peak_mb'):.0f}", f"{med('figaroh', True, 'peak_mb'):.0f}",
          f"{ratios['mem_on']:.2f}x", f"<= {MEMORY_TARGET}x", "PASS" if ratios["mem_on"] <= MEMORY_TARGET else "FAIL"],
         ["peak memory, plots off [MB]", f"{med('dynid', False, 'peak_mb'):.0f}",
@@ -298,9 +300,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {v:12.5g}  {k}")
     print("FIGAROH in-process timing (round 1): " + ", ".join(f"{k} {v:.2f} s" for k, v in fdoc["timing_s"].items()))
 
-    ok = ratios["wall_on"] <= WALL_TARGET and ratios["mem_on"] <= MEMORY_TARGET
+    ok = ratios["wall_on"] <= WALL_TARGET and ratios["wall_off"] <= WALL_OFF_TARGET and ratios["mem_on"] <= MEMORY_TARGET
     print(f"\n{'PASS' if ok else 'FAIL'}: dynid/FIGAROH wall with plots {ratios['wall_on']:.2f}x (target <= {WALL_TARGET}x), "
-          f"peak memory {ratios['mem_on']:.2f}x (target <= {MEMORY_TARGET}x); without plots wall {ratios['wall_off']:.2f}x")
+          f"without plots {ratios['wall_off']:.2f}x (target <= {WALL_OFF_TARGET}x), "
+          f"peak memory {ratios['mem_on']:.2f}x (target <= {MEMORY_TARGET}x)")
     if args.workdir is None:
         shutil.rmtree(work, ignore_errors=True)
     return 0 if ok else 1
