@@ -118,19 +118,20 @@ __all__ = [
 
 @dataclasses.dataclass(frozen=True)
 class OutputConfig:
-    plots: bool = True
+    plots: bool = True  # validation.png, processing.png and report.html (false: none of them)
 
 
 @dataclasses.dataclass(frozen=True)
 class Config:
-    robot: RobotConfig
-    data: DataConfig
-    validation: DataConfig
-    processing: ProcessingConfig = ProcessingConfig()
-    identification: IdentificationConfig = IdentificationConfig()
-    output: OutputConfig = OutputConfig()
+    robot: RobotConfig  # the model and its drive train
+    data: DataConfig  # the training log ([[data]]: several experiments)
+    validation: DataConfig  # the held-out log, never used for training; keys not given are taken from [data]
+    processing: ProcessingConfig = ProcessingConfig()  # filtering, derivatives, decimation and row selection
+    identification: IdentificationConfig = IdentificationConfig()  # the method and its options
+    output: OutputConfig = OutputConfig()  # the figures
     source: Path | None = None
-    learning: Any = None  # dynid.learning.LearningConfig: [learning] (config/learning.py), None without
+    # the residual friction network (dynid.learning.LearningConfig, config/learning.py; None without [learning])
+    learning: Any = None
     raw: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     # [[data]] / [[validation]] (arrays of tables): every experiment, ``data`` / ``validation`` their first;
     # empty with a single [data] / [validation] table (dynid.pipeline.experiments)

@@ -23,12 +23,12 @@ class PayloadConfig:
 
     arm: Path | None  # None: the joint mode of dynid identify
     data: Any  # dynid.config.DataConfig (None: the joint mode)
-    body: str | None = None
-    mass: float | None = None
-    origin_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    origin_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    name: str = "payload"
-    physical: bool = True
+    body: str | None = None  # the joint whose body carries the payload (serial robots: default the last one)
+    mass: float | None = None  # kg: a known payload mass (then the other 9 parameters are estimated)
+    origin_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)  # origin.xyz, m: the payload's frame in the mount body's frame
+    origin_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)  # origin.rpy, rad: its roll-pitch-yaw (as URDF)
+    name: str = "payload"  # the URDF link / MJCF body name of the exported payload
+    physical: bool = True  # pseudo-inertia >= 0 (false: plain WLS)
     source: Path | None = None
     raw: dict[str, Any] = dataclasses.field(default_factory=dict, compare=False)
 

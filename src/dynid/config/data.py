@@ -25,11 +25,12 @@ EFFORT_UNITS = {
 class SignalConfig:
     """A group of columns: ``{ columns = [...], unit = ..., side = ..., kind = ..., file = ... }``."""
 
+    # the columns, one per joint or actuator (header = false: indices; NPZ: a 2-D key or "key[3]"; ROS bags: joint names)
     columns: tuple[str, ...]
     unit: str | tuple[str, ...] | None  # one for all columns, one per column, None: SI (rad or m; N*m or N; A)
-    side: str = "joint"
-    kind: str = "torque"
-    file: Path | None = None
+    side: str = "joint"  # "joint" or "motor": the side of the drive train the signal is measured on
+    kind: str = "torque"  # effort only: "torque" (N*m or N) or "current" (A, turned into torques by the drive gains)
+    file: Path | None = None  # this signal's own file (default: the table's file)
     topic: str | None = None  # ROS bags: the JointState topic of this signal (None: [data] topic)
     # effort kind = "current": this log's current-to-torque gains per motor, in place of robot.drive_gains
     # (a log recorded with other current sensors or another calibration; [[data]] experiments differ)
@@ -38,24 +39,24 @@ class SignalConfig:
 
 @dataclasses.dataclass(frozen=True)
 class TimeConfig:
-    column: str  # ROS bags: "header" (header.stamp) or "receive" (the bag's receive time)
-    unit: str = "s"
-    file: Path | None = None
+    column: str  # the time column (header = false: its index); ROS bags: "header" (header.stamp) or "receive"
+    unit: str = "s"  # of the time column: "s", "ms", "us" or "ns"
+    file: Path | None = None  # the time column's own file (default: the table's file)
 
 
 @dataclasses.dataclass(frozen=True)
 class DataConfig:
     """``[data]`` (training log) or ``[validation]`` (held-out log)."""
 
-    position: SignalConfig
-    effort: SignalConfig
-    file: Path | None = None
-    time: TimeConfig | None = None
-    sample_rate_hz: float | None = None
-    velocity: SignalConfig | None = None
-    acceleration: SignalConfig | None = None
-    rows: tuple[int, int] | None = None
-    time_window: tuple[float, float] | None = None
+    position: SignalConfig  # the positions: { columns = [...], unit = ..., side = ... } (joint or motor side)
+    effort: SignalConfig  # the efforts: torques or forces, or motor currents (kind = "current")
+    file: Path | None = None  # the log (.csv, .npz, .parquet or a ROS bag): the default file of every signal
+    time: TimeConfig | None = None  # the time column: { column = "t", unit = "s" } (ROS bags: "header" or "receive")
+    sample_rate_hz: float | None = None  # Hz: the log's constant sampling rate, when there is no time column
+    velocity: SignalConfig | None = None  # optional measured velocities (as position's side, unit); derivatives = "measured"
+    acceleration: SignalConfig | None = None  # optional measured accelerations (derivatives = "measured"; not from ROS bags)
+    rows: tuple[int, int] | None = None  # a window [start, stop) of the log's rows (a ROS bag: of its position messages)
+    time_window: tuple[float, float] | None = None  # a window [t0, t1) of the log's time in s (instead of rows)
     header: bool = True  # CSV: False reads a headerless file whose columns are named by index (0, 1, ...)
     topic: str | None = None  # ROS bags: the JointState topic of every signal without its own topic
     bag: bool = False  # file is a ROS bag (dynid.io.bags): columns are joint names, time the messages' stamps

@@ -21,11 +21,11 @@ class CovarianceConfig:
     """``[identification] covariance`` and its keys: which covariance of the estimates is reported
     (:mod:`dynid.estimation.block_covariance`). ``blocks`` None: the default number."""
 
-    kind: str = "model"
-    blocks: int | None = None
-    lags: int = 1
-    replicates: int = 500
-    seed: int = 0
+    kind: str = "model"  # covariance: "model" (white residuals) | "hac" (block-robust sandwich) | "block_bootstrap"
+    blocks: int | None = None  # covariance_blocks (hac, block_bootstrap): contiguous blocks of the training rows
+    lags: int = 1  # covariance_lags (hac): neighbouring blocks in the Bartlett kernel (0: blocks independent)
+    replicates: int = 500  # bootstrap_replicates (block_bootstrap): the bootstrap replicates
+    seed: int = 0  # bootstrap_seed (block_bootstrap): seed of the draws
 
 
 _COVARIANCE_KINDS = ("model", "hac", "block_bootstrap")  # dynid.estimation.block_covariance.COVARIANCE_KINDS
@@ -57,9 +57,10 @@ def _parse_covariance(t: Mapping[str, Any], method: str, physical: bool, frictio
 
 @dataclasses.dataclass(frozen=True)
 class IdentificationConfig:
-    method: str = "wls"
+    method: str = "wls"  # the estimator of the base parameters (docs/guide/computes.md: what each one computes)
+    # true: LMI constraints (pseudo-inertia >= 0, Ia, fv, fc >= 0), cvxpy + Clarabel; methods ols | wls | gm | didim
     physical_consistency: bool = False
-    chunk_size: int = 20000
+    chunk_size: int = 20000  # at most this many samples per chunk when compressing (fewer past 8 MiB of regressor rows)
     # "auto": a long log (at least dynid.pipeline.streaming.AUTO_ROWS rows) read, processed and compressed
     # chunk by chunk when the configuration allows it; "on": streamed or a ConfigError saying why not;
     # "off": held in memory (dynid.pipeline.streaming)
@@ -68,34 +69,48 @@ class IdentificationConfig:
     # of `workers` processes; 0: the cores this process may use) or a scheduler address (montecarlo.scheduler's
     # syntax; its workers are the cluster's)
     cluster: str = "off"
-    workers: int = 0
-    base_seed: int = 0
-    base_samples: int | None = None
-    min_joint_motion: float = 1e-3
+    workers: int = 0  # cluster = "local": its worker processes (0: the cores this process may use)
+    base_seed: int = 0  # seed of the random states that find the base parameters (deterministic)
+    base_samples: int | None = None  # how many random states (default: from the numbers of parameters and joints)
+    min_joint_motion: float = 1e-3  # rad (or m): a joint of the training log moving less is an error (unidentifiable)
+    # parallel robots with redundant actuation only: "projected" | "min_norm" | "min_norm_local_friction"
     force_model: str | None = None
-    noise_covariance: str | tuple[tuple[float, ...], ...] = "residuals"  # ml: "periodic" by default
-    iterations: int = 1
-    nominal_weighting: bool = False
-    position_covariance: str | tuple[tuple[float, ...], ...] = "periodic"  # ml only
-    cutoff_range_hz: tuple[float, float] | None = None  # ml only; None: 0.5-2 x processing.periodic.cutoff_hz
+    # gm | ml: the noise covariance across joints: "residuals" (feasible GLS) | "periodic" (period averaging) |
+    # a matrix [[...], ...]; ml: "periodic" by default
+    noise_covariance: str | tuple[tuple[float, ...], ...] = "residuals"
+    iterations: int = 1  # gm with noise_covariance = "residuals": rounds of covariance re-estimation
+    nominal_weighting: bool = False  # wls: weight the observation matrix by the nominal values (Shang Eq. 17)
+    # ml only: Sigma_dd of the actuator positions, "periodic" (from the period averaging) or a matrix [[...], ...]
+    position_covariance: str | tuple[tuple[float, ...], ...] = "periodic"
+    # ml only: the cut-offs searched, [low, high] in Hz; None: 0.5-2 x the configured cut-off
+    cutoff_range_hz: tuple[float, float] | None = None
     # physically consistent identification (physical_consistency = true; issue 8)
-    margin: float = 0.0
+    margin: float = 0.0  # physical: every pseudo-inertia >= margin * I
+    # physical: towards the nominal values, "none" | "euclidean" (paper 003 Eq. 22) | "logdet" (Lee-Wensing-Park)
     regularization: str = "none"
+    # physical: lambda, in units of the residual chi^2 (default 1 with a regularization named, else 0)
     regularization_weight: float = 0.0
-    solver: str = "CLARABEL"
+    solver: str = "CLARABEL"  # physical: any installed cvxpy solver
+    # physical: bounds per body, [identification.bodies.<name>] (named as its mass parameter: m3 -> "3"):
+    # mass = [lo, hi] kg, com_box = [[x, y, z], [x, y, z]] m, com_ellipsoid = { center, semi_axes } m
     bodies: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
-    friction_model: str = "linear"  # "stribeck": nonlinear friction (paper 000 Eq. 32)
+    # physical, ols | wls: "linear" or "stribeck" (nonlinear friction, paper 000 Eq. 32);
+    # hierarchical = true: the friction family, "linear" | "stribeck" | "powerlaw" | "arctan"
+    friction_model: str = "linear"
     max_samples: int = 4000  # friction_model = "stribeck": samples used by the nonlinear fit
     # structural reduction (dynid.model.reduction): "auto" (parallel robots: "full" or "identical_chains"
     # chosen from the training data, dynid.pipeline.structure; serial robots: "full"), "full",
     # "identical_chains" or "paper"
     structure: str = "auto"
-    identical_chains: tuple[tuple[tuple[str, ...], ...], ...] | None = None  # None: the mechanism's own chains
-    covariance: CovarianceConfig = CovarianceConfig()  # the covariance the intervals use (issue 17)
+    # parallel robots: the chains' joints in corresponding order, [["a1", "b1"], ["a2", "b2"]], or groups of
+    # such lists; None: the mechanism's own chains
+    identical_chains: tuple[tuple[tuple[str, ...], ...], ...] | None = None
+    # ols | wls: the covariance the intervals use (issue 17), "model" (white residuals) | "hac" | "block_bootstrap"
+    covariance: CovarianceConfig = CovarianceConfig()
     # methods "iv" and "didim" (issue 17): the experiment replayed on the model under its controller
     experiment: Path | None = None  # the dynid simulate config of the training experiment
     start: str = "wls"  # "wls" (IDIM-WLS estimate) or "nominal" (the robot description's values)
-    max_iterations: int = 10
+    max_iterations: int = 10  # the most iterations (replays of the experiment)
     tolerance: float = 0.5  # stop when no parameter moves by more than this many standard deviations
     # the replays' regularized Coulomb law: tanh(v / v_b), v_b this fraction of the largest measured
     # actuator speed; 0: the discontinuous law (dynid.pipeline.control_loop). Default 0.05 for "iv", 0 for "didim"

@@ -11,9 +11,9 @@ from dynid.errors import ConfigError
 
 @dataclasses.dataclass(frozen=True)
 class LowpassConfig:
-    cutoff_hz: float
-    order: int = 4
-    filter_effort: bool = True
+    cutoff_hz: float  # Hz: the cut-off of the zero-phase Butterworth low-pass on the positions
+    order: int = 4  # the Butterworth filter's order
+    filter_effort: bool = True  # low-pass the efforts too (false with decimate_method = "parallel")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -21,10 +21,10 @@ class PeriodicConfig:
     """``[processing.periodic]``: frequency-domain processing of periodic excitation data
     (paper 004 §3): period averaging and exact DFT filtering and differentiation."""
 
-    period_s: float
-    cutoff_hz: float
-    average: bool = True
-    filter_effort: bool = False
+    period_s: float  # s: the excitation's period (a whole number of samples)
+    cutoff_hz: float  # Hz: the DFT filter's cut-off (keep it above the closed loop's bandwidth)
+    average: bool = True  # average the whole periods into one (noise covariances to the provenance); false: keep every period
+    filter_effort: bool = False  # DFT-filter the efforts too
     domain: str = "actuators"  # "pose": parallel robots, filter the reconstructed platform pose (paper 004)
 
 
@@ -32,17 +32,22 @@ class PeriodicConfig:
 class ProcessingConfig:
     """``[processing]``: how raw logs become positions, velocities, accelerations, torques."""
 
+    # "auto": irregular timestamps resampled at the median rate; "off": refuse them; or a rate in Hz
     resample: str | float = "auto"
-    lowpass: LowpassConfig | None = None
+    lowpass: LowpassConfig | None = None  # zero-phase Butterworth low-pass on the positions (and efforts)
     derivatives: str = "central"  # "central" | "measured" | "kalman" (RTS smoother: dynid.signals.kalman)
     # derivatives = "kalman": the positions' measurement noise std per coordinate (SI, actuator space), e.g.
     # an encoder's resolution / sqrt(12); None: estimated from the log with the smoother's noise ratio
     position_noise_std: tuple[float, ...] | None = None
-    decimate: int = 1
+    decimate: int = 1  # keep one sample in this many (1: every sample)
+    # "samples": one sample kept after the low-pass; "parallel": regressor and efforts filtered together (Gautier)
     decimate_method: str = "samples"
-    trim_samples: int | None = None
+    trim_samples: int | None = None  # samples dropped at both ends (default: the low-pass's transient, else 2)
+    # rad/s or m/s, one or one per joint: the rows of joint j's equation where |dq_j| is below it are left out
     min_velocity: tuple[float, ...] | None = None
     min_velocity_passive: float | None = None  # mechanisms: samples with a slower passive friction joint left out
+    # periodic excitation: whole periods averaged, exact DFT filtering and differentiation (replaces lowpass,
+    # decimate and trim_samples)
     periodic: PeriodicConfig | None = None
     reversal_guard: float | str | None = None  # seconds, or "auto" (the low-pass's settling time): rows near a reversal left out
 

@@ -26,12 +26,16 @@ class CouplingConfig:
 class RobotConfig:
     """``[robot]``: the model and its drive train."""
 
-    model: str
+    model: str  # "builtin:<name>", or a .urdf, .xml (MJCF) or DH .toml file (relative to the config file)
+    # the joint extras identified with the bodies: rotor inertia Ia, viscous fv, Coulomb fc, torque offset
+    # (any subset, fixed order); fv+, fv-, fc+, fc-: friction per direction of motion
     extras: tuple[str, ...] = _EXTRAS
-    gear_ratios: tuple[float, ...] | None = None
+    gear_ratios: tuple[float, ...] | None = None  # motor angle per joint angle, one per joint (non-zero; motor-side signals)
+    # motors that turn with several joints: [{ motor = 6, joints = [5, 6] }] (numbered from 1); optional
+    # weights = [1, 1], per joint, multiply the motor's gear ratio (default 1)
     couplings: tuple[CouplingConfig, ...] = ()
-    drive_gains: tuple[float, ...] | None = None
-    position_offset: tuple[float, ...] | None = None
+    drive_gains: tuple[float, ...] | None = None  # N*m/A at the motor, one per motor (effort kind = "current")
+    position_offset: tuple[float, ...] | None = None  # rad (or m) per joint: the joint position at encoder zero
     extras_given: bool = False  # extras named in the file (a mechanism then gains them on its actuated joints)
     actuated: tuple[str, ...] | None = None  # mechanisms: actuated joints, in actuator order (default: the model's)
     independent: tuple[str, ...] | None = None  # mechanisms: joints whose positions are the independent coordinates

@@ -84,18 +84,18 @@ def require_torch():
 class LearningConfig:
     """``[learning]``: the residual network and its training."""
 
-    model: str = "lstm"
-    window: int = 6  # k, paper: 5-8 control cycles
-    hidden: int = 24
-    epochs: int = 150
-    lam: float = 0.2  # λ, paper: 0.1-0.3
-    seed: int = 0
-    max_seconds: float = 120.0
+    model: str = "lstm"  # "lstm" | "gru" | "rnn" (paper 003 Table 1's ablation)
+    window: int = 6  # k: the network reads the last k samples (paper: 5-8 control cycles; at most 64)
+    hidden: int = 24  # hidden units of the one recurrent layer (4-256)
+    epochs: int = 150  # the most training epochs (early stopping may end sooner)
+    lam: float = 0.2  # λ ("lambda"): weight of the physical loss terms, in [0.1, 0.3] as paper 003 says
+    seed: int = 0  # seed of the initial weights and the shuffling
+    max_seconds: float = 120.0  # s: wall-clock bound of the whole training
     patience: int = 20  # epochs without a better validation MSE before stopping
-    learning_rate: float = 5e-3
-    batch_size: int = 128
-    validation_fraction: float = 0.2
-    stribeck_velocity: tuple[float, ...] | None = None  # v_s per joint (default: fitted)
+    learning_rate: float = 5e-3  # Adam's learning rate
+    batch_size: int = 128  # samples per training batch
+    validation_fraction: float = 0.2  # share of the training samples (interleaved blocks) kept for early stopping (< 0.5)
+    stribeck_velocity: tuple[float, ...] | None = None  # rad/s: v_s of the Stribeck prior, one or per joint (default: fitted)
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
