@@ -171,3 +171,17 @@ def test_bad_settings(tmp_path, identification, fragment):
     with pytest.raises(ConfigError, match=fragment) as err:
         _config(tmp_path, **identification)
     assert "\n" not in str(err.value)
+
+
+def test_several_logs_are_refused(tmp_path):
+    """CLOE replays one experiment against one log: several [[data]] tables are refused in one line,
+    as for iv and didim."""
+    from dynid.config import parse_config
+
+    table = {"file": "train/log.csv", "time": {"column": "t", "unit": "s"},
+             "position": {"columns": ["q_qa1", "q_qa2", "q_qa3"], "unit": "rad"},
+             "effort": {"columns": ["tau_qa1", "tau_qa2", "tau_qa3"], "kind": "torque", "unit": "N*m"}}
+    with pytest.raises(ConfigError, match="2 \\[\\[data\\]\\] experiments, but identification.method = 'cloe'") as err:
+        parse_config({"robot": {"model": "builtin:shang2dof"}, "data": [table, table], "validation": {"file": "v.csv"},
+                      "identification": {"method": "cloe", "experiment": "train.toml"}}, tmp_path)
+    assert "\n" not in str(err.value)

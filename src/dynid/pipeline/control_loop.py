@@ -1,4 +1,5 @@
-"""Identification through the control loop: IDIM-IV and DIDIM (``method = "iv"`` / ``"didim"``).
+"""Identification through the control loop: IDIM-IV and DIDIM (``method = "iv"`` / ``"didim"``; CLOE,
+the output error of the positions on the same replay, is :mod:`dynid.pipeline.cloe`).
 
 On a robot under feedback control the measured motion answers the controller, and the
 regressor built from filtered, differentiated positions carries errors that least squares
