@@ -294,7 +294,7 @@ def test_iv_runs_through_the_loop(twin, monkeypatch):
 
 @pytest.mark.parametrize("identification, fragment", [
     ({"method": "iv"}, "set identification.experiment"),
-    ({"method": "wls", "experiment": "train.toml"}, "is for method = 'iv' or 'didim'"),
+    ({"method": "wls", "experiment": "train.toml"}, "is for method = 'iv', 'didim' or 'cloe'"),
     ({"method": "didim", "experiment": "train.toml", "start": "truth"}, "identification.start"),
     ({"method": "iv", "experiment": "train.toml", "physical_consistency": True}, "physical_consistency"),
 ])

@@ -161,9 +161,9 @@ def parse_config(doc: Mapping[str, Any], base_dir: Path, source: Path | None = N
     data_list, val_list = _tables_or_array(doc["data"], "data"), _tables_or_array(doc["validation"], "validation")
     many = isinstance(doc["data"], list) or isinstance(doc["validation"], list)
     method = doc.get("identification", {}).get("method") if isinstance(doc.get("identification"), dict) else None
-    if len(data_list) > 1 and method in ("iv", "didim", "ml", "gm"):  # before the methods' own checks
+    if len(data_list) > 1 and method in ("iv", "didim", "cloe", "ml", "gm"):  # before the methods' own checks
         raise ConfigError(f"data: {len(data_list)} [[data]] experiments, but identification.method = {method!r} (only "
-                          "'ols' and 'wls' stack experiments' factors; iv/didim run the control loop over one log, ml "
+                          "'ols' and 'wls' stack experiments' factors; iv/didim/cloe run the control loop over one log, ml "
                           "cuts one log's filter, gm needs one log's cross-channel factor); give one [data] table")
     payloads = []
     for i, t in enumerate(data_list):

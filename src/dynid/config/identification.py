@@ -12,7 +12,7 @@ from typing import Any
 from dynid.config._schema import _bool, _int, _num, _path, _str, _table, parse_scheduler, parse_workers
 from dynid.errors import ConfigError
 
-_METHODS = ("ols", "wls", "gm", "irls", "tls", "ml", "iv", "didim")
+_METHODS = ("ols", "wls", "gm", "irls", "tls", "ml", "iv", "didim", "cloe")
 _FORCE_MODELS = ("projected", "min_norm", "min_norm_local_friction")
 
 
@@ -107,16 +107,16 @@ class IdentificationConfig:
     identical_chains: tuple[tuple[tuple[str, ...], ...], ...] | None = None
     # ols | wls: the covariance the intervals use (issue 17), "model" (white residuals) | "hac" | "block_bootstrap"
     covariance: CovarianceConfig = CovarianceConfig()
-    # methods "iv" and "didim" (issue 17): the experiment replayed on the model under its controller
+    # methods "iv", "didim" and "cloe" (issue 17): the experiment replayed on the model under its controller
     experiment: Path | None = None  # the dynid simulate config of the training experiment
     start: str = "wls"  # "wls" (IDIM-WLS estimate) or "nominal" (the robot description's values)
     max_iterations: int = 10  # the most iterations (replays of the experiment)
     tolerance: float = 0.5  # stop when no parameter moves by more than this many standard deviations
     # the replays' regularized Coulomb law: tanh(v / v_b), v_b this fraction of the largest measured
-    # actuator speed; 0: the discontinuous law (dynid.pipeline.control_loop). Default 0.05 for "iv", 0 for "didim"
+    # actuator speed; 0: the discontinuous law (dynid.pipeline.control_loop). Default 0.05 for "iv", 0 for "didim" and "cloe"
     replay_coulomb_band: float = 0.05
     # the directions estimated (fixed at the start's replay): singular values of the scaled step matrix
-    # (IV: Z^T W; DIDIM: W_s^T W_s) above this fraction of the largest. Default 1e-3 for "iv", 1e-6 for "didim"
+    # (IV: Z^T W; DIDIM, CLOE: W_s^T W_s) above this fraction of the largest. Default 1e-3 for "iv", 1e-6 for "didim"/"cloe"
     directions_rtol: float = 1e-3
     # the Coulomb terms' sign: "none" (the sign), "auto" (erf of the data's velocity-noise std), or widths per actuator
     coulomb_smoothing: str | tuple[float, ...] = "none"
@@ -227,10 +227,10 @@ def _parse_identification(t: Any, base: Path = Path(".")) -> IdentificationConfi
     if physical and method not in ("ols", "wls", "gm", "didim"):
         raise ConfigError(f"{where}.physical_consistency = true is available with methods 'ols', 'wls', 'gm' and "
                           f"'didim', not {method!r}")
-    loop = method in ("iv", "didim")
+    loop = method in ("iv", "didim", "cloe")
     extra = [k for k in _LOOP_KEYS if k in t]
     if extra and not loop:
-        raise ConfigError(f"{where}.{extra[0]} is for method = 'iv' or 'didim' (the experiment replayed on the model)")
+        raise ConfigError(f"{where}.{extra[0]} is for method = 'iv', 'didim' or 'cloe' (the experiment replayed on the model)")
     if loop and "experiment" not in t:
         raise ConfigError(f"{where}.method = {method!r} simulates the experiment with the current estimate under its "
                           f"controller: set {where}.experiment to the dynid simulate config of the training experiment "

@@ -1,4 +1,5 @@
-"""Identification through the control loop: IDIM-IV and DIDIM (``method = "iv"`` / ``"didim"``).
+"""Identification through the control loop: IDIM-IV and DIDIM (``method = "iv"`` / ``"didim"``; CLOE,
+the output error of the positions on the same replay, is :mod:`dynid.pipeline.cloe`).
 
 On a robot under feedback control the measured motion answers the controller, and the
 regressor built from filtered, differentiated positions carries errors that least squares
@@ -295,6 +296,28 @@ def _simulate_or_halve(exp, base: BaseParameters, reference: np.ndarray, beta_ol
                      "physical_consistency = true (method 'didim') or start = 'nominal'")
 
 
+def replay_problem(system: System, base: BaseParameters, channels, measured, replay_chunks, meta: dict) -> RegressionProblem:
+    """DIDIM's regression (also CLOE's at its start, :mod:`dynid.pipeline.cloe`): the equations at the
+    replayed configuration (projected equations of a redundant mechanism: ``G_a(q_s)^T tau_a``), the
+    measured forces, each chunk's rows selected by ``measured``'s masks (``(_, mask)`` per chunk)."""
+    mb = ProblemBuilder(base.names, channels)
+    for (_, mask), cs in zip(measured, replay_chunks):
+        if mask is not None and mask.ndim == 1:
+            mb.add(cs.W[mask], cs.y[mask])
+        else:
+            mb.add(cs.W, cs.y, mask)
+    return mb.build(expressions=base.expressions(), standard=system.standard_map(base), meta=dict(meta))
+
+
+def output_error_directions(problem: RegressionProblem, beta: np.ndarray, rtol: float):
+    """The directions the replayed regressor determines (DIDIM, CLOE; module docstring): those of the
+    column-scaled :math:`\\sum_j w_j W_{s,j}^T W_{s,j}` (``w_j`` from the residuals at ``beta``) with
+    singular values above ``rtol`` of the largest. Returns ``(TU, TV, relative singular values)``."""
+    w = 1.0 / _sigma(problem.rss_per_channel(beta), problem.n_obs, problem.n_params) ** 2
+    G = np.einsum("j,jki,jkl->il", w, problem.R, problem.R)
+    return determined_directions(G, G, rtol)
+
+
 def _reduced_fit(estimator, problem: RegressionProblem, beta0: np.ndarray, TV: np.ndarray,
                  base: BaseParameters) -> IdentificationResult:
     """DIDIM's step on the fixed directions: the least squares of ``y - W beta0`` on ``W TV``
@@ -480,23 +503,13 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
                                    f"at the start's values; the standard errors are conditional on them",),
                                expressions=base.expressions())
         else:
-            mb = ProblemBuilder(base.names, channels)
-            for (_, mask), cs in zip(measured, chunks(sim, joint_qs, rows_system)):
-                # the equations at the simulated configuration (projected equations of a redundant
-                # mechanism: G_a(q_s)^T tau_a), the measured forces
-                if mask is not None and mask.ndim == 1:
-                    mb.add(cs.W[mask], cs.y[mask])
-                else:
-                    mb.add(cs.W, cs.y, mask)
-            problem = mb.build(expressions=base.expressions(), standard=system.standard_map(base), meta=dict(meta))
+            problem = replay_problem(system, base, channels, measured, chunks(sim, joint_qs, rows_system), meta)
             if icfg.physical_consistency:  # consistent iterates: every direction, under the LMIs
                 result = estimator.fit(problem)
                 rank = base.n_base
             else:
                 if subspace is None:  # the directions the start's replay determines, fixed for the run
-                    w = 1.0 / _sigma(problem.rss_per_channel(beta_used), problem.n_obs, base.n_base) ** 2
-                    G = np.einsum("j,jki,jkl->il", w, problem.R, problem.R)
-                    subspace = (beta_used.copy(), *determined_directions(G, G, icfg.directions_rtol))
+                    subspace = (beta_used.copy(), *output_error_directions(problem, beta_used, icfg.directions_rtol))
                 beta0, _, TV, _ = subspace
                 rank = TV.shape[1]
                 result = _reduced_fit(estimator, problem, beta0, TV, base)

@@ -56,7 +56,7 @@ def check_several(cfg: Config, structure_decided: bool = False) -> None:
     icfg, pcfg = cfg.identification, cfg.processing
     why = None
     if icfg.method not in ("ols", "wls"):
-        why = (f"identification.method = {icfg.method!r} (only 'ols' and 'wls' stack experiments' factors; iv/didim run "
+        why = (f"identification.method = {icfg.method!r} (only 'ols' and 'wls' stack experiments' factors; iv/didim/cloe run "
                "the control loop over one log, ml cuts one log's filter, gm needs one log's cross-channel factor)")
     elif icfg.hierarchical:
         why = "identification.hierarchical (its friction steps read one log)"

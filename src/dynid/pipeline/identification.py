@@ -165,7 +165,7 @@ def _check_config(cfg: Config, system: System) -> str | None:
         hierarchical.check_config(cfg, system)
     elif icfg.friction_model == "stribeck":
         stribeck.check_config(cfg, system)
-    if icfg.method in ("iv", "didim") and pc is not None:
+    if icfg.method in ("iv", "didim", "cloe") and pc is not None:
         raise ConfigError(f"identification.method = {icfg.method!r} replays the experiment sample by sample; "
                           "processing.periodic replaces the log by one averaged period: use time-domain processing")
     return force_model
@@ -319,7 +319,7 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
                                               meta, original)
     elif icfg.friction_model == "stribeck":
         result, fj, worst = _stribeck_fit(cfg, system, base, train, force_model, periodic, progress, meta)
-    elif icfg.method in ("iv", "didim"):
+    elif icfg.method in ("iv", "didim", "cloe"):
         result, worst = _control_loop(cfg, system, base, train, force_model, parallel, meta, progress)
     elif several:
         result, worst, payload_outcome = _several(cfg, system, base, train, steps, raw_train.meta, force_model,

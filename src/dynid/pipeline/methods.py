@@ -281,7 +281,8 @@ def _stribeck_fit(cfg: Config, system: System, base: BaseParameters, train: Data
 
 def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Dataset, force_model: str | None,
                   parallel: int, meta: dict, progress: Progress) -> tuple[IdentificationResult, float]:
-    """IDIM-IV / DIDIM (:mod:`dynid.pipeline.control_loop`) from the WLS estimate or the nominal model."""
+    """IDIM-IV / DIDIM (:mod:`dynid.pipeline.control_loop`) or CLOE (:mod:`dynid.pipeline.cloe`) from the WLS
+    estimate or the nominal model."""
     from dynid.pipeline.control_loop import control_loop_estimate
 
     icfg, pcfg = cfg.identification, cfg.processing
@@ -307,6 +308,11 @@ def _control_loop(cfg: Config, system: System, base: BaseParameters, train: Data
                         min_velocity_passive=pcfg.min_velocity_passive, reversal=c.reversal)
 
     selects = pcfg.selects_rows
+    if icfg.method == "cloe":  # the output error of the positions (dynid.pipeline.cloe)
+        from dynid.pipeline.cloe import cloe_estimate
+
+        return cloe_estimate(cfg, system, base, train, force_model, start, chunks, mask_of if selects else None,
+                             meta, progress), worst
     result = control_loop_estimate(cfg, system, base, train, force_model, start, chunks, mask_of if selects else None,
                                    meta, progress)
     return result, worst

@@ -37,7 +37,7 @@ chunk by chunk; ``"on"`` streams or refuses with the reason (:class:`~dynid.erro
 ROS bags, closed-loop mechanisms, ``[processing.periodic]``,
 parallel decimation, ``reversal_guard`` and ``coulomb_smoothing = "auto"`` (whole-log quantities),
 resampling of irregular timestamps, methods that are not one compressed least-squares problem
-(``ml``, ``iv``, ``didim``, ``friction_model = "stribeck"``, ``hierarchical``) and ``[learning]``.
+(``ml``, ``iv``, ``didim``, ``cloe``, ``friction_model = "stribeck"``, ``hierarchical``) and ``[learning]``.
 ``result.json`` (``data_path``) and ``summary.txt`` say which path ran.
 
 Plots (``[output] plots = true``) stream too: the figures' series are thinned chunk by chunk to the
@@ -97,7 +97,7 @@ def _why_not(cfg: Config, system) -> str | None:
         (pcfg.decimate > 1 and pcfg.decimate_method == "parallel", "parallel decimation"),
         (pcfg.reversal_guard is not None, "processing.reversal_guard needs the whole log's reversals"),
         (isinstance(pcfg.resample, float), "processing.resample to a given rate"),
-        (icfg.method in ("ml", "iv", "didim"), f"method {icfg.method!r} is not one compressed least-squares problem"),
+        (icfg.method in ("ml", "iv", "didim", "cloe"), f"method {icfg.method!r} is not one compressed least-squares problem"),
         (icfg.friction_model == "stribeck", "friction_model = 'stribeck' (nonlinear fit on sampled rows)"),
         (icfg.hierarchical, "hierarchical identification"),
         (icfg.coulomb_smoothing != "none", "coulomb_smoothing reads the whole log's velocity noise"),
