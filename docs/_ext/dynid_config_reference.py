@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import importlib
 import inspect
 import io
 import re
@@ -248,8 +249,66 @@ def _objects(path: tuple[str, ...]) -> tuple[Any, type | None]:
     for p in path:
         hint = _hints(cls).get(p) if cls is not None else None
         obj = getattr(obj, p, None) if obj is not None else None
+        parent = cls
         cls = type(obj) if dataclasses.is_dataclass(obj) else _dataclass_of(hint)
+        if cls is None and parent is not None:
+            cls = _named_class(parent, p)
     return obj, cls
+
+
+def _named_class(cls: type, name: str) -> type | None:
+    """The dataclass that the comment of ``cls``'s field ``name`` names (``dynid.module.Class``): a field
+    typed ``Any`` to keep an optional table's class out of the import graph (``Config.payload``)."""
+    m = re.search(r"(dynid(?:\.\w+)+)\.([A-Z]\w*)", _field_comments(cls).get(name, ""))
+    if m is None:
+        return None
+    try:
+        found = getattr(importlib.import_module(m.group(1)), m.group(2), None)
+    except ImportError:
+        return None
+    return found if dataclasses.is_dataclass(found) else None
+
+
+_DESCRIPTION_ALIASES = {"lambda": "lam"}  # a key that is a Python keyword: its field's name
+
+
+def _descriptions(cls: type | None, path: tuple[str, ...], parent: type | None) -> dict[str, str]:
+    """The descriptions of a table's keys, by key: the comments of its dataclass's fields; the comments of a
+    nested dataclass's fields that open with the key they read (``covariance_blocks (hac, ...): ...``, the
+    fields of ``CovarianceConfig``); for a table without a dataclass of its own, its parent's fields named
+    ``<table>_<key>`` (``[payload.origin] xyz``: ``PayloadConfig.origin_xyz``)."""
+    out: dict[str, str] = {}
+    if cls is not None:
+        out.update(_field_comments(cls))
+        for hint in _hints(cls).values():
+            sub = _dataclass_of(hint)
+            if sub is None or sub is cls:
+                continue
+            for text in _field_comments(sub).values():
+                m = re.match(r"([a-z_]+) [(:]", text)
+                if m and m.group(1) not in out:
+                    out[m.group(1)] = text
+        for key, field in _DESCRIPTION_ALIASES.items():
+            if field in out and key not in out:
+                out[key] = out[field]
+        # a sub-table held as prefixed fields (origin -> origin_xyz, origin_rpy): its keys' descriptions joined
+        prefixed: dict[str, list[str]] = {}
+        for name, text in _field_comments(cls).items():
+            head, _, tail = name.partition("_")
+            if tail and head not in out:
+                prefixed.setdefault(head, []).append(f"{tail}: {text}")
+        out.update({head: "; ".join(parts) for head, parts in prefixed.items() if len(parts) > 1})
+    elif parent is not None and path:
+        out.update({name.removeprefix(path[-1] + "_"): text for name, text in _field_comments(parent).items()
+                    if name.startswith(path[-1] + "_")})
+    if not path:  # top-level keys read by a function of dynid.config of the same name (data_root)
+        import dynid.config as package
+
+        for name, fn in vars(package).items():
+            if callable(fn) and not isinstance(fn, type) and (fn.__doc__ or "").strip() and name not in out:
+                first = inspect.getdoc(fn).split("\n\n", 1)[0].replace("\n", " ")
+                out[name] = re.sub(r"^``\w+``:\s*", "", first)
+    return out
 
 
 def _default(name: str, obj: Any, cls: type | None) -> str:
@@ -282,13 +341,13 @@ def collect() -> list[Section]:
     """Every table of the identify config with its keys, top level first, depth first."""
     sections: list[Section] = []
 
-    def visit(path: tuple[str, ...]) -> None:
+    def visit(path: tuple[str, ...], parent: type | None) -> None:
         keys = allowed_keys(path)
         if keys is None:
             return
         required = required_keys(path)
         obj, cls = _objects(path)
-        comments = _field_comments(cls) if cls is not None else {}
+        comments = _descriptions(cls, path, parent)
         doc = inspect.getdoc(cls) or "" if cls is not None and cls.__doc__ and "(" not in cls.__doc__[:len(cls.__name__) + 1] else ""
         section = Section(path, [], doc)
         sections.append(section)
@@ -308,9 +367,9 @@ def collect() -> list[Section]:
                 key.type = _type_name(hint) if hint is not None else ""
             section.keys.append(key)
         for name in subtables:
-            visit((*path, name))
+            visit((*path, name), cls)
 
-    visit(())
+    visit((), None)
     return sections
 
 

@@ -11,7 +11,8 @@ All keys optional; the section's presence switches the network on:
     ``max_seconds``: wall-clock bound of the whole training (default 120);
     ``patience``: epochs without a better validation error before stopping (default 20);
     ``learning_rate`` (default 5e-3), ``batch_size`` (default 128);
-    ``validation_fraction``: the last part of the training log kept for early stopping (default 0.2);
+    ``validation_fraction``: the share of the training samples, in interleaved blocks spread over the log,
+    kept for early stopping (default 0.2);
     ``stribeck_velocity``: v_s of the Stribeck prior feature, one value or one per joint [rad/s]
     (default: fitted to the training log's friction).
 """
