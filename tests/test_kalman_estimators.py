@@ -71,6 +71,33 @@ def test_square_root_updates_equal_the_covariance_form():
     assert np.max(np.abs(x2 - x_ref)) <= tol * np.linalg.norm(np.linalg.solve(Pzz, e)) * 10
 
 
+def test_bilinear_second_order_terms_are_the_gaussian_moments_of_the_quadratic_form():
+    """The EKF's second-order terms of ``h_c = W_c(u) beta`` from the mixed Hessian, against the
+    moments of the quadratic form ``1/2 x^T H_c x`` of a Gaussian ``x`` (mean ``1/2 tr(H_c P)``,
+    covariance ``1/2 tr(H_c P H_d P)``) with the Hessians and ``P`` formed explicitly (another
+    route to the same numbers). Margin: sums of ``L^2`` products of size ``||S||^2 ||G||``;
+    1e3 L^2 eps of that scale."""
+    from dynid.estimation.kalman_filters import bilinear_second_order, root
+
+    rng = np.random.default_rng(seed(75))
+    a, p, m = 4, 3, 2  # u, beta, channels
+    L = a + p + 2  # two more state entries that enter neither
+    P = _random_spd(rng, L, 1e2)
+    S = root(P)
+    iu, ib = np.arange(a), np.arange(a, a + p)
+    G = rng.standard_normal((a, m, p))
+    shift, R2 = bilinear_second_order(S[:, iu], S[:, ib], G)
+    Hs = np.zeros((m, L, L))
+    for c in range(m):
+        Hs[c][np.ix_(iu, ib)] = G[:, c, :]
+        Hs[c][np.ix_(ib, iu)] = G[:, c, :].T
+    mean = np.array([0.5 * np.trace(Hs[c] @ P) for c in range(m)])
+    cov = np.array([[0.5 * np.trace(Hs[c] @ P @ Hs[d] @ P) for d in range(m)] for c in range(m)])
+    scale = np.linalg.norm(P, 2) * np.max(np.abs(G))
+    assert np.max(np.abs(shift - mean)) <= 1e3 * L**2 * EPS * scale
+    assert np.max(np.abs(R2.T @ R2 - cov)) <= 1e3 * L**2 * EPS * scale**2
+
+
 # ------------------------------------------------------------------ (c) recursive least squares
 @pytest.mark.parametrize("kind", ["ekf", "ukf"])
 def test_filter_on_a_linear_measurement_is_batch_weighted_least_squares(kind):

@@ -38,7 +38,10 @@ a pre-array (Kailath, Sayed & Hassibi 2000, *Linear Estimation*, Ch. 12, array a
   no Cholesky factor of a difference (a possibly indefinite matrix) is ever taken.
 
 EKF (:func:`run`, ``kind = "ekf"``): :math:`\\bar S = S H^T` with :math:`H` the Jacobian the
-caller's ``linearize(k, x)`` returns at the predicted state, :math:`e = z - h(x)`.
+caller's ``linearize(k, x, S)`` returns at the predicted state, :math:`e = z - h(x)`; the caller may
+add rows under :math:`R^{1/2}` (a square root of more innovation covariance) and shift
+:math:`h(x)`: the Gaussian second-order terms of a measurement bilinear in two parts of the state
+(:func:`bilinear_second_order`).
 
 UKF (``kind = "ukf"``): the square-root unscented filter (van der Merwe & Wan 2001, "The
 square-root unscented Kalman filter for state and parameter estimation", ICASSP; the unscented

@@ -41,8 +41,9 @@ no forward dynamics)
   estimate by about 1 % of a standard error or less. The result reports it (``solver["prior"]``).
 * Second-order term (EKF): the measurement is bilinear in the kinematic state and the parameters
   (:math:`W(u)\\beta`); the first-order EKF leaves out the product of their uncertainties, which
-  is large while the parameters are uncertain, and its covariance then misses the truth (a
-  chi-square of 125 for 22 parameters in one simulated draw). The EKF here adds the Gaussian
+  is large while the parameters are uncertain, and its covariance then misses the truth (with a
+  10 times wider prior, a chi-square of 125 for 22 parameters in one simulated draw, 24 with the
+  terms). The EKF here adds the Gaussian
   second-order terms of the mixed Hessian :math:`\\partial W/\\partial u` (the same central
   differences): a mean shift and an added innovation covariance
   (:func:`dynid.estimation.kalman_filters.bilinear_second_order`); the UKF's sigma points carry
