@@ -6,6 +6,8 @@ recovery of a simulated arm's base parameters, and the configuration's refusals.
 from __future__ import annotations
 
 import copy
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -277,14 +279,12 @@ def test_settings_that_do_not_apply_are_refused(method, key, value, message):
     doc = _doc(method)
     doc["identification"][key] = value
     with pytest.raises(ConfigError, match=message) as err:
-        parse_config(doc, __import__("pathlib").Path("/cfg"))
+        parse_config(doc, Path("/cfg"))
     assert "\n" not in str(err.value)
 
 
 @pytest.mark.parametrize("method", ["ekf", "ukf"])
 def test_streaming_cluster_and_several_logs_are_refused(method):
-    from pathlib import Path
-
     from dynid.config import parse_config
     from dynid.model import load_robot
     from dynid.model.system import SerialSystem
@@ -324,6 +324,8 @@ def test_pipeline_runs_the_filters_and_refuses_what_they_cannot_filter(arrays):
     out = dynid.identify_arrays(str(REPO / ARM), t, q, tau, method="ukf", extras=list(EXTRAS), derivatives="kalman")
     assert out.result.method == "UKF" and out.result.cov_params is not None
     assert np.all(out.validation.rmse < 0.06)  # the force noise is 0.05 N*m
+    record = json.loads(json.dumps(out.result.to_dict()))  # result.json's content
+    assert record["method"] == "UKF" and "innovation_nms" in record["solver"]
     with pytest.raises(ConfigError, match="decimate_method = 'parallel' filters the regressor rows") as err:
         dynid.identify_arrays(str(REPO / ARM), t, q, tau, method="ekf", extras=list(EXTRAS), decimate=2,
                               decimate_method="parallel")

@@ -169,15 +169,20 @@ class FilterRun:
         return self.S.T @ self.S
 
 
+Linearize = Callable[[int, FloatArray, FloatArray], tuple[FloatArray, FloatArray, "FloatArray | None"]]
+"""``linearize(k, x, S) -> (h, H, extra)`` of the EKF (:func:`run`)."""
+
+
 def run(kind: str, z: FloatArray, x0: FloatArray, S0: FloatArray, F: FloatArray, Qh: FloatArray, Rh: FloatArray, *,
-        linearize: Callable[[int, FloatArray, FloatArray], tuple[FloatArray, FloatArray, FloatArray | None]] | None = None,
+        linearize: Linearize | None = None,
         measure: Callable[[int, FloatArray], FloatArray] | None = None, skip: int = 0,
         progress: Callable[[int, int], None] | None = None) -> FilterRun:
     """Run the square-root EKF or UKF (module docstring) over measurements ``z`` (N, m) from the
     a-priori state ``x0`` (n,) with square root ``S0`` (``S0^T S0 = P0``): at each step a
     measurement update, then a prediction with ``F`` (n, n), ``Qh`` (r, n). ``linearize(k, x, S)``
     (EKF) returns ``(h, H, extra)``: the predicted measurement, the Jacobian ``H`` (m, n) and ``extra``
-    (r, m) or None, more rows of the innovation's square root (:func:`bilinear_second_order`); ``measure(k, X)`` (UKF) returns ``h_k`` of each
+    (r, m) or None, more rows of the innovation's square root (:func:`bilinear_second_order`);
+    ``measure(k, X)`` (UKF) returns ``h_k`` of each
     row of ``X`` (b, n) as (b, m). ``skip``: steps left out of the NIS mean (the start)."""
     if kind not in KINDS:
         raise InputError(f"filter kind must be one of {KINDS}, got {kind!r}")

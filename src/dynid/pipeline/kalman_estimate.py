@@ -154,7 +154,8 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
     dt = np.diff(ds.t)
     T = float(np.median(dt))
     if not np.all(np.abs(dt - T) <= UNIFORM_RTOL * T):
-        raise InputError(f"method {kind!r} needs a uniformly sampled processed log: sample intervals from {dt.min():.6g} "
+        raise InputError(f"method {kind!r} needs a uniformly sampled processed log: sample intervals from "
+                         f"{dt.min():.6g} "
                          f"to {dt.max():.6g} s (resample it: processing.resample)")
     rows = system.rows(force_model)
     zeros = np.zeros((1, n_a))
@@ -246,7 +247,7 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
         if progress is not None:
             progress(kind, done, total)
 
-    fr = run(kind, z, x0, S0, F, np.vstack([Qh, np.zeros((0, n))]), Rh, linearize=linearize, measure=measure,
+    fr = run(kind, z, x0, S0, F, Qh, Rh, linearize=linearize, measure=measure,
              skip=min(N // 10, 200), progress=tick)
     beta = fr.x[ns:]
     Sb = fr.S[:, ns:]
@@ -276,7 +277,8 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
         solver["unscented"] = {"alpha": 1.0, "beta": 0.0, "kappa": 0.0, "sigma_points": 2 * n,
                                "weights": "centre 0, others 1/(2L): all non-negative"}
     notes = (
-        f"{kind.upper()} covariance: the parameter block of the filter's final covariance; it assumes the model's noise "
+        f"{kind.upper()} covariance: the parameter block of the filter's final covariance; it assumes the model's "
+        "noise "
         "levels (position noise and process noise by maximum likelihood from the positions, force noise from WLS "
         "residuals on the same log) and the filter's " + ("first-order linearization" if kind == "ekf" else
                                                           "unscented transform") +
