@@ -25,7 +25,8 @@ no forward dynamics)
 * Measurement: :math:`z_k = (q_k, y_k)` with :math:`h(x_k) = (q(s_k), W(q_k, \\dot q_k, \\ddot q_k)\\beta)`,
   :math:`W` the system's base-regressor rows at the kinematic state (a serial arm's joint-torque
   regressor; a closed chain's actuator-space rows through its loop closures, ``System.rows``) and
-  :math:`y_k` the measured forces of that sample. The force noise variance of each channel is the
+  :math:`y_k` the measured forces of that sample (a redundantly actuated mechanism's outputs, the
+  projected equations or an assumed force distribution, taken at the processed states). The force noise variance of each channel is the
   residual variance of a WLS fit on the same processed log (its rows at the processed
   derivatives; the result says so).
 * EKF: the Jacobian of :math:`W\\beta` in :math:`(q, \\dot q, \\ddot q)` (the jerk does not enter) by
@@ -142,7 +143,9 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
     """Identify the base parameters of ``system`` from the processed log ``ds`` (uniformly sampled,
     with ``dq`` and ``ddq``) by the square-root EKF or UKF (module docstring). Returns the result
     and the largest RMS inconsistency of redundant actuator positions (0 otherwise).
-    ``position_noise_std`` (n_a,): given position noise instead of its estimate."""
+    ``position_noise_std`` (n_a,): given position noise instead of its estimate; ``second_order``
+    (EKF): the Gaussian second-order terms of the bilinear rows; ``smooth_coulomb``: Coulomb signs
+    smoothed over the velocity's uncertainty (both module docstring; False only to study them)."""
     if kind not in KINDS:
         raise InputError(f"kind must be one of {KINDS}, got {kind!r}")
     t0 = time.perf_counter()
@@ -196,6 +199,7 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
     def regress(q: FloatArray, dq: FloatArray, ddq: FloatArray, start: int = 0) -> tuple[FloatArray, Any]:
         r = frows(q, dq, ddq, np.broadcast_to(zeros, q.shape), start)
         return base.regressor(r.W), r
+
     beta_nom = base.from_standard(system.nominal_parameters())
     prior_std = PRIOR_FACTOR * np.maximum.reduce([np.abs(beta_nom), np.abs(beta_w), 10.0 * np.sqrt(np.diag(cov_w))])
     x0[ns:] = beta_nom
