@@ -26,9 +26,9 @@ no forward dynamics)
   :math:`W` the system's base-regressor rows at the kinematic state (a serial arm's joint-torque
   regressor; a closed chain's actuator-space rows through its loop closures, ``System.rows``) and
   :math:`y_k` the measured forces of that sample (a redundantly actuated mechanism's outputs, the
-  projected equations or an assumed force distribution, taken at the processed states). The force noise variance of each channel is the
-  residual variance of a WLS fit on the same processed log (its rows at the processed
-  derivatives; the result says so).
+  projected equations or an assumed force distribution, taken at the processed states). The
+  force noise variance of each channel is the residual variance of a WLS fit on the same
+  processed log (its rows at the processed derivatives; the result says so).
 * EKF: the Jacobian of :math:`W\\beta` in :math:`(q, \\dot q, \\ddot q)` (the jerk does not enter) by
   central differences, the :math:`1 + 6 n_a` states in one batched call of the rows per step;
   in :math:`\\beta` it is :math:`W` itself. UKF: the :math:`2L` sigma points in one batched call
