@@ -271,7 +271,7 @@ WRONG = [
     ("processing.decimate", 0, None, r"processing.decimate: must be >= 1, got 0"),
     ("processing.min_velocity", -0.1, None, r"processing.min_velocity: must be >= 0"),
     ("processing.min_velocity", math.nan, None, r"processing.min_velocity: expected a finite number, got nan"),
-    ("identification.method", "gls", None, r"identification.method: must be one of \['ols', 'wls', 'gm', 'irls', 'tls', 'ml', 'iv', 'didim', 'cloe'\]"),
+    ("identification.method", "gls", None, r"identification.method: must be one of \['ols', 'wls', 'gm', 'irls', 'tls', 'ml', 'iv', 'didim', 'cloe', 'ekf', 'ukf'\]"),
     ("identification.chunk_size", 2.5, None, r"identification.chunk_size: expected an integer, got 2.5"),
     ("output.plots", "yes", None, r"output.plots: expected true or false, got 'yes'"),
 ]

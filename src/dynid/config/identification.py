@@ -12,7 +12,7 @@ from typing import Any
 from dynid.config._schema import _bool, _int, _num, _path, _str, _table, parse_scheduler, parse_workers
 from dynid.errors import ConfigError
 
-_METHODS = ("ols", "wls", "gm", "irls", "tls", "ml", "iv", "didim", "cloe")
+_METHODS = ("ols", "wls", "gm", "irls", "tls", "ml", "iv", "didim", "cloe", "ekf", "ukf")
 _FORCE_MODELS = ("projected", "min_norm", "min_norm_local_friction")
 
 

@@ -321,6 +321,10 @@ def _identify(cfg: Config, progress: Progress, readers: dict | None = None, jobs
         result, fj, worst = _stribeck_fit(cfg, system, base, train, force_model, periodic, progress, meta)
     elif icfg.method in ("iv", "didim", "cloe"):
         result, worst = _control_loop(cfg, system, base, train, force_model, parallel, meta, progress)
+    elif icfg.method in ("ekf", "ukf"):  # joint state-parameter Kalman filters (dynid.pipeline.kalman_estimate)
+        from dynid.pipeline.kalman_estimate import kalman_estimate
+
+        result, worst = kalman_estimate(cfg, system, base, train, force_model, progress)
     elif several:
         result, worst, payload_outcome = _several(cfg, system, base, train, steps, raw_train.meta, force_model,
                                                   parallel, meta, progress, names, readers)

@@ -97,7 +97,7 @@ def _why_not(cfg: Config, system) -> str | None:
         (pcfg.decimate > 1 and pcfg.decimate_method == "parallel", "parallel decimation"),
         (pcfg.reversal_guard is not None, "processing.reversal_guard needs the whole log's reversals"),
         (isinstance(pcfg.resample, float), "processing.resample to a given rate"),
-        (icfg.method in ("ml", "iv", "didim", "cloe"), f"method {icfg.method!r} is not one compressed least-squares problem"),
+        (icfg.method in ("ml", "iv", "didim", "cloe", "ekf", "ukf"), f"method {icfg.method!r} is not one compressed least-squares problem"),
         (icfg.friction_model == "stribeck", "friction_model = 'stribeck' (nonlinear fit on sampled rows)"),
         (icfg.hierarchical, "hierarchical identification"),
         (icfg.coulomb_smoothing != "none", "coulomb_smoothing reads the whole log's velocity noise"),
