@@ -271,7 +271,7 @@ def _doc(method: str = "ekf") -> dict:
     ("noise_covariance", "residuals", "noise_covariance is for method"),
     ("covariance", "hac", "covariance = 'hac' is for the linear least-squares methods"),
     ("coulomb_smoothing", "auto", "coulomb_smoothing is available with methods"),
-    ("experiment", "sim.toml", "experiment is for method = 'iv' or 'didim'"),
+    ("experiment", "sim.toml", "experiment is for method = 'iv', 'didim' or 'cloe'"),
 ])
 def test_settings_that_do_not_apply_are_refused(method, key, value, message):
     from dynid.config import parse_config
