@@ -39,8 +39,8 @@ Method
   :data:`dynid.studies.mujoco_twin.GAINS`: about 80 rad/s with the legs' 3 kg, damping ratio
   1.2), at 1 kHz with zero-order hold. It costs the same few microseconds for both (six positions
   and velocities read, one table row), so the wall-time ratio measures the simulators, not the
-  controller (bench/simulate_hexapod.py's model-based controller, :class:`AugmentedPD`, costs more
-  than the simulation it drives). Same initial state: dynid's assembly at the reference's start
+  controller (bench/simulate_hexapod.py's model-based :class:`AugmentedPD` makes a period 0.9 ms
+  against 0.5 ms with this one, bench/README.md). Same initial state: dynid's assembly at the reference's start
   with its velocity, written into MuJoCo's ``qpos``/``qvel`` (the two files' joint coordinates are
   the same). Same span: ``--duration`` (default 10 s).
 * **dynid** (:func:`dynid.simulation.closed_loop.simulate_mechanism_control`,
@@ -59,7 +59,7 @@ Method
   force is regularized by R = (1 - d)/d A_ii). The same for ``frictionloss`` (``solreffriction``,
   ``solimpfriction``), which then sticks and slips like ``fc sign(v)``. With MuJoCo's defaults
   (``solref="0.02 1"``, ``solimp="0.9 0.95 0.001"``) the loops are soft enough to miss both
-  targets (bench/README.md: 1.5e-4 m and 5.2 %). Newton solver, tolerance 1e-8 (defaults).
+  targets (bench/README.md: 1.9e-4 m, 5.8 %, closure gaps of 0.5 mm). Newton solver, tolerance 1e-8 (defaults).
 * **Timing**: one core (BLAS limited to 1 thread; pinocchio and MuJoCo single-threaded), only the
   simulation loops timed (models, data and the reference table built before), the engines
   alternated in each of ``--rounds`` rounds (default 3); reported: median wall times, time per

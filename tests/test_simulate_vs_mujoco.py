@@ -19,7 +19,7 @@ pytest.importorskip("mujoco", reason="the comparison needs mujoco (the test extr
 sys.path.insert(0, str(REPO / "bench"))
 import simulate_vs_mujoco as bench  # noqa: E402
 
-SPAN = 1.0  # simulated seconds: 1001 control periods, two velocity reversals of the worst strut
+SPAN = 1.0  # simulated seconds: 1001 control periods, three velocity reversals on the worst strut
 
 
 def _compare(tmp_path, coulomb):
