@@ -69,6 +69,7 @@ bench: setup
 	$(BIN)/python bench/identify_scaling.py
 	$(BIN)/python bench/closed_loop_throughput.py
 	$(BIN)/python bench/simulate_hexapod.py
+	$(BIN)/python bench/simulate_vs_mujoco.py
 	$(BIN)/python bench/design_time.py
 	$(BIN)/python bench/montecarlo_scaling.py
 
