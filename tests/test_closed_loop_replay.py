@@ -1,7 +1,8 @@
 """The replay of a closed-loop experiment after the per-period projection's shortcut (issue 37,
 item 3): :func:`dynid.simulation.closed_loop.simulate_mechanism_control` leaves a state that is
 already on the loop closures within the tolerances (positions 1e-12, velocity residual
-1e-12 / dt) instead of projecting its velocities every period. The motion must stay on the
+1e-12 / dt) instead of projecting its velocities every period (``exact_projection = False``:
+the replays of IV and DIDIM with the regularized Coulomb law). The motion must stay on the
 closures within those tolerances and equal the every-period projection's to far below the
 integrator's own error."""
 
@@ -12,6 +13,7 @@ import pytest
 
 from dynid.config.simulate import parse_simulate_config
 from dynid.pipeline.sim_setup import simulation_setup
+from dynid.pipeline.simulate import run_simulation
 from dynid.simulation.closed_loop import _PROJECTION_TOL, simulate_mechanism_control
 
 # the set-up of bench/control_loop_time.py (hexapod twin, 500 Hz computed torque with the nominal
@@ -39,11 +41,19 @@ def replays(tmp_path_factory):
                                              substeps=substeps, exact_projection=exact)
 
     setup, fast = run(2, False)
-    return setup, fast, run(2, True)[1], run(4, True)[1]
+    replay = run_simulation(cfg, plant=plant, coulomb_band=0.005).motion  # the route IV and DIDIM take
+    return setup, fast, run(2, True)[1], run(4, True)[1], replay
+
+
+def test_a_smooth_replay_takes_the_shortcut(replays):
+    _, fast, exact, _, replay = replays
+    # the same operations as the shortcut's run (bit for bit), not those of the every-period projection
+    np.testing.assert_array_equal(replay.dq, fast.dq)
+    assert np.abs(replay.dq - exact.dq).max() > 0
 
 
 def test_replay_stays_on_the_closures_within_the_tolerances(replays):
-    setup, fast, _, _ = replays
+    setup, fast, _, _, _ = replays
     mech, dt = setup.robot, setup.dt
     # every logged state was either projected (positions to 1e-12, velocities to rounding) or left
     # because it already met the tolerances: positions within 1e-12, J_c dq within 1e-12 / dt. The
@@ -56,7 +66,7 @@ def test_replay_stays_on_the_closures_within_the_tolerances(replays):
 
 
 def test_replay_equals_the_every_period_projection_within_the_integrator_error(replays):
-    _, fast, exact, fine = replays
+    _, fast, exact, fine, _ = replays
     for name in ("q", "dq", "ddq", "tau_a"):
         a, b, c = (np.asarray(getattr(m, name)) for m in (fast, exact, fine))
         # the integrator's own error on this run: RK4 at 2 substeps against 4 (Richardson: the
