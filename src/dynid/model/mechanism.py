@@ -561,11 +561,18 @@ class Mechanism:
         return np.array([self._coordinate_jacobian(qi, data) @ vi for qi, vi in zip(q, dq)])
 
     def project(self, q: FloatArray, dq: FloatArray | None = None, *, tol: float = 1e-12, max_iter: int = 10,
-                data: pin.Data | None = None):
+                data: pin.Data | None = None, vtol: float | None = None):
         """The nearest assembled configuration (minimum-norm Gauss–Newton steps on the
         independent constraint rows) and, if given, the velocity projected on the constraint
         tangent space (:math:`\\dot q - J_c^+ J_c \\dot q`). Used to remove the drift of a
-        numerical integration; one sample, shapes ``(n_v,)``. ``data`` as in :meth:`coordinates`."""
+        numerical integration; one sample, shapes ``(n_v,)``. ``data`` as in :meth:`coordinates`.
+
+        ``vtol``: leave ``dq`` as it is where no position step was taken and its constraint
+        residual :math:`\\|J_c \\dot q\\|_\\infty` is at most ``vtol`` (the same rule as the
+        positions' ``tol``: a state already on the closures within the tolerances is returned
+        unchanged; the simulator's every-period projection, which then skips the QR of
+        :math:`J_c` on most periods, :func:`dynid.simulation.closed_loop.simulate_mechanism_control`).
+        None (default): always project."""
         q = np.array(q, dtype=float)
         if not (np.isfinite(q).all() and (dq is None or np.isfinite(dq).all())):
             # a diverged integration: say so before LAPACK sees NaN (it prints to the terminal)
@@ -593,6 +600,8 @@ class Mechanism:
         if not point:
             J = lk.closure_jacobian(self, q, data, False, geometry)[rows]  # geometry: at this q
         dq = np.asarray(dq, dtype=float)
+        if vtol is not None and _ == 0 and np.abs(J @ dq).max(initial=0.0) <= vtol:
+            return q, dq
         f = lk.row_space(J)
         if f is None:
             return q, dq - np.linalg.lstsq(J, J @ dq, rcond=None)[0]

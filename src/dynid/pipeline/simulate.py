@@ -175,8 +175,10 @@ def _simulate(setup: SimulationSetup):
     actuator names, largest loop-closure error or None, tracking errors of the drives or None)."""
     robot, c = setup.robot, setup.cfg.control
     if setup.mech:
+        # a replay with the regularized Coulomb law (IV, DIDIM): the projection's shortcut (simulate_mechanism_control)
+        exact = not (setup.replay and setup.plant.coulomb_band is not None)
         motion = simulate_mechanism_control(setup.plant, setup.controller, setup.reference, duration=setup.duration,
-                                            dt=setup.dt, substeps=c.substeps)
+                                            dt=setup.dt, substeps=c.substeps, exact_projection=exact)
         q_act = motion.q[:, list(robot.actuated)]
         track_actuators = None
         if c.kind != "computed_torque":  # the drives' own errors (paper 002, Fig. 10; paper 004, Fig. 6)

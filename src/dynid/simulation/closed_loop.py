@@ -363,6 +363,7 @@ def simulate_mechanism_control(
     dt: float,
     substeps: int = 4,
     q0: FloatArray | None = None,
+    exact_projection: bool = True,
 ) -> SimulatedMotion:
     """Digital control of a mechanism with zero-order hold (see :func:`dynid.simulation.control.simulate_control`).
 
@@ -374,9 +375,27 @@ def simulate_mechanism_control(
     control period the state is projected back on the loop closures
     (:meth:`Mechanism.project`), so the constraint error stays at the 1e-12 level instead of
     drifting. The initial state is the assembly at ``u_d(0)`` at rest unless ``q0`` is given.
+
+    ``exact_projection = False`` (the model replays of IV and DIDIM with the regularized Coulomb
+    law, :func:`dynid.pipeline.simulate.run_simulation`): the projection leaves a state alone
+    that is already on the closures within the tolerances: positions within ``1e-12``
+    (:meth:`Mechanism.project`'s ``tol``: no Gauss–Newton step) and velocities whose constraint
+    residual :math:`\\|J_c\\dot q\\|_\\infty` is at most ``1e-12 / dt`` (a residual that moves
+    the closures by less than the position tolerance over a control period;
+    :meth:`Mechanism.project`'s ``vtol``); past either, the full projection runs. On the hexapod
+    twin of ``bench/control_loop_time.py`` the residual after a period is about 4e-14 m/s
+    (median; at most 6e-9), so the QR of :math:`J_c` is skipped on 92 % of the periods, and the
+    replayed motion is that of the every-period projection to 1e-5 of the integrator's own error
+    (tests/test_closed_loop_replay.py). Not the default: under the discontinuous Coulomb law
+    (chatter about zero velocity) or very stiff gains a residual of that size is not always
+    negligible against the 1e-9 agreement with the reference formulas that
+    tests/test_simulation_mechanism.py asks (shang2dof, Kp = 35000: 1.4e-7 of the scale).
     """
     with _threads().limit(limits=1, user_api="blas"):  # small matrices, step after step: threads only cost
-        return _simulate_mechanism_control(sim, controller, reference, duration, dt, substeps, q0)
+        return _simulate_mechanism_control(sim, controller, reference, duration, dt, substeps, q0, exact_projection)
+
+
+_PROJECTION_TOL = 1e-12  # Mechanism.project's default position tolerance [m or rad]
 
 
 @functools.cache
@@ -386,7 +405,8 @@ def _threads() -> ThreadpoolController:
     return ThreadpoolController()
 
 
-def _simulate_mechanism_control(sim, controller, reference, duration, dt, substeps, q0) -> SimulatedMotion:
+def _simulate_mechanism_control(sim, controller, reference, duration, dt, substeps, q0,
+                                exact_projection: bool = False) -> SimulatedMotion:
     mech = sim.mech
     n = int(round(duration / dt)) + 1
     t = np.arange(n) * dt
@@ -399,6 +419,7 @@ def _simulate_mechanism_control(sim, controller, reference, duration, dt, subste
     nv, na = mech.nv, mech.n_actuators
     Q, V, A, T = np.empty((n, nv)), np.empty((n, nv)), np.empty((n, nv)), np.empty((n, na))
     h = dt / substeps
+    vtol = None if exact_projection else _PROJECTION_TOL / dt
     data = mech.pin_model.createData()  # the projection's working memory, reused every period
     rows = list(zip(*refs))  # the reference rows handed over period by period (row k of each signal)
     for k in range(n):
@@ -411,5 +432,5 @@ def _simulate_mechanism_control(sim, controller, reference, duration, dt, subste
         for _ in range(substeps):  # the logged acceleration is the first stage of the first step
             q, v = rk4_step(acc, q, v, h, k1=first)
             first = None
-        q, v = mech.project(q, v, data=data)
+        q, v = mech.project(q, v, data=data, vtol=vtol)
     return SimulatedMotion(t=t, q=Q, dq=V, ddq=A, tau_a=T)
