@@ -135,8 +135,12 @@ RPS3 = {
     # issue 36, item 3: the min_velocity values at which the held-out log's moving rows are described
     # (CAD, the floors, the truth, the noise): from v_S/10 to 2 v_S
     "moving_sweep": (0.0005, 0.001, 0.002, 0.003, 0.005, 0.0075, 0.01),
+    "moving_sweep_quick": (0.0005, 0.002, 0.01),  # the quick version's sweep
     "moving_sweep_stribeck": (0.002,),  # the quick version fits the sweep's Stribeck floor at these only
-    "quick_no_stribeck_floor": ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)",),  # nor these rows'
+    "quick_no_stribeck_floor": ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)",  # nor these rows'
+                                "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "Nonlinear (Opt.), min_velocity v_S/10",
+                                "Nonlinear (Opt.), min_velocity v_S/10, guard 0.01 s",
+                                "Nonlinear (Opt.), min_velocity v_S/10, guard 0.02 s"),
 }
 
 ROWS = (
@@ -665,31 +669,41 @@ def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics,
             except DynidError as exc:
                 stribeck_floor[mvs] = str(exc).splitlines()[0]
         return stribeck_floor[mvs]
-    clean = None
+    names = linear.validation.channel_names
+    linear_floor: dict = {}
+
+    def linear_of(mvs: tuple[float, ...]):
+        """The linear floor on the held-out rows above ``mvs`` (one pass over the held-out log: the
+        product's :class:`~dynid.pipeline.held_out_floor.HeldOutFloor`), with CAD on those rows."""
+        mvs = tuple(np.broadcast_to(np.asarray(mvs, float), (len(case.actuators),)).tolist())
+        if mvs not in linear_floor:
+            rule = RowSelection(mvs, None, None, f"min_velocity {list(mvs)}")
+            linear_floor[mvs] = validate_with_prior(linear.result, linear.system, linear.base, linear.held_out, nominal,
+                                                    selection=rule)[3]
+        return linear_floor[mvs]
+
+    nominal = linear.base.from_standard(linear.system.nominal_parameters())
+    clean = case.original(linear.validation.t)
     for label, (o, kind, processing, tuned) in fits.items():
         if processing.get("min_velocity") is None:
             continue
         mvs = tuple(float(x) for x in processing["min_velocity"])
-        rule = RowSelection(mvs, None, None, f"min_velocity {list(mvs)}")
-        system, base = o.system, o.base
-        nominal = base.from_standard(system.nominal_parameters())
-        fj = stribeck.friction_joints(system, base) if kind == "nonlinear" else None
-        _, _, _, sel = validate_with_prior(o.result, system, base, o.held_out, nominal, friction=fj, selection=rule)
-        _, _, _, lin = validate_with_prior(linear.result, linear.system, linear.base, linear.held_out, None, selection=rule)
-        kept = sel.metrics.kept
-        if not np.array_equal(kept, lin.metrics.kept) or not np.array_equal(truth.measured, sel.metrics.measured):
-            raise RuntimeError("the moving rows differ between the fits")
-        clean = case.original(sel.metrics.t) if clean is None else clean
+        lin = linear_of(mvs)
+        kept = lin.metrics.kept  # the held-out rows above min_velocity (row_mask, per leg equation)
+        v, vn = o.validation, o.nominal_validation  # the same held-out rows for every fit: select, no new pass
+        if not (np.array_equal(v.measured, lin.metrics.measured) and np.array_equal(truth.measured, v.measured)):
+            raise RuntimeError("the held-out rows differ between the fits")
+        m = ValidationMetrics.of(names, v.t, v.measured, v.predicted, None, kept=kept)
+        mn = ValidationMetrics.of(names, v.t, v.measured, vn.predicted, None, kept=kept)
 
         def masked(pred) -> float:
-            e = np.where(kept, sel.metrics.measured - pred, 0.0)
+            e = np.where(kept, v.measured - pred, 0.0)
             return float(np.sum(np.sqrt(np.sum(e**2, axis=0) / kept.sum(axis=0))))
 
         row = {"kind": kind, "tuned": tuned, "processing": processing,
-               "whole": float(o.validation.rmse.sum()), "whole_cad": float(o.nominal_validation.rmse.sum()),
-               "total": float(sel.metrics.rmse.sum()), "cad": float(sel.nominal.rmse.sum()),
-               "pooled": pooled_rmse(sel.metrics.rmse, sel.metrics.rows_per_channel),
-               "cad_pooled": pooled_rmse(sel.nominal.rmse, sel.nominal.rows_per_channel),
+               "whole": float(v.rmse.sum()), "whole_cad": float(vn.rmse.sum()),
+               "total": float(m.rmse.sum()), "cad": float(mn.rmse.sum()),
+               "pooled": pooled_rmse(m.rmse, m.rows_per_channel), "cad_pooled": pooled_rmse(mn.rmse, mn.rows_per_channel),
                "floor_linear": float(lin.floor.rmse.sum()), "floor_linear_pooled": lin.floor.pooled,
                "truth": masked(truth.predicted), "noise": masked(clean),
                "kept_pct": (100 * kept.mean(axis=0)).tolist()}
@@ -705,13 +719,10 @@ def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics,
         out["rows"][label] = row
     # where the floors, the truth and the noise lie against 0.5 x CAD as min_velocity rises (a
     # diagnostic of the held-out log: no fit is chosen from it)
-    nominal = linear.base.from_standard(linear.system.nominal_parameters())
     out["sweep"] = []
-    for v in case.setup["moving_sweep"]:
+    for v in case.setup["moving_sweep_quick" if quick else "moving_sweep"]:
         mvs = (float(v),) * len(case.actuators)
-        rule = RowSelection(mvs, None, None, f"min_velocity {v}")
-        _, _, _, lin = validate_with_prior(linear.result, linear.system, linear.base, linear.held_out, nominal,
-                                           selection=rule)
+        lin = linear_of(mvs)
         kept = lin.metrics.kept
 
         def masked_(pred) -> float:
