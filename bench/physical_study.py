@@ -40,7 +40,12 @@ B. 3-RPS parallel twin (``builtin:rps3``, paper 000's robot; as examples/twins/r
    training log beats) and the held-out error without the slow samples; with ``reversal_guard``
    too, every selection scored on all held-out rows and on the rows it keeps (the product's
    ``validation_selected_rows``), against CAD, the truth and the noise on the same rows. The
-   quick version of B is held out on the full version's log and trains on one period.
+   quick version of B is held out on the full version's log and trains on one period. (9) issue 36,
+   item 3 (:func:`moving_rows`): every fit with a ``min_velocity`` scored on the held-out rows above
+   it, beside its whole-log error, CAD on the same rows and the held-out-fit floors (the linear
+   structure by least squares, the Stribeck fit of the held-out log itself), the truth and the
+   noise; two ``min_velocity`` values derived from the training log; a sweep of ``min_velocity``
+   describing the held-out log's moving rows.
 
 Run: ``.venv/bin/python bench/physical_study.py`` (2 to 4 minutes on 2 cores; ``--quick``: a
 small version, used by the tests). The figures of the last full run are in bench/README.md.
