@@ -40,7 +40,12 @@ B. 3-RPS parallel twin (``builtin:rps3``, paper 000's robot; as examples/twins/r
    training log beats) and the held-out error without the slow samples; with ``reversal_guard``
    too, every selection scored on all held-out rows and on the rows it keeps (the product's
    ``validation_selected_rows``), against CAD, the truth and the noise on the same rows. The
-   quick version of B is held out on the full version's log and trains on one period.
+   quick version of B is held out on the full version's log and trains on one period. (9) issue 36,
+   item 3 (:func:`moving_rows`): every fit with a ``min_velocity`` scored on the held-out rows above
+   it, beside its whole-log error, CAD on the same rows and the held-out-fit floors (the linear
+   structure by least squares, the Stribeck fit of the held-out log itself), the truth and the
+   noise; two ``min_velocity`` values derived from the training log; a sweep of ``min_velocity``
+   describing the held-out log's moving rows.
 
 Run: ``.venv/bin/python bench/physical_study.py`` (2 to 4 minutes on 2 cores; ``--quick``: a
 small version, used by the tests). The figures of the last full run are in bench/README.md.
@@ -132,6 +137,15 @@ RPS3 = {
     # the quick version is held out on the full version's log: the selected-row errors depend on the
     # accelerations at the reversals (the filter's smear), so only the same held-out motion compares
     "quick_valid_hz": 0.1,
+    # issue 36, item 3: the min_velocity values at which the held-out log's moving rows are described
+    # (CAD, the floors, the truth, the noise): from v_S/10 to 2 v_S
+    "moving_sweep": (0.0005, 0.001, 0.002, 0.003, 0.005, 0.0075, 0.01),
+    "moving_sweep_quick": (0.0005, 0.002, 0.01),  # the quick version's sweep
+    "moving_sweep_stribeck": (0.002,),  # the quick version fits the sweep's Stribeck floor at these only
+    "quick_no_stribeck_floor": ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)",  # nor these rows'
+                                "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "Nonlinear (Opt.), min_velocity v_S/10",
+                                "Nonlinear (Opt.), min_velocity v_S/10, guard 0.01 s",
+                                "Nonlinear (Opt.), min_velocity v_S/10, guard 0.02 s"),
 }
 
 ROWS = (
@@ -491,7 +505,7 @@ def _selected(o, case: _Case, truth: ValidationMetrics) -> dict:
             "kept_pct": (100 * kept.mean(axis=0)).tolist(), "rule": sel.rule}
 
 
-def limits(case: _Case, run: dict, folder: Path) -> dict:
+def limits(case: _Case, run: dict, folder: Path, quick: bool = False) -> dict:
     """Section B8 (issue 17, item 5): the configurations tried against the CAD row, and the
     decomposition of the held-out error into processing error, friction model error and the
     error no model of the class avoids.
@@ -526,12 +540,15 @@ def limits(case: _Case, run: dict, folder: Path) -> dict:
     x_lin = timed("WLS+LMI, exact states", lambda: identify(_exact_config(case, xt, xv, lmi)))
     x_cad = float(x_lin.nominal_validation.rmse.sum())
     x_nl = timed("Nonlinear, exact states", lambda: identify(_exact_config(case, xt, xv, nl)))
+    fits: dict = {}  # label -> (outcome, kind, processing, tuned): issue 36's moving rows (:func:`moving_rows`)
     o = timed("WLS+LMI, min_velocity", lambda: case.identify(lmi, setup["linear_processing"]))
+    fits["WLS+LMI, min_velocity 2 v_S"] = (o, "linear", setup["linear_processing"], False)
     on_proc = _score(x_nl, o)  # the truth's model on the processed held-out states (every fit's held-out rows)
     rows["WLS+LMI, min_velocity 2 v_S"] = _entry(o.validation, float(o.nominal_validation.rmse.sum()),
                                                  processing=setup["linear_processing"], kind="linear",
                                                  selected=_selected(o, case, on_proc))
     o = timed("Nonlinear, min_velocity", lambda: case.identify(nl, setup["stribeck_processing_mv"]))
+    fits["Nonlinear (Opt.), min_velocity v_S/10"] = (o, "nonlinear", setup["stribeck_processing_mv"], False)
     rows["Nonlinear (Opt.), min_velocity v_S/10"] = _entry(o.validation, cad, processing=setup["stribeck_processing_mv"],
                                                            kind="nonlinear", stribeck=o.result.solver["stribeck"],
                                                            selected=_selected(o, case, on_proc))
@@ -544,6 +561,7 @@ def limits(case: _Case, run: dict, folder: Path) -> dict:
             out["refused"][label] = str(exc).splitlines()[0]
             print(f"  B8 {label}: refused ({out['refused'][label]})", flush=True)
             continue
+        fits[label] = (o, kind, processing, tuned)
         rows[label] = _entry(o.validation, float(o.nominal_validation.rmse.sum()), processing=processing, kind=kind,
                              selected=_selected(o, case, on_proc), tuned=tuned,
                              **({"stribeck": o.result.solver["stribeck"]} if kind == "nonlinear" else {}))
@@ -573,7 +591,176 @@ def limits(case: _Case, run: dict, folder: Path) -> dict:
     out["split"] = {"slow_velocity": setup["slow_velocity"], "slow_fraction": float(1 - fast.mean()),
                     "cad_fast": fast_sum(on_proc.measured, nom),
                     "exact_nonlinear_fast": fast_sum(on_proc.measured, on_proc.predicted)}
+    out["moving"] = moving_rows(case, fits, bound, on_proc, timed, quick)
     return out
+
+
+# ---------------------------------------------------------------------- issue 36, item 3: the moving rows
+def derived_min_velocity(case: _Case) -> list[float]:
+    """``min_velocity`` as ``dynid init`` derives it from the training log alone
+    (:func:`dynid.pipeline.processing_choice.derive_processing`: 3 standard deviations of the
+    velocity noise the 10 Hz low-pass and the central differences leave of the encoder's
+    quantisation and any other position noise), one value per actuator."""
+    from dynid.pipeline.processing_choice import derive_processing
+
+    ds = case.train_sim.dataset
+    d = derive_processing(np.asarray(ds.t), np.asarray(ds.q), np.asarray(ds.tau), 10.0, order=4, parallel=True)
+    return [float(x) for x in d.min_velocity]
+
+
+def reversal_min_velocity(train) -> list[float]:
+    """``min_velocity`` from the filter's time resolution and the motion at the reversals, from the
+    processed training log alone: per actuator, the median |processed acceleration| at its velocity
+    reversals times the 10 Hz low-pass's time constant 1/(2 pi f_c) (16 ms). Within about one time
+    constant of a reversal the zero-phase filter has not resolved when the actuator left rest (a
+    stick of the plant's discontinuous friction is averaged with the motion around it), and the
+    processed speed there is below that product. (Written down after seeing the held-out sweep of
+    section B9: a rule of the training log, but not a blind one.)"""
+    dq, ddq = np.asarray(train.dq), np.asarray(train.ddq)
+    out = []
+    for j in range(dq.shape[1]):
+        pos = dq[:, j] >= 0
+        flips = np.nonzero(pos[1:] != pos[:-1])[0]
+        out.append(float(np.median(np.abs(ddq[flips, j]))) / (2 * np.pi * 10.0))
+    return out
+
+
+def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics, timed, quick: bool = False) -> dict:
+    """Issue 36, item 3: every fit with a ``min_velocity`` scored as a user judges it, on the
+    held-out rows above that ``min_velocity`` (the processed speed of each actuator equation,
+    :func:`dynid.pipeline.data.velocity_mask`; the reversal guard of a row is a training choice and
+    does not select these rows), beside its whole-log figure, the CAD model on the same rows and
+    the **held-out-fit floors** on the same rows: ``floor linear``, the base-parameter structure
+    fitted by least squares to those held-out rows (the product's
+    :class:`~dynid.pipeline.held_out_floor.HeldOutFloor`: no linear model beats it there in pooled
+    RMS), and for a Stribeck row ``floor Stribeck``, the Stribeck fit (same method) of the held-out
+    log itself with that ``min_velocity``, scored on those rows. Also the truth (the exact-state
+    Stribeck fit) and the noise on those rows. The set-up's ``min_velocity`` values are fixed in
+    advance; two more fits use the one ``dynid init`` derives from the training log
+    (:func:`derived_min_velocity`)."""
+    from dynid.pipeline.held_out_floor import pooled_rmse
+    from dynid.pipeline.outcome import RowSelection
+    from dynid.pipeline.validation import validate_with_prior
+
+    lmi = {"method": "wls", "physical_consistency": True}
+    nl = {**lmi, "friction_model": "stribeck"}
+    linear = next(f[0] for f in fits.values() if f[1] == "linear")  # any linear fit: the floor's regressor
+    mv = derived_min_velocity(case)
+    mv_rev = reversal_min_velocity(linear.train)
+    out: dict = {"derived_min_velocity": mv, "reversal_min_velocity": mv_rev, "rows": {}, "refused": {}}
+    for label, kind, tuned, processing in (
+            ("WLS+LMI, min_velocity derived (3 sigma_v)", "linear", False, {"min_velocity": mv}),
+            ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)", "nonlinear", False, {"min_velocity": mv}),
+            ("Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "nonlinear", False, {"min_velocity": mv_rev}),
+            ("Nonlinear (Opt.), min_velocity 2 mm/s", "nonlinear", True, {"min_velocity": [0.002]})):
+        try:
+            fits[label] = (timed(label, lambda kind=kind, processing=processing: case.identify(
+                lmi if kind == "linear" else nl, processing)), kind, processing, tuned)
+        except DynidError as exc:
+            out["refused"][label] = str(exc).splitlines()[0]
+            print(f"  B9 {label}: refused ({out['refused'][label]})", flush=True)
+    stribeck_floor: dict = {}
+
+    def floor_of(mvs: tuple[float, ...]):
+        """The Stribeck fit of the held-out log itself with ``min_velocity`` ``mvs``: (Sum, pooled
+        RMS, kept rows) on its own moving rows, or why it is refused."""
+        mvs = tuple(np.broadcast_to(np.asarray(mvs, float), (len(case.actuators),)).tolist())
+        if mvs not in stribeck_floor:
+            try:
+                f = timed(f"floor Stribeck, min_velocity {[round(x, 6) for x in mvs]}",
+                          lambda: bound.identify(nl, {"min_velocity": list(mvs)}))
+                m = f.selected.metrics
+                stribeck_floor[mvs] = (float(m.rmse.sum()), pooled_rmse(m.rmse, m.rows_per_channel), m.kept)
+            except DynidError as exc:
+                stribeck_floor[mvs] = str(exc).splitlines()[0]
+        return stribeck_floor[mvs]
+    names = linear.validation.channel_names
+    linear_floor: dict = {}
+
+    def linear_of(mvs: tuple[float, ...]):
+        """The linear floor on the held-out rows above ``mvs`` (one pass over the held-out log: the
+        product's :class:`~dynid.pipeline.held_out_floor.HeldOutFloor`), with CAD on those rows."""
+        mvs = tuple(np.broadcast_to(np.asarray(mvs, float), (len(case.actuators),)).tolist())
+        if mvs not in linear_floor:
+            rule = RowSelection(mvs, None, None, f"min_velocity {list(mvs)}")
+            linear_floor[mvs] = validate_with_prior(linear.result, linear.system, linear.base, linear.held_out, nominal,
+                                                    selection=rule)[3]
+        return linear_floor[mvs]
+
+    nominal = linear.base.from_standard(linear.system.nominal_parameters())
+    clean = case.original(linear.validation.t)
+    for label, (o, kind, processing, tuned) in fits.items():
+        if processing.get("min_velocity") is None:
+            continue
+        mvs = tuple(float(x) for x in processing["min_velocity"])
+        lin = linear_of(mvs)
+        kept = lin.metrics.kept  # the held-out rows above min_velocity (row_mask, per leg equation)
+        v, vn = o.validation, o.nominal_validation  # the same held-out rows for every fit: select, no new pass
+        if not (np.array_equal(v.measured, lin.metrics.measured) and np.array_equal(truth.measured, v.measured)):
+            raise RuntimeError("the held-out rows differ between the fits")
+        m = ValidationMetrics.of(names, v.t, v.measured, v.predicted, None, kept=kept)
+        mn = ValidationMetrics.of(names, v.t, v.measured, vn.predicted, None, kept=kept)
+
+        def masked(pred) -> float:
+            e = np.where(kept, v.measured - pred, 0.0)
+            return float(np.sum(np.sqrt(np.sum(e**2, axis=0) / kept.sum(axis=0))))
+
+        row = {"kind": kind, "tuned": tuned, "processing": processing,
+               "whole": float(v.rmse.sum()), "whole_cad": float(vn.rmse.sum()),
+               "total": float(m.rmse.sum()), "cad": float(mn.rmse.sum()),
+               "pooled": pooled_rmse(m.rmse, m.rows_per_channel), "cad_pooled": pooled_rmse(mn.rmse, mn.rows_per_channel),
+               "floor_linear": float(lin.floor.rmse.sum()), "floor_linear_pooled": lin.floor.pooled,
+               "truth": masked(truth.predicted), "noise": masked(clean),
+               "kept_pct": (100 * kept.mean(axis=0)).tolist()}
+        row["ratio"] = row["total"] / row["cad"]
+        if kind == "nonlinear" and not (quick and label in case.setup["quick_no_stribeck_floor"]):
+            fl = floor_of(mvs)
+            if isinstance(fl, str):
+                row["floor_stribeck_refused"] = fl
+            else:
+                if not np.array_equal(fl[2], kept):
+                    raise RuntimeError("the floor's rows are not the moving rows")
+                row["floor_stribeck"], row["floor_stribeck_pooled"] = fl[:2]
+        out["rows"][label] = row
+    # where the floors, the truth and the noise lie against 0.5 x CAD as min_velocity rises (a
+    # diagnostic of the held-out log: no fit is chosen from it)
+    out["sweep"] = []
+    for v in case.setup["moving_sweep_quick" if quick else "moving_sweep"]:
+        mvs = (float(v),) * len(case.actuators)
+        lin = linear_of(mvs)
+        kept = lin.metrics.kept
+
+        def masked_(pred) -> float:
+            e = np.where(kept, lin.metrics.measured - pred, 0.0)
+            return float(np.sum(np.sqrt(np.sum(e**2, axis=0) / kept.sum(axis=0))))
+
+        entry = {"min_velocity": float(v), "cad": float(lin.nominal.rmse.sum()), "floor_linear": float(lin.floor.rmse.sum()),
+                 "truth": masked_(truth.predicted), "noise": masked_(clean), "kept_pct": (100 * kept.mean(axis=0)).tolist()}
+        if v in case.setup["moving_sweep_stribeck" if quick else "moving_sweep"] or mvs in stribeck_floor:
+            fl = floor_of(mvs)
+            if isinstance(fl, str):
+                entry["floor_stribeck_refused"] = fl
+            else:
+                entry["floor_stribeck"] = fl[0]
+        out["sweep"].append(entry)
+    return out
+
+
+def moving_acceptance(mov: dict) -> dict:
+    """Issue 36, item 3's target on the moving rows, over the rows fixed in advance (untuned):
+    the best Stribeck row at most 0.5 x CAD, the best linear row below CAD; where the floors and the
+    truth of the best Stribeck row's rows lie against 0.5 x CAD."""
+    rows = {k: r for k, r in mov["rows"].items() if not r["tuned"]}
+    lin = min((k for k in rows if rows[k]["kind"] == "linear"), key=lambda k: rows[k]["ratio"])
+    non = min((k for k in rows if rows[k]["kind"] == "nonlinear"), key=lambda k: rows[k]["ratio"])
+    r = rows[non]
+    return {"best_linear": lin, "best_linear_ratio": rows[lin]["ratio"], "linear_ok": rows[lin]["ratio"] < 1.0,
+            "best_nonlinear": non, "best_nonlinear_ratio": r["ratio"], "nonlinear_ok": r["ratio"] <= 0.5,
+            "truth_ratio": r["truth"] / r["cad"], "noise_ratio": r["noise"] / r["cad"],
+            "floor_linear_ratio": r["floor_linear"] / r["cad"],
+            "floor_stribeck_ratio": r["floor_stribeck"] / r["cad"] if "floor_stribeck" in r else None,
+            "min_truth_ratio": min(x["truth"] / x["cad"] for x in rows.values()),
+            "min_floor_ratio": min(min(x["floor_linear"], x.get("floor_stribeck", np.inf)) / x["cad"] for x in rows.values())}
 
 
 # ---------------------------------------------------------------------- the two parts
@@ -600,7 +787,7 @@ def parallel_study(quick: bool = False, draw: int = 0) -> dict:
         print("B. rps3", flush=True)
         case, _ = _case(RPS3, Path(tmp), quick, 0, draw=draw)
         run = run_case(case, 0 if quick else 2, decades=2 if quick else 1)
-        run["limits"] = limits(case, run, Path(tmp))
+        run["limits"] = limits(case, run, Path(tmp), quick)
         return {"robot": "rps3", "runs": [run]}
 
 
@@ -854,6 +1041,48 @@ def limits_table(res: dict, title: str) -> str:
     return "\n".join(lines)
 
 
+def moving_table(res: dict, title: str) -> str:
+    mov = res["runs"][0]["limits"]["moving"]
+    lines = [title, f"{'row (training selection)':<54}{'whole':>8}{'CAD':>8}{'moving':>8}{'CAD':>8}{'/ CAD':>7}"
+                    f"{'floor lin':>10}{'floor Str':>10}{'truth':>7}{'noise':>7}  kept % / floor <= fit (pooled)"]
+    for label, r in mov["rows"].items():
+        fs = f"{r['floor_stribeck']:>10.2f}" if "floor_stribeck" in r else f"{('refused' if 'floor_stribeck_refused' in r else '-'):>10}"
+        below = r["floor_linear_pooled"] <= r["pooled"] * (1 + 1e-9) if r["kind"] == "linear" else (
+            r.get("floor_stribeck_pooled", -np.inf) <= r["pooled"] * (1 + 1e-6))
+        lines.append(f"{('*tuned* ' if r['tuned'] else '') + label:<54}{r['whole']:>8.2f}{r['whole_cad']:>8.2f}{r['total']:>8.2f}"
+                     f"{r['cad']:>8.2f}{r['ratio']:>7.2f}{r['floor_linear']:>10.2f}{fs}{r['truth']:>7.2f}{r['noise']:>7.2f}  "
+                     + "/".join(f"{k:.0f}" for k in r["kept_pct"]) + f"  {'yes' if below else 'NO'}")
+    for label, why in mov["refused"].items():
+        lines.append(f"{label:<54}refused: {why}")
+    for label, r in mov["rows"].items():
+        if "floor_stribeck_refused" in r:
+            lines.append(f"  {label}: the Stribeck fit of the held-out log itself is refused: {r['floor_stribeck_refused']}")
+    lines.append("Sums of the per-leg RMSE [N]: 'whole' = every held-out row; 'moving' = the held-out rows whose processed speed is "
+                 "above the fit's min_velocity (per leg equation), with CAD on the same rows; 'floor lin' = the linear structure "
+                 "fitted by least squares to those held-out rows (no linear model beats it in pooled RMS), 'floor Str' = the "
+                 "Stribeck fit of the held-out log with that min_velocity; truth = the exact-state Stribeck fit, noise = measured "
+                 "- noise-free, on the same rows; derived min_velocity (dynid init, 3 sigma of the velocity noise) = "
+                 + ", ".join(f"{1000 * x:.3g}" for x in mov["derived_min_velocity"]) + " mm/s; a_rev / (2 pi f_c) = "
+                 + ", ".join(f"{1000 * x:.3g}" for x in mov["reversal_min_velocity"]) + " mm/s")
+    lines.append("the held-out log's moving rows as min_velocity rises (diagnostic: no fit is chosen from it), each / CAD on "
+                 "the same rows:")
+    lines.append(f"  {'min_velocity [mm/s]':>20}{'CAD [N]':>9}{'floor lin':>10}{'floor Str':>10}{'truth':>7}{'noise':>7}  kept %")
+    for e in mov["sweep"]:
+        fs = (f"{e['floor_stribeck'] / e['cad']:>10.2f}" if "floor_stribeck" in e else
+              f"{('refused' if 'floor_stribeck_refused' in e else '-'):>10}")
+        lines.append(f"  {1000 * e['min_velocity']:>20.3g}{e['cad']:>9.2f}{e['floor_linear'] / e['cad']:>10.2f}{fs}"
+                     f"{e['truth'] / e['cad']:>7.2f}{e['noise'] / e['cad']:>7.2f}  " + "/".join(f"{k:.0f}" for k in e["kept_pct"]))
+    a = moving_acceptance(mov)
+    fs = "-" if a["floor_stribeck_ratio"] is None else f"{a['floor_stribeck_ratio']:.2f}"
+    lines.append(f"issue 36 item 3 on the moving rows (untuned rows): best Stribeck row {a['best_nonlinear']!r} "
+                 f"{a['best_nonlinear_ratio']:.2f} x CAD: {'met' if a['nonlinear_ok'] else 'NOT met'} (on its rows: floor "
+                 f"Stribeck {fs}, floor linear {a['floor_linear_ratio']:.2f}, truth {a['truth_ratio']:.2f}, noise "
+                 f"{a['noise_ratio']:.2f} x CAD); best linear row {a['best_linear']!r} {a['best_linear_ratio']:.2f} x CAD: "
+                 f"{'below' if a['linear_ok'] else 'NOT below'}; lowest truth on any untuned row's rows {a['min_truth_ratio']:.2f}, "
+                 f"lowest floor {a['min_floor_ratio']:.2f} x CAD")
+    return "\n".join(lines)
+
+
 def print_part(res: dict, part: str) -> None:
     name = "cobot6r (6R serial)" if res["robot"] == "cobot6r" else "rps3 (3-RPS parallel)"
     unit = "N*m" if res["robot"] == "cobot6r" else "N"
@@ -868,6 +1097,8 @@ def print_part(res: dict, part: str) -> None:
         print(summary_table(res, f"{part}6. {name}: held-out total RMSE over {len(res['runs'])} training logs"), "\n")
     if "limits" in res["runs"][0]:
         print(limits_table(res, f"{part}8. {name}: what limits the held-out Sum (issue 17, item 5) [{unit}]"), "\n")
+        print(moving_table(res, f"{part}9. {name}: scored on the moving rows, beside the whole log and the held-out-fit "
+                                f"floor (issue 36, item 3) [{unit}]"), "\n")
     if "rich" in res:
         print(contrast_table(res["rich"], f"{part}7. {name}: a rich training log (5 harmonics, 60 % of the ranges)"), "\n")
     sys.stdout.flush()

@@ -155,5 +155,44 @@ def test_parallel_twin(capsys):
         b = rows[label]["selected"]
         assert all(f["Fs"] - f["Fc"] > 36.0 for f in rows[label]["stribeck"].values()), rows[label]["stribeck"]
         assert b["truth"] < 0.5 * b["cad"] and b["truth"] < b["total"] < 0.8 * b["cad"], (label, b)
+    # issue 36, item 3 (bench/README "3-RPS scored on the moving rows"): every fit with a
+    # min_velocity scored on the held-out rows above it, beside its whole-log error, CAD on the same
+    # rows and the held-out-fit floors. Margins: the RMSE Sums are over 1500-2200 rows a leg, a few
+    # per cent of statistical spread (1/sqrt(2n) for the noise-dominated ones); 0.05 on a ratio is
+    # several of those
+    mov = lim["moving"]
+    for label, r in mov["rows"].items():
+        # the linear floor is least squares on exactly those rows: no linear model (the fit, CAD)
+        # beats it in pooled RMS. Exact; 1e-9 covers the floor's QR solve (eps * cond ~ 1e-11)
+        assert r["floor_linear_pooled"] <= r["cad_pooled"] * (1 + 1e-9), (label, r)
+        if r["kind"] == "linear":
+            assert r["floor_linear_pooled"] <= r["pooled"] * (1 + 1e-9), (label, r)
+        # on the moving rows the error is far below the whole-log one (the reversals decide that)
+        assert r["total"] < 0.6 * r["whole"] or min(r["kept_pct"]) > 99, (label, r)
+        assert 0.9 * lim["noise"] < r["noise"] < 1.1 * lim["noise"], (label, r)
+    ma = study.moving_acceptance(mov)
+    # the target is not met by a min_velocity fixed in advance or derived from the training log; the
+    # best linear row is below CAD and below the best Stribeck row
+    assert not ma["nonlinear_ok"] and ma["best_nonlinear_ratio"] > 0.55, ma
+    assert ma["linear_ok"] and ma["best_linear_ratio"] < 0.9 and ma["best_linear_ratio"] < ma["best_nonlinear_ratio"], ma
+    # why, from the floors: at 2 v_S (the linear rows) the noise alone is above half CAD, and at
+    # v_S/10 the Stribeck structure fitted to the held-out log itself is far above it (the chatter)
+    sweep = {e["min_velocity"]: e for e in mov["sweep"]}
+    assert sweep[0.01]["noise"] > 0.55 * sweep[0.01]["cad"], sweep[0.01]
+    # (the quick version fits the Stribeck floor only at 2 mm/s: the full one has it at v_S/10 too,
+    # 0.86 x CAD; the linear floor and the truth say the same here)
+    nl = mov["rows"]["Nonlinear (Opt.), min_velocity v_S/10"]
+    assert nl["floor_linear"] > 0.7 * nl["cad"] and nl["truth"] > 0.7 * nl["cad"], nl
+    assert nl.get("floor_stribeck", np.inf) > 0.7 * nl["cad"], nl
+    # only in a narrow band of min_velocity (2 mm/s = 0.4 v_S here) do the Stribeck floor and the
+    # truth drop below half CAD; there the training log's Stribeck fit is refused (its hump term is
+    # not identifiable from the training log's fewer reversals)
+    e = sweep[0.002]
+    assert e["floor_stribeck"] < 0.45 * e["cad"] and e["truth"] < 0.45 * e["cad"], e
+    assert "dFs_" in mov["refused"]["Nonlinear (Opt.), min_velocity 2 mm/s"], mov["refused"]
+    # the product's derived min_velocity (dynid init: 3 sigma of the velocity noise, 1 um encoders)
+    # keeps every moving row but the chatter too: there CAD is better than the fits
+    d = mov["rows"]["Nonlinear (Opt.), min_velocity derived (3 sigma_v)"]
+    assert min(d["kept_pct"]) > 99 and d["ratio"] > 1.1, d
     out = capsys.readouterr().out
-    assert "B1." in out and "B4." in out and "B8." in out and "Linear (Opt.)" in out
+    assert "B1." in out and "B4." in out and "B8." in out and "B9." in out and "Linear (Opt.)" in out

@@ -178,3 +178,72 @@ def test_a_selection_that_keeps_no_held_out_row_of_a_channel_is_not_compared():
     ok = _selected_prior(ValidationMetrics.of(("P1", "P2"), t, measured, measured + 0.01, "x", kept=kept),
                          ValidationMetrics.of(("P1", "P2"), t, measured, measured + 0.2, "x", kept=kept), True, "held-out")
     assert ok["beats_nominal"] and ok["channels_better"] == 2
+
+
+@pytest.mark.numerics
+def test_the_held_out_fit_floor_is_below_every_model_of_the_structure_on_the_moving_rows(twin, tmp_path):
+    """Issue 36, item 3: the floor is the base-parameter structure fitted by least squares to the
+    held-out rows the selection keeps (the moving rows: ``min_velocity`` alone), scored on them.
+    Least squares minimises the pooled squared error over exactly those rows, so every model of the
+    structure (fitted on the training log by any method, the nominal model, the floor's own vector
+    moved) lies at or above it; and a fit of the held-out log itself by ``dynid identify`` with the
+    same selection is that same least-squares problem, so it lands on the floor."""
+    import dataclasses
+
+    from dynid.pipeline.held_out_floor import pooled_rmse
+    from dynid.pipeline.identification import validate
+
+    d, actuators, _ = twin
+    cfg = _config(d, actuators, min_velocity=0.002)
+    fits = {m: identify(dataclasses.replace(cfg, identification=dataclasses.replace(cfg.identification, method=m)))
+            for m in ("ols", "wls")}
+    sel = fits["wls"].selected
+    fl, fl_all = sel.floor, sel.floor_all
+    assert fl is not None and fl_all is not None and fl.rank == fl.n_params == fits["wls"].base.n_base
+    h = fits["wls"].held_out
+    moving = velocity_mask(h.dq, (0.002,))  # min_velocity: the processed speed, per actuator equation
+    np.testing.assert_array_equal(fl.rows_per_channel, moving.sum(axis=0))
+    np.testing.assert_array_equal(fl_all.rows_per_channel, np.full(3, h.n_samples))
+    # the floor's per-channel errors (from the Gram matrices) are those of its vector predicted
+    # through the pipeline (rounding: eps |y|^2 / SSE ~ 1e-13 here; 1e-8 allows ill-conditioned rows)
+    o = fits["ols"]
+    pred = validate(dataclasses.replace(o.result, params=fl.params), o.system, o.base, h).predicted
+    e = np.where(moving, o.validation.measured - pred, 0.0)
+    np.testing.assert_allclose(fl.rmse, np.sqrt((e**2).sum(axis=0) / moving.sum(axis=0)), rtol=1e-8)
+    # no model of the structure beats it in pooled RMS on those rows. The guarantee is exact; the
+    # margin is the floor's own solve: a backward-stable QR gives the minimal residual to a relative
+    # eps * cond(W) ~ 1e-16 * 1e5 (column-scaled rps3 regressor), far below 1e-9
+    tol = 1e-9 * fl.pooled
+    for f in fits.values():
+        for m in (f.selected.metrics, f.selected.nominal):
+            assert pooled_rmse(m.rmse, m.rows_per_channel) >= fl.pooled - tol
+        assert pooled_rmse(f.validation.rmse, f.validation.rows_per_channel) >= fl_all.pooled - tol
+    rng = np.random.default_rng(seed(5))
+    for _ in range(3):  # SSE(beta) = SSE_min + |R (beta - beta*)|^2: any other vector is above
+        moved = fl.params * (1 + 1e-3 * rng.standard_normal(fl.params.size))
+        p = validate(dataclasses.replace(o.result, params=moved), o.system, o.base, h).predicted
+        rm = np.sqrt((np.where(moving, o.validation.measured - p, 0.0) ** 2).sum(axis=0) / moving.sum(axis=0))
+        assert pooled_rmse(rm, moving.sum(axis=0)) > fl.pooled
+    # the held-out log fitted by dynid identify itself (a copy, the same selection): the same least
+    # squares problem, so its held-out error on those rows is the floor (to the solvers' agreement)
+    from dynid._files import save_npz
+
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    with np.load(d / "valid" / "log.npz") as z:
+        save_npz(copy / "log.npz", {**{k: z[k] for k in z.files}, "copy": np.zeros(1)})
+    own = identify(dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, file=copy / "log.npz"),
+                                       identification=dataclasses.replace(cfg.identification, method="ols")))
+    m = own.selected.metrics
+    assert pooled_rmse(m.rmse, m.rows_per_channel) == pytest.approx(fl.pooled, rel=1e-7)
+    # the identified model's error on the moving rows sits well below its all-row error (the
+    # reversals), and above the floor: what the user sees beside the whole-log figure
+    assert np.all(sel.metrics.rmse < 0.5 * fits["wls"].validation.rmse)
+    files = write_outputs(fits["wls"], tmp_path / "id")
+    js = json.loads(files["result.json"].read_text())["validation_selected_rows"]
+    assert js["floor"]["pooled_rmse"] == pytest.approx(fl.pooled, rel=1e-12)
+    assert js["floor"]["rows_per_joint"] == moving.sum(axis=0).tolist()
+    assert js["floor_all_rows"]["rmse_per_joint"] == pytest.approx(fl_all.rmse.tolist(), rel=1e-12)
+    summary = files["summary.txt"].read_text()
+    assert "Held-out-fit floor" in summary and "RMSE on every held-out row" in summary
+    assert "Held-out-fit floor" in files["report.html"].read_text()

@@ -42,12 +42,43 @@ class SelectedRows:
     processed held-out log exactly as to the training log), for the identified model and, on
     the same rows, the nominal one: how well the model predicts where it claims to be valid.
     The all-row errors stay the headline; these do not replace them. ``prior``: the
-    :func:`~dynid.estimation.validation.prior_comparison` of the two (set by :func:`~dynid.pipeline.identification.identify`)."""
+    :func:`~dynid.estimation.validation.prior_comparison` of the two (set by :func:`~dynid.pipeline.identification.identify`).
+    ``floor`` / ``floor_all``: the held-out-fit floor on these rows / on every held-out row
+    (:class:`~dynid.pipeline.held_out_floor.HeldOutFloor`: the same base-parameter structure fitted by
+    least squares to those held-out rows themselves, what no model of the structure beats there in
+    pooled RMS; None for a model not linear in its parameters)."""
 
     rule: str
     metrics: ValidationMetrics
     nominal: ValidationMetrics | None = None
     prior: dict[str, Any] | None = None
+    floor: Any = None
+    floor_all: Any = None
+
+    def floor_lines(self, validation: ValidationMetrics, nominal: ValidationMetrics | None) -> list[str]:
+        """summary.txt: the floor beside the identified and the nominal model, per channel and pooled,
+        on these rows and on every held-out row (``validation``, ``nominal``: the all-row errors)."""
+        if self.floor is None:
+            return []
+        from dynid.pipeline.held_out_floor import pooled_rmse
+
+        def block(title, ident, nom, fl) -> list[str]:
+            rows = [("channel", "identified", "nominal", "floor", "rows")]
+            for i, c in enumerate(ident.channel_names):
+                rows.append((c, f"{ident.rmse[i]:.4g}", "-" if nom is None else f"{nom.rmse[i]:.4g}", f"{fl.rmse[i]:.4g}",
+                             str(int(fl.rows_per_channel[i]))))
+            pool = lambda m: pooled_rmse(m.rmse, m.rows_per_channel)  # noqa: E731
+            rows.append(("pooled RMS", f"{pool(ident):.4g}", "-" if nom is None else f"{pool(nom):.4g}", f"{fl.pooled:.4g}",
+                         str(int(np.sum(fl.rows_per_channel)))))
+            w = [max(len(r[i]) for r in rows) for i in range(5)]
+            text = ["  ".join([r[0].ljust(w[0])] + [x.rjust(y) for x, y in zip(r[1:], w[1:])]) for r in rows]
+            return [title, text[0], "-" * len(text[0]), *text[1:]]
+
+        return (["", "Held-out-fit floor: the same base-parameter structure fitted by least squares to the held-out rows "
+                 "themselves and scored on them (no model of this structure, from any training log, has a smaller pooled "
+                 f"RMS there; rank {self.floor.rank} of {self.floor.n_params})"]
+                + block(f"RMSE on the rows the row selection keeps ({self.rule})", self.metrics, self.nominal, self.floor)
+                + block("RMSE on every held-out row", validation, nominal, self.floor_all))
 
     def heading(self) -> str:
         rows = ", ".join(f"{c} {int(k)}" for c, k in zip(self.metrics.channel_names, self.metrics.rows_per_channel))
@@ -206,6 +237,7 @@ class IdentifyOutcome:
                 lines += ["nominal model, the same rows", sel.nominal.table()]
                 if sel.prior is not None:
                     lines += ["", sel.prior["verdict"]]
+            lines += sel.floor_lines(v, self.nominal_validation)
         fr = self.full_rate
         if fr is not None:
             lines += ["", fr.heading(), fr.metrics.table()]

@@ -179,7 +179,8 @@ def _selected_dict(sel: SelectedRows) -> dict[str, Any]:
     return {"rule": sel.rule, "identified": ident,
             **({"nominal": {**_nominal_dict(sel.nominal), "rows_per_joint": ident["rows_per_joint"]}}
                if sel.nominal is not None else {}),
-            **({"prior_comparison": sel.prior} if sel.prior is not None else {})}
+            **({"prior_comparison": sel.prior} if sel.prior is not None else {}),
+            **({"floor": sel.floor.to_dict(), "floor_all_rows": sel.floor_all.to_dict()} if sel.floor is not None else {})}
 
 
 def _full_rate_dict(fr: FullRate) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System, as_system
 from dynid.pipeline import stribeck
 from dynid.pipeline.data import build_system, preprocess
+from dynid.pipeline.held_out_floor import FloorAccumulator
 from dynid.pipeline.outcome import FullRate, OtherView, RowSelection, SelectedRows, _other_view
 from dynid.pipeline.rows import Progress, _chunks, _no_progress, row_mask
 
@@ -50,13 +51,18 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
     not computed): the prior every identified model has to beat. For a redundantly actuated
     mechanism also the other view of the same predictions (:class:`OtherView`, None otherwise).
     With ``selection`` (the training's row selection) also both models' errors on the held-out
-    rows that selection keeps (:class:`SelectedRows`, None otherwise)."""
+    rows that selection keeps (:class:`SelectedRows`, None otherwise), with the held-out-fit floor on
+    those rows and on every held-out row for a model linear in its parameters
+    (:mod:`dynid.pipeline.held_out_floor`: the structure fitted to the held-out rows themselves)."""
     system = as_system(robot)
     if friction is None and tuple(result.names) != base.names:
         raise InputError("the result's parameters are not the base parameters of this robot")
     meas, pred, prior, kept = [], [], [], []
     alt: list[tuple[FloatArray, FloatArray, FloatArray | None]] = []
     guard = None if selection is None else selection.reversal_guard
+    names = system.channel_names(force_model)
+    floors = None if selection is None or friction is not None else (FloorAccumulator(names, base.n_base),
+                                                                      FloorAccumulator(names, base.n_base))
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
                      progress=progress, task="validate", periodic=periodic, reversal_guard=guard,
                      min_velocity=None if selection is None else selection.min_velocity):
@@ -67,6 +73,9 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
                             reversal=c.reversal)
             kept.append(np.ones(c.y.shape, dtype=bool) if mask is None
                         else np.broadcast_to(mask if mask.ndim == 2 else mask[:, None], c.y.shape))
+            if floors is not None:
+                floors[0].add(c.W, c.y, kept[-1])
+                floors[1].add(c.W, c.y)
         pred.append(c.W @ result.params if friction is None else
                     friction.predict(result, c.W, c.dq, c.Ga) if hasattr(friction, "predict")  # hierarchical
                     else stribeck.predict(result, friction, c.W, c.dq))
@@ -77,7 +86,6 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
     measured, predicted = np.concatenate(meas), np.concatenate(pred)
     k = max(1, parallel_decimate)
     t = np.asarray(ds.t)[::k][: measured.shape[0]]
-    names = system.channel_names(force_model)
     src = ds.meta.get("source")
     metrics = ValidationMetrics.of(names, t, measured, predicted, src)
     nominal_metrics = None if nominal is None else ValidationMetrics.of(names, t, measured, np.concatenate(prior), src)
@@ -102,7 +110,8 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
             rule=selection.rule,
             metrics=ValidationMetrics.of(names, t, measured, predicted, src, kept=mask),
             nominal=None if nominal is None else ValidationMetrics.of(names, t, measured, np.concatenate(prior), src,
-                                                                      kept=mask))
+                                                                      kept=mask),
+            floor=None if floors is None else floors[0].result(), floor_all=None if floors is None else floors[1].result())
     return metrics, nominal_metrics, other, selected
 
 

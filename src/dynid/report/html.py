@@ -67,8 +67,14 @@ def _selected_html(sel: Any) -> str:
         for i, (c, k, a) in enumerate(zip(m.channel_names, m.rows_per_channel, m.rmse)))
     head = "<th>RMSE nominal</th><th>identified better</th>" if n is not None else ""
     verdict = f"<p><b>{html.escape(sel.prior['verdict'])}</b></p>" if sel.prior is not None else ""
+    fl = getattr(sel, "floor", None)
+    floor = "" if fl is None else (
+        "<p>Held-out-fit floor (the same structure fitted by least squares to these held-out rows themselves: "
+        "no model of this structure has a smaller pooled RMS there): "
+        + ", ".join(f"{html.escape(c)} {x:.4g}" for c, x in zip(fl.channel_names, fl.rmse))
+        + f"; pooled {fl.pooled:.4g}</p>")
     return (f"<h2>On the rows the row selection keeps</h2><p>{html.escape(sel.heading())}</p>"
-            f"<table><tr><th>channel</th><th>rows</th><th>RMSE identified</th>{head}</tr>{rows}</table>{verdict}")
+            f"<table><tr><th>channel</th><th>rows</th><th>RMSE identified</th>{head}</tr>{rows}</table>{verdict}{floor}")
 
 
 def _fmt(x: float, spec: str = ".3g") -> str:
