@@ -195,6 +195,76 @@ def _kalman(kind):
     return case
 
 
+def _loop(tmp, method, sensors: dict, processing: dict, k: int, turns: int = 1, perturbation: float = 0.1,
+          **identification):
+    """A closed-loop twin (tests/test_control_loop.py's shang2dof under its computed torque, a circle of
+    ``turns`` turns) logged with the ``sensors`` given and no encoder quantization (the sensors' noise
+    is then the only measurement error, added to the log, not seen by the controller:
+    dynid.simulation.sensors), identified by ``method`` replaying that experiment (its simulate config)."""
+    import json
+
+    from dynid.config.simulate import parse_simulate_config
+    from dynid.pipeline.simulate import run_simulation, write_simulation
+    from test_control_loop import _SIM, _TRAIN, _toml
+
+    doc = {**_SIM, "robot": {**_SIM["robot"], "perturbation": perturbation},
+           "trajectory": {**_TRAIN, "turns": turns}, "sensors": {**sensors, "seed": seed(k)}}
+    (tmp / "train.toml").write_text(_toml(doc))
+    write_simulation(run_simulation(parse_simulate_config(doc, tmp)), tmp / "train")
+    n = sum(1 for _ in open(tmp / "train" / "log.csv")) - 1
+    cols = lambda p: {"columns": [f"{p}_qa{j}" for j in (1, 2, 3)], "unit": "rad" if p == "q" else "N*m"}  # noqa: E731
+    out = identify(parse_config({
+        "robot": {"model": "builtin:shang2dof"},
+        "data": {"file": "train/log.csv", "time": {"column": "t", "unit": "s"}, "position": cols("q"),
+                 "effort": {**cols("tau"), "kind": "torque"}, "rows": [0, 3 * n // 4]},
+        "validation": {"rows": [3 * n // 4, n]},
+        "processing": processing,
+        # "full": the perturbed truth's chains differ; "projected": no assumption on the force distribution
+        "identification": {"method": method, "experiment": "train.toml", "force_model": "projected",
+                           "structure": "full", **identification},
+        "output": {"plots": False}}, tmp))
+    truth = json.loads((tmp / "train" / "truth.json").read_text())
+    return out.result, out.base.from_standard(np.array(truth["true_parameters"]))
+
+
+# the positions low-pass filtered (exact positions: the filter only smooths the 500 Hz control steps),
+# the forces as measured (white), every sample kept: a parallel decimation would filter the force
+# noise and colour it. The force noise, 0.2 N*m, is 10 times the twin's of tests/test_control_loop.py:
+# the processed states (filtered, central differences) differ from the true ones by a deterministic
+# error, and at 0.02 N*m that error's share of the forces decides the statistic (IV one step from
+# the truth: chi-square 125 for 22 directions at 0.02, 26.7 at 0.2; the statistic of an error that
+# is not noise grows as 1 / noise^2)
+_LOOP_PROCESSING = {"lowpass": {"cutoff_hz": 20.0, "order": 4, "filter_effort": False}, "derivatives": "central"}
+_FORCE_NOISE = {"force_noise_std": 0.2}
+
+
+# IV and DIDIM start at the truth (the twin's truth is its nominal model) and iterate twice: the
+# covariance each reports at its fixed point is what is asserted. From a 10 % perturbed truth on
+# this 1-turn twin they do not reach a fixed point (a replay fails to simulate at iteration 1-5:
+# see FINDINGS' comment), and the 4-turn twin that DIDIM needs costs 20 s, over this file's budget
+def _iv(tmp, robot):
+    # IDIM-IV (Janot 2014): force noise that is measurement noise (white, added to the log, not in the
+    # loop): the instruments from the replays are independent of it. directions_rtol 1e-6: IV's
+    # default 1e-3 holds 11 of 25 directions on this short log at the start's values
+    return _loop(tmp, "iv", _FORCE_NOISE, _LOOP_PROCESSING, k=9, perturbation=0.0, start="nominal",
+                 directions_rtol=1e-6, max_iterations=2)
+
+
+def _didim(tmp, robot):
+    # DIDIM (Gautier 2013): the same data (its output error is that of the forces: white measurement noise)
+    return _loop(tmp, "didim", _FORCE_NOISE, _LOOP_PROCESSING, k=10, perturbation=0.0, max_iterations=2)
+
+
+def _cloe(tmp, robot):
+    # CLOE: white position measurement noise only (no force noise, no low-pass: the position output
+    # errors at the truth are that white noise, the assumption of its covariance, dynid.pipeline.cloe).
+    # Cost: 26 replays per iteration; from a 10 % perturbed truth it converges in 7 iterations, 80 s,
+    # over this suite's budget, so the twin's truth is its nominal model (the start) and CLOE runs 1
+    # iteration: the estimate is then the noise's fit about the truth, where its covariance is meant
+    return _loop(tmp, "cloe", {"position_noise_std": 1e-5}, {"derivatives": "central"}, k=11, perturbation=0.0,
+                 max_iterations=1)
+
+
 CASES = {
     "ols": _ols,
     "wls": _wls,
@@ -205,20 +275,50 @@ CASES = {
     "ml": _ml,
     "ekf": _kalman("ekf"),
     "ukf": _kalman("ukf"),
+    "iv": _iv,
+    "didim": _didim,
+    "cloe": _cloe,
 }
+LOOP = ("iv", "didim", "cloe")  # the experiment replayed under its controller: one closed chain (cost)
 ROBOTS = ("arm", "fivebar")
+FINDINGS = {
+    # Found by this suite (issue 36, item 1), not fixed here: on the arm's 2 s periodic motion (4
+    # harmonics of 0.5 Hz, 600 training samples) the UKF's covariance is optimistic. The truth's
+    # chi-square for p = 22 on draws seed(8..11): UKF 50.1, 534, 432, 1.3e6 (its position innovations'
+    # normalized mean square up to 1.9 and 2.7 where 1 is consistent); EKF on the same logs 23.9, 26.8,
+    # 18.8 and 7.1e5 (draw 11: both filters diverge, position innovations 220-1600 times their
+    # predicted variance); WLS on the exact states of the same logs 24.3, 24.0, 15.7, 26.6.
+    # CLOE on white position noise (its covariance's assumption), one iteration from the truth: the
+    # covariance it reports for the 25 directions it estimates has 13 eigenvalues at rounding level
+    # (|lambda| < 5e-21 against a largest of 6.6e-5: rank 12), so it claims certainty in 13 directions
+    ("cloe", "shang2dof"): "CLOE's covariance is singular (rank 12 of the 25 directions it estimates) on "
+                           "white position noise",
+    ("ukf", "arm"): "the UKF's covariance is optimistic on the arm's fast periodic motion (chi-square 50.1 "
+                    "for p = 22 on this draw, 432-1.3e6 on three others)",
+}
 
 
 def _params():
     out = []
     for method in (*_METHODS, "wls+physical_consistency"):
-        for robot in ROBOTS:
-            out.append(pytest.param(method, robot, id=f"{method}-{robot}"))
+        for robot in (("shang2dof",) if method in LOOP else ROBOTS):
+            why = FINDINGS.get((method, robot))
+            marks = [pytest.mark.xfail(strict=True, reason=why)] if why else []
+            out.append(pytest.param(method, robot, id=f"{method}-{robot}", marks=marks))
     return out
 
 
-def _statistic(d: np.ndarray, cov: np.ndarray) -> float:
-    return float(d @ np.linalg.solve(cov, d))
+def _statistic(d: np.ndarray, cov: np.ndarray, rank: int | None = None) -> float:
+    """d^T C^+ d on the ``rank`` largest eigenvalues' directions of C (all by default), which must be
+    positive: a covariance is positive semi-definite, and a negative eigenvalue beyond rounding
+    (1e-12 of the largest, for a symmetric eigensolver's backward error ~n eps ||C||) is a failure,
+    not a statistic."""
+    w, V = np.linalg.eigh(cov)
+    rank = d.size if rank is None else rank
+    assert w[0] >= -1e-12 * w[-1], f"the covariance is not positive semi-definite: eigenvalues {w[0]:.3g} to {w[-1]:.3g}"
+    assert w[-rank] > 0, f"the covariance is singular in the {rank} directions it claims: eigenvalues {w[-rank:]}"
+    z = (V[:, -rank:].T @ d) / np.sqrt(w[-rank:])
+    return float(z @ z)
 
 
 @pytest.mark.numerics
@@ -243,5 +343,12 @@ def test_contract(tmp_path, method, robot):
     assert result.cov_params is not None, (method, result.notes)
     p = truth.size
     assert result.cov_params.shape == (p, p)
-    stat = _statistic(result.params - truth, result.cov_params)
+    held = result.solver.get("estimated_directions", {}) if method in LOOP else {}
+    if held and held["count"] < p:
+        # directions held at the start's values: the covariance is zero along them and the method says
+        # its standard errors are conditional on them; the statistic in the estimated directions (the
+        # covariance's range), chi-square with that many degrees of freedom
+        assert any(f"{p - held['count']} of {p} directions" in n and "conditional" in n for n in result.notes)
+        p = held["count"]
+    stat = _statistic(result.params - truth, result.cov_params, p)
     assert stat < chi2.ppf(1 - FALSE_ALARM, p), (method, robot, stat, p)
