@@ -578,6 +578,10 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
               "controller; IV covariance" if method == "iv" else
               "output error: the measured forces regressed on the regressor of the experiment replayed with the current "
               "estimate under its controller")]
+    if subspace is not None and subspace[2].shape[1] < base.n_base:  # as IV's and CLOE's results say it
+        notes.append(f"{base.n_base - subspace[2].shape[1]} of {base.n_base} directions of the base parameters are not "
+                     f"determined by the start's replayed regressor (singular value below {icfg.directions_rtol:g} of the "
+                     "largest): held at the start's values; the standard errors are conditional on them")
     if not converged:
         notes.append(f"not converged in {icfg.max_iterations} iterations: the last step moved a parameter by "
                      f"{history[-1]['max_change_in_std']:.3g} standard deviations")
