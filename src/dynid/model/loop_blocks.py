@@ -52,7 +52,7 @@ Mechanism = Any  # a dynid.model.mechanism.Mechanism (named, not imported: no im
 MAX_PIVOT_COND = 1e4
 """Largest :math:`\\kappa_1(D_g)\\,\\kappa_1(S)` for which the structured inverse is used (module docstring)."""
 
-__all__ = ["LegPlan", "leg_plan"]
+__all__ = ["LegPlan", "SideScatter", "inverse", "leg_plan", "scattered_drift", "scattered_rows", "side_scatter"]
 
 
 class LegPlan:
@@ -214,3 +214,123 @@ def inverse(plan: LegPlan, rows: FloatArray) -> FloatArray | None:
     inv.reshape(n, -1)[:, plan.d_idx] += Dinv.reshape(n, -1)  # + D^-1 (block diagonal)
     np.matmul(-Sinv, F, out=inv[:, nc:])
     return inv.reshape(n, -1)[:, plan.out_idx].reshape(n, plan.nw, nc)
+
+
+class SideScatter:
+    """Index plan of :func:`dynid.model.loop_kinematics._velocity_rows` for all moving sides at once: every moving side's
+    support columns padded to the widest (repeating its first column), and the flat positions
+    (constraint row x output column) their linear (and for ``6d`` angular) rows go to, for the
+    sides ``a`` (subtracted) and ``b`` (added) of the closures separately (within each set no two
+    entries share a position: one side per closure)."""
+
+    def __init__(self, mech: Mechanism) -> None:
+        sd = _sides(mech)
+        nv = mech.nv
+        moving = [s for s in range(sd.n_sides) if sd.columns[s].size]
+        width = max((sd.columns[s].size for s in moving), default=1)
+        self.moving = np.array(moving, dtype=int)
+        self.cols = np.array([np.r_[sd.columns[s], np.repeat(sd.columns[s][:1], width - sd.columns[s].size)] for s in moving],
+                             dtype=int).reshape(len(moving), width)
+        row_pos = np.full(int(sd.offsets[-1]), -1)
+        row_pos[mech.constraint_rows] = np.arange(mech.constraint_rows.size)
+        self.n_rows = int(mech.constraint_rows.size)
+        self.any_6d = "6d" in sd.kinds
+        # vals: (n, 6, S, width) flattened; source index of (d, k, t) = (d * S + k) * width + t
+        S = len(moving)
+        sets: dict[float, tuple[list, list]] = {1.0: ([], []), -1.0: ([], [])}
+        for k, s in enumerate(moving):
+            c, sign = s // 2, (1.0 if s % 2 else -1.0)
+            if c >= len(sd.kinds):  # the point coordinate's side: its own rows (see loop_kinematics._assemble)
+                continue
+            r0 = int(sd.offsets[c])
+            dims = range(6) if sd.kinds[c] == "6d" else range(3)
+            for d in dims:
+                r = row_pos[r0 + d]
+                if r < 0:
+                    continue
+                for t, oc in enumerate(sd.out_columns[s]):
+                    sets[sign][0].append(r * nv + oc)
+                    sets[sign][1].append((d * S + k) * width + t)
+        self.tgt_a, self.src_a = (np.array(v, dtype=int) for v in sets[-1.0])
+        self.tgt_b, self.src_b = (np.array(v, dtype=int) for v in sets[1.0])
+        # the drift (one value per row and side): source (d * S + k), target row; the bodies
+        # carrying the moving sides as 0/1 masks of their support columns (joint order)
+        dsets: dict[float, tuple[list, list]] = {1.0: ([], []), -1.0: ([], [])}
+        for k, s in enumerate(moving):
+            c, sign = s // 2, (1.0 if s % 2 else -1.0)
+            if c >= len(sd.kinds):
+                continue
+            for d in range(6 if sd.kinds[c] == "6d" else 3):
+                r = row_pos[int(sd.offsets[c]) + d]
+                if r >= 0:
+                    dsets[sign][0].append(r)
+                    dsets[sign][1].append(d * S + k)
+        self.dtgt_a, self.dsrc_a = (np.array(v, dtype=int) for v in dsets[-1.0])
+        self.dtgt_b, self.dsrc_b = (np.array(v, dtype=int) for v in dsets[1.0])
+        self.body_of = np.asarray(sd.body_of, dtype=int)
+        self.body_mask_T = np.ascontiguousarray(sd.body_mask_q.T)  # (n_v, bodies)
+
+
+def side_scatter(mech: Mechanism) -> SideScatter | None:
+    """The cached :class:`SideScatter` of joint-coordinate mechanisms (None for point coordinates:
+    their extra rows take :func:`dynid.model.loop_kinematics._assemble`)."""
+    if not isinstance(mech.independent, JointCoordinates):
+        return None
+    sc = mech.__dict__.get("_side_scatter_cache")
+    if sc is None:
+        sc = SideScatter(mech)
+        object.__setattr__(mech, "_side_scatter_cache", sc)
+    return sc
+
+
+def scattered_rows(sc: SideScatter, J: FloatArray, p: FloatArray) -> FloatArray:
+    """The independent constraint rows (n, n_c, n_v) of all moving sides at once: per side and
+    column :math:`J_v - p \\times J_\\omega` (and :math:`J_\\omega`), then -side a + side b;
+    element by element the arithmetic of :func:`dynid.model.loop_kinematics._cross_m` and :func:`dynid.model.loop_kinematics._assemble` (the same
+    numbers), computed with the samples as the innermost axis (numpy's loops over 3 to 6
+    columns per side would cost more than the arithmetic)."""
+    n, _, nv = J.shape
+    Js = np.ascontiguousarray(J.transpose(1, 2, 0))[:, sc.cols]  # (6, S, width, n)
+    ps = p[:, sc.moving].transpose(2, 1, 0)[:, :, None]  # (3, S, 1, n)
+    vals = np.empty((6 if sc.any_6d else 3, *Js.shape[1:]))
+    px, py, pz = ps[0], ps[1], ps[2]
+    mx, my, mz = Js[3], Js[4], Js[5]
+    np.subtract(Js[0], py * mz - pz * my, out=vals[0])
+    np.subtract(Js[1], pz * mx - px * mz, out=vals[1])
+    np.subtract(Js[2], px * my - py * mx, out=vals[2])
+    if sc.any_6d:
+        vals[3:] = Js[3:]
+    flat = vals.reshape(-1, n)
+    rows = np.zeros((sc.n_rows * nv, n))
+    rows[sc.tgt_a] = -flat[sc.src_a]
+    rows[sc.tgt_b] += flat[sc.src_b]
+    return np.ascontiguousarray(rows.reshape(sc.n_rows, nv, n).transpose(2, 0, 1))
+
+
+def scattered_drift(sc: SideScatter, J: FloatArray, dJ: FloatArray, dq: FloatArray, p: FloatArray) -> FloatArray:
+    """:func:`dynid.model.loop_kinematics._drift`'s rows of joint-coordinate mechanisms, all sides at once with the samples as
+    the innermost axis: each carrying body's spatial velocity :math:`V = J\\dot q` and acceleration
+    at :math:`\\ddot q = 0`, :math:`\\dot J\\dot q` (its support columns: one product with the 0/1
+    masks), the classical acceleration of every side point
+    :math:`\\dot v + \\dot\\omega\\times p + \\omega\\times(v + \\omega\\times p)`, then -side a + side b.
+    The same formulas as :func:`dynid.model.loop_kinematics._drift`; sums over the support columns in another order (rounding)."""
+    n = J.shape[0]
+    S = sc.moving.size
+    VA = np.matmul(np.stack([J, dJ]) * dq[None, :, None, :], sc.body_mask_T)  # (2, n, 6, bodies)
+    VA = np.ascontiguousarray(VA.transpose(0, 2, 3, 1))[:, :, sc.body_of]  # (2, 6, S, n)
+    V, A = VA[0], VA[1]
+    ps = p[:, sc.moving].transpose(2, 1, 0)  # (3, S, n)
+    w = V[3:]
+    vp = V[:3] + _cross0(w, ps)
+    lin = A[:3] + _cross0(A[3:], ps) + _cross0(w, vp)
+    vals = np.concatenate([lin, A[3:]]) if sc.any_6d else lin
+    flat = vals.reshape(-1, n)
+    drift = np.zeros((sc.n_rows, n))
+    drift[sc.dtgt_a] = -flat[sc.dsrc_a]
+    drift[sc.dtgt_b] += flat[sc.dsrc_b]
+    return np.ascontiguousarray(drift.T)
+
+
+def _cross0(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Cross product along the first axis of (3, ...) arrays."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])

@@ -145,81 +145,6 @@ def _cross_m(p: FloatArray, M: FloatArray) -> FloatArray:
     return np.stack([py * mz - pz * my, pz * mx - px * mz, px * my - py * mx], axis=1)
 
 
-class _SideScatter:
-    """Index plan of :func:`_velocity_rows` for all moving sides at once: every moving side's
-    support columns padded to the widest (repeating its first column), and the flat positions
-    (constraint row x output column) their linear (and for ``6d`` angular) rows go to, for the
-    sides ``a`` (subtracted) and ``b`` (added) of the closures separately (within each set no two
-    entries share a position: one side per closure)."""
-
-    def __init__(self, mech: Mechanism) -> None:
-        sd = _sides(mech)
-        nv = mech.nv
-        moving = [s for s in range(sd.n_sides) if sd.columns[s].size]
-        width = max((sd.columns[s].size for s in moving), default=1)
-        self.moving = np.array(moving, dtype=int)
-        self.cols = np.array([np.r_[sd.columns[s], np.repeat(sd.columns[s][:1], width - sd.columns[s].size)] for s in moving],
-                             dtype=int).reshape(len(moving), width)
-        row_pos = np.full(int(sd.offsets[-1]), -1)
-        row_pos[mech.constraint_rows] = np.arange(mech.constraint_rows.size)
-        self.n_rows = int(mech.constraint_rows.size)
-        self.any_6d = "6d" in sd.kinds
-        # vals: (n, 6, S, width) flattened; source index of (d, k, t) = (d * S + k) * width + t
-        S = len(moving)
-        sets: dict[float, tuple[list, list]] = {1.0: ([], []), -1.0: ([], [])}
-        for k, s in enumerate(moving):
-            c, sign = s // 2, (1.0 if s % 2 else -1.0)
-            if c >= len(sd.kinds):  # the point coordinate's side: its own rows (see _assemble)
-                continue
-            r0 = int(sd.offsets[c])
-            dims = range(6) if sd.kinds[c] == "6d" else range(3)
-            for d in dims:
-                r = row_pos[r0 + d]
-                if r < 0:
-                    continue
-                for t, oc in enumerate(sd.out_columns[s]):
-                    sets[sign][0].append(r * nv + oc)
-                    sets[sign][1].append((d * S + k) * width + t)
-        self.tgt_a, self.src_a = (np.array(v, dtype=int) for v in sets[-1.0])
-        self.tgt_b, self.src_b = (np.array(v, dtype=int) for v in sets[1.0])
-
-
-def _side_scatter(mech: Mechanism) -> _SideScatter | None:
-    """The cached :class:`_SideScatter` of joint-coordinate mechanisms (None for point coordinates:
-    their extra rows take :func:`_assemble`)."""
-    if not isinstance(mech.independent, JointCoordinates):
-        return None
-    sc = mech.__dict__.get("_side_scatter_cache")
-    if sc is None:
-        sc = _SideScatter(mech)
-        object.__setattr__(mech, "_side_scatter_cache", sc)
-    return sc
-
-
-def _scattered_rows(sc: _SideScatter, J: FloatArray, p: FloatArray) -> FloatArray:
-    """The independent constraint rows (n, n_c, n_v) of all moving sides at once: per side and
-    column :math:`J_v - p \times J_\omega` (and :math:`J_\omega`), then -side a + side b;
-    element by element the arithmetic of :func:`_cross_m` and :func:`_assemble` (the same
-    numbers), computed with the samples as the innermost axis (numpy's loops over 3 to 6
-    columns per side would cost more than the arithmetic)."""
-    n, _, nv = J.shape
-    Js = np.ascontiguousarray(J.transpose(1, 2, 0))[:, sc.cols]  # (6, S, width, n)
-    ps = p[:, sc.moving].transpose(2, 1, 0)[:, :, None]  # (3, S, 1, n)
-    vals = np.empty((6 if sc.any_6d else 3, *Js.shape[1:]))
-    px, py, pz = ps[0], ps[1], ps[2]
-    mx, my, mz = Js[3], Js[4], Js[5]
-    np.subtract(Js[0], py * mz - pz * my, out=vals[0])
-    np.subtract(Js[1], pz * mx - px * mz, out=vals[1])
-    np.subtract(Js[2], px * my - py * mx, out=vals[2])
-    if sc.any_6d:
-        vals[3:] = Js[3:]
-    flat = vals.reshape(-1, n)
-    rows = np.zeros((sc.n_rows * nv, n))
-    rows[sc.tgt_a] = -flat[sc.src_a]
-    rows[sc.tgt_b] += flat[sc.src_b]
-    return np.ascontiguousarray(rows.reshape(sc.n_rows, nv, n).transpose(2, 0, 1))
-
-
 def _velocity_rows(mech: Mechanism, q: FloatArray, data: pin.Data | None = None) -> tuple[FloatArray, tuple]:
     """Rows :math:`[J_c; J_u]` per sample, shape (n, n_v, n_v), and the geometry for reuse.
 
@@ -229,9 +154,9 @@ def _velocity_rows(mech: Mechanism, q: FloatArray, data: pin.Data | None = None)
     data = mech.pin_model.createData() if data is None else data
     J, H = _placements(mech, q, data)
     p = _side_points(mech, H)
-    sc = _side_scatter(mech)
+    sc = loop_blocks.side_scatter(mech)
     if sc is not None:  # all sides at once (the same products and sums as side by side)
-        return _scattered_rows(sc, J, p), (J, p)
+        return loop_blocks.scattered_rows(sc, J, p), (J, p)
     cols = _sides(mech).columns
 
     def side_rows(s: int) -> tuple[FloatArray, FloatArray]:
@@ -327,6 +252,9 @@ def _drift(mech: Mechanism, q: FloatArray, dq: FloatArray, J: FloatArray, p: Flo
     for i in range(n):
         tv(model, data, q[i], dq[i])
         dJ[i] = data.dJ
+    sc = loop_blocks.side_scatter(mech)
+    if sc is not None:
+        return loop_blocks.scattered_drift(sc, J, dJ, dq, p)
     # spatial velocity (at the world origin) and acceleration (at q-ddot = 0) of every body that
     # carries a side, once per body (the platform of a hexapod carries six sides)
     spatial: dict[int, tuple[FloatArray, FloatArray]] = {}
