@@ -277,7 +277,7 @@ def actuator_regressor(
 def _projected_terms(mech: Mechanism, G: FloatArray, dq: FloatArray, ddq: FloatArray) -> FloatArray:
     """:math:`G^T F` (n, n_u, n_terms) of unweighted joint terms without forming :math:`F`
     (:func:`term_columns`: mostly zeros, n x n_v x n_terms): per kind of term,
-    :math:`\sum_j G_{ju}\,b_j\,I_{jk}` (basis :math:`b`, incidence :math:`I`) as one matrix
+    :math:`\\sum_j G_{ju}\\,b_j\\,I_{jk}` (basis :math:`b`, incidence :math:`I`) as one matrix
     product over all samples. The same products as :math:`G^T F` (the incidence is 0/1), summed in
     another order (rounding)."""
     n, nv, n_u = G.shape
