@@ -87,7 +87,8 @@ def test_structured_states_and_regressor_equal_the_reference(name, reference):
             assert len({model.names[int(j) + 1][-1] for j in order[plan.local[g]]}) == 1  # ... of one strut (a_i, b_i, P_i)
         assert sorted(model.names[int(j) + 1] for j in order[plan.shared]) == ["PX", "PY", "PZ", "RX", "RY", "RZ"]
         # and the structured inverse is what these states took (no fallback): pivots below the limit
-        assert loop_blocks.inverse(plan, loop_kinematics._velocity_rows(mech, q)[0]) is not None
+        structured = loop_blocks.inverse(plan, loop_kinematics._velocity_rows(mech, q)[0])
+        assert structured is not None and structured[1].all()
     else:  # no leg structure: the dense inverse stays
         assert plan is None
     reference()
@@ -108,14 +109,29 @@ def test_structured_states_and_regressor_equal_the_reference(name, reference):
     assert np.abs(W @ params - tau).max() <= 1e-9 * np.abs(tau).max()
 
 def test_ill_conditioned_legs_take_the_dense_inverse(monkeypatch, reference):
-    """Above MAX_PIVOT_COND the plan declines (None) and states() inverts densely: the same states
-    as the reference route, bit for bit (the same LAPACK call on the same rows)."""
+    """Where kappa(D) kappa(S) is above MAX_PIVOT_COND the sample is inverted densely, the others by
+    block elimination: with the limit inside the range of the motion's pivots, both kinds in one
+    block, and the states equal the reference route's within the bound of the module docstring;
+    with a limit below every sample's (kappa_1 >= 1) the plan declines (None) and the states are
+    the reference's bit for bit (the same LAPACK call on the same rows)."""
     mech = build_mechanism("hexapod")
-    q, du, ddu = _states(mech, "hexapod", 50)
-    monkeypatch.setattr(loop_blocks, "MAX_PIVOT_COND", 1.0)  # every kappa_1 >= 1: always declines
+    q, du, ddu = _states(mech, "hexapod", 200)
     rows = loop_kinematics._velocity_rows(mech, q)[0]
-    assert loop_blocks.inverse(loop_blocks.leg_plan(mech), rows) is None
+    plan = loop_blocks.leg_plan(mech)
+    for limit in np.geomspace(1.0, loop_blocks.MAX_PIVOT_COND, 400):  # a limit inside the pivots' range
+        monkeypatch.setattr(loop_blocks, "MAX_PIVOT_COND", float(limit))
+        res = loop_blocks.inverse(plan, rows)
+        if res is not None and 0 < res[1].sum() < res[1].size:
+            break
+    else:
+        pytest.fail("no limit splits the samples")  # the motion's products differ from sample to sample
+    mixed = mech.states(q, du, ddu)
+    monkeypatch.setattr(loop_blocks, "MAX_PIVOT_COND", 1.0)
+    assert loop_blocks.inverse(plan, rows) is None
     declined = mech.states(q, du, ddu)
     reference()
     ref = mech.states(q, du, ddu)
     assert np.array_equal(declined.G, ref.G) and np.array_equal(declined.cond, ref.cond)
+    tol = 2 * mech.nv * EPS * (float(ref.cond.max()) + limit)
+    for field in ("G", "dq", "ddq", "cond"):
+        assert _rel(getattr(mixed, field), getattr(ref, field)) <= tol, field

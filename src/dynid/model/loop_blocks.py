@@ -40,13 +40,13 @@ blocks up to 3 x 3), one :math:`n_u` inverse and a few small products instead of
 **Accuracy.** Block elimination is backward stable when the pivot blocks are well conditioned: the
 computed inverse has a relative error of order :math:`\\varepsilon\\,\\kappa(D)\\,\\kappa(S)` (the
 closed-form 3 x 3 inverse: :math:`\\varepsilon\\,\\kappa(D_g)` per block, each entry a 2 x 2
-determinant). The plan is used on a block of samples only when every :math:`\\kappa_1(D_g)\\kappa_1(S)`
+determinant). The plan's inverse is kept for a sample only where :math:`\\kappa_1(D_g)\\kappa_1(S)`
 is below :data:`MAX_PIVOT_COND` (1e3: an error below about :math:`10^3 \\cdot 2^{-52} \\approx 2\\cdot10^{-13}`
 relative, times a small multiple of :math:`n_v`; on the hexapod's benchmark motion the product is at most
 about 270, :math:`\\kappa_1(J_{c,w})` 170; on random assembled states it reaches some 7000 where
 :math:`\\kappa_1(J_{c,w})` is 3000: :math:`\\kappa(S)` is the platform's own conditioning); otherwise
 (a leg near its own singularity while the mechanism is not, a badly conditioned platform Jacobian, or a
-singular sample, whose error message is the dense route's) the block of samples takes the dense inverse.
+singular sample, whose error message is the dense route's) that sample takes the dense inverse.
 """
 
 from __future__ import annotations
@@ -92,15 +92,13 @@ class LegPlan:
         eq_pos = np.empty(nc, dtype=int)
         eq_pos[eq] = np.arange(nc)
         self.eq_pos = eq_pos  # plan position of constraint row r
+        self.rows_in_order = bool(np.array_equal(eq, np.arange(nc)))
         self.flat_u = u_group * k + u_pos  # the independent joints' leg rows in D^-1 (flattened)
         n_u = shared.size
         self.nc, self.n_u = nc, n_u
         self.gi, self.ki, self.local_b = np.arange(m)[:, None, None], np.arange(k)[None, :, None], local[:, None, :]
-        # flat positions: F's non-zeros (row i, leg u_group[i]'s k columns), D^-1's blocks in the
-        # (nc + n_u, nc) inverse, and the output (dependent variables x constraint rows)
+        # flat positions: F's non-zeros (row i, leg u_group[i]'s k columns) and the output (dependent variables x constraint rows)
         self.f_idx = (np.arange(n_u)[:, None] * nc + u_group[:, None] * k + np.arange(k)).reshape(-1)
-        g, a, b = np.meshgrid(np.arange(m), np.arange(k), np.arange(k), indexing="ij")
-        self.d_idx = ((g * k + a) * nc + g * k + b).reshape(-1)
         self.out_idx = (self.w_pos[:, None] * nc + eq_pos[None, :]).reshape(-1)
 
 
@@ -173,37 +171,46 @@ def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
 
 
 def _inv_small(D: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Inverses of stacked k x k matrices (closed form, adjugate over determinant, for k <= 3;
+    """Inverses of stacked k x k matrices (closed form, adjugate over determinant, for k <= 3, on
+    the entries as rows over all matrices: long loops instead of numpy's loops over 3 columns;
     LAPACK otherwise) and their 1-norm condition numbers (inf where singular)."""
     k = D.shape[-1]
+    if k > 3:
+        try:
+            inv = np.linalg.inv(D)
+        except np.linalg.LinAlgError:
+            return D, np.full(D.shape[:-2], np.inf)
+        cond = np.abs(D).sum(-2).max(-1) * np.abs(inv).sum(-2).max(-1)
+        return inv, np.where(np.isfinite(cond), cond, np.inf)
+    lead = D.shape[:-2]
+    d = np.ascontiguousarray(D.reshape(-1, k * k).T)  # (k*k, N): entry (i, j) in row i*k + j
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         if k == 1:
-            inv = 1.0 / D
+            adj, det = np.ones_like(d), d[0]
         elif k == 2:
-            a, b, c, d = D[..., 0, 0], D[..., 0, 1], D[..., 1, 0], D[..., 1, 1]
-            det = a * d - b * c
-            inv = np.stack([d, -b, -c, a], -1).reshape(D.shape) / det[..., None, None]
-        elif k == 3:
-            r0, r1, r2 = D[..., 0, :], D[..., 1, :], D[..., 2, :]
-            adjT = np.stack([_cross(r1, r2), _cross(r2, r0), _cross(r0, r1)], -2)  # rows: the adjugate's columns
-            det = (r0 * adjT[..., 0, :]).sum(-1)
-            inv = adjT.swapaxes(-1, -2) / det[..., None, None]
+            adj, det = np.stack([d[3], -d[1], -d[2], d[0]]), d[0] * d[3] - d[1] * d[2]
         else:
-            try:
-                inv = np.linalg.inv(D)
-            except np.linalg.LinAlgError:
-                return D, np.full(D.shape[:-2], np.inf)
-        cond = np.abs(D).sum(-2).max(-1) * np.abs(inv).sum(-2).max(-1)
-    return inv, np.where(np.isfinite(cond), cond, np.inf)
+            a, b, c, e, f, g, h, i, j = d  # rows (a b c), (e f g), (h i j)
+            adj = np.stack([f * j - g * i, c * i - b * j, b * g - c * f,
+                            g * h - e * j, a * j - c * h, c * e - a * g,
+                            e * i - f * h, b * h - a * i, a * f - b * e])
+            det = a * adj[0] + b * adj[3] + c * adj[6]
+        inv = adj / det
+        norm_d = np.abs(d).reshape(k, k, -1).sum(axis=0).max(axis=0)  # max column sum
+        norm_i = np.abs(inv).reshape(k, k, -1).sum(axis=0).max(axis=0)
+        cond = norm_d * norm_i
+    cond = np.where(np.isfinite(cond), cond, np.inf)
+    return np.ascontiguousarray(inv.T).reshape(*lead, k, k), cond.reshape(lead)
 
 
-def inverse(plan: LegPlan, rows: FloatArray) -> FloatArray | None:
+def inverse(plan: LegPlan, rows: FloatArray) -> tuple[FloatArray, np.ndarray] | None:
     """:math:`J_{c,w}^{-1}` of ``rows`` (n, n_c, n_v) (the independent constraint rows, columns in
-    ``_Sides``' output order) by block elimination (module docstring), shape (n, n_c, n_c); None
-    where a pivot block is too ill-conditioned for it (the caller takes the dense inverse)."""
+    ``_Sides``' output order) by block elimination (module docstring), shape (n, n_c, n_c), and the
+    samples where it holds (pivots below :data:`MAX_PIVOT_COND`; the caller inverts the others
+    densely); None where no sample's pivots allow it (or :math:`S` is exactly singular)."""
     n = rows.shape[0]
     m, k, nc, n_u = plan.m, plan.k, plan.nc, plan.n_u
-    Rg = rows[:, plan.rows]  # (n, m, k, n_v): each closure's rows
+    Rg = rows.reshape(n, m, k, -1) if plan.rows_in_order else rows[:, plan.rows]  # (n, m, k, n_v): each closure's rows
     D = Rg[:, plan.gi, plan.ki, plan.local_b]  # (n, m, k, k): its leg block
     B = Rg[:, :, :, plan.shared]  # (n, m, k, n_u): its shared columns
     Dinv, cD = _inv_small(D)
@@ -215,7 +222,8 @@ def inverse(plan: LegPlan, rows: FloatArray) -> FloatArray | None:
     except np.linalg.LinAlgError:
         return None
     cS = np.abs(S).sum(-2).max(-1) * np.abs(Sinv).sum(-2).max(-1)
-    if not np.all(cD.max(axis=1, initial=0.0) * cS <= MAX_PIVOT_COND):  # NaN fails too
+    ok = cD.max(axis=1, initial=0.0) * cS <= MAX_PIVOT_COND  # NaN fails too
+    if not ok.any():
         return None
     # F = C D^-1 (n, n_u, nc): row i is row u_pos[i] of leg u_group[i]'s D^-1, in that leg's columns
     F = np.zeros((n, n_u * nc))
@@ -223,9 +231,11 @@ def inverse(plan: LegPlan, rows: FloatArray) -> FloatArray | None:
     F = F.reshape(n, n_u, nc)
     inv = np.empty((n, nc + n_u, nc))  # A^-1 on the closure equations, in the plan's order
     np.matmul(np.matmul(E, Sinv), F, out=inv[:, :nc])  # D^-1 B S^-1 C D^-1
-    inv.reshape(n, -1)[:, plan.d_idx] += Dinv.reshape(n, -1)  # + D^-1 (block diagonal)
+    # + D^-1 on the block diagonal, through a strided view of those blocks
+    st = inv.strides
+    np.lib.stride_tricks.as_strided(inv, (n, m, k, k), (st[0], k * (st[1] + st[2]), st[1], st[2]))[...] += Dinv
     np.matmul(-Sinv, F, out=inv[:, nc:])
-    return inv.reshape(n, -1)[:, plan.out_idx].reshape(n, plan.nw, nc)
+    return inv.reshape(n, -1)[:, plan.out_idx].reshape(n, plan.nw, nc), ok
 
 
 class SideScatter:

@@ -171,10 +171,15 @@ def _invert(A: FloatArray, max_cond: float, what: str = "[J_c; J_u]", offset: in
             plan: loop_blocks.LegPlan | None = None, full: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
     """Batched inverse and 1-norm condition numbers; a one-line error at the first singular sample.
     With a leg ``plan`` (:func:`dynid.model.loop_blocks.leg_plan`) of the rows ``full`` whose
-    dependent block is ``A``, the inverse by block elimination where its pivots allow, else dense."""
-    Ainv = None if plan is None else loop_blocks.inverse(plan, full)
-    if Ainv is None:
+    dependent block is ``A``, the inverse by block elimination where its pivots allow, else dense
+    (sample by sample)."""
+    structured = None if plan is None else loop_blocks.inverse(plan, full)
+    if structured is None:
         Ainv = _dense_inverse(A)
+    else:
+        Ainv, ok = structured
+        if not ok.all():  # pivots too ill-conditioned for block elimination: these samples densely
+            Ainv[~ok] = _dense_inverse(A[~ok])
     cond = np.abs(A).sum(axis=1).max(axis=1) * np.abs(Ainv).sum(axis=1).max(axis=1)
     bad = ~np.isfinite(cond) | (cond > max_cond)
     if np.any(bad):
