@@ -61,9 +61,11 @@ def _placements(mech: Mechanism, q: FloatArray, data: pin.Data) -> tuple[FloatAr
     view = loop_batch.placement_view(mech, data) if k else None
     if view is not None:  # one copy per sample through the strided view (the same numbers)
         jsel = np.array(sd.joints, dtype=int)
+        if np.array_equal(jsel, np.arange(jsel[0], jsel[0] + k)):  # consecutive joints: a slice, not a gather
+            jsel = slice(int(jsel[0]), int(jsel[0]) + k)
         flat = np.empty((n, k, 12))
-        for i in range(n):
-            J[i] = cjj(model, data, q[i])
+        for i, qi in enumerate(q):
+            J[i] = cjj(model, data, qi)
             flat[i] = view[jsel]
         H[:, :, :3, :3] = flat[:, :, :9].reshape(n, k, 3, 3).transpose(0, 1, 3, 2)
         H[:, :, :3, 3] = flat[:, :, 9:]
