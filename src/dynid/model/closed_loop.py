@@ -56,7 +56,7 @@ __all__ = [
     "tree_regressor",
 ]
 
-_REGRESSOR_BLOCK = 64  # samples per block of tree regressors: 64 x 24 x 240 doubles (3 MB) stay in cache
+_REGRESSOR_BLOCK = 64  # samples per block of tree regressors (actuator_regressor; 128 before, about 15 % slower on the hexapod)
 DISTRIBUTIONS = ("projected", "min_norm", "min_norm_local_friction")
 Distribution = Literal["projected", "min_norm", "min_norm_local_friction"]
 
@@ -202,7 +202,8 @@ def actuator_regressor(
     Notes
     -----
     The tree regressor is computed by pinocchio per sample and projected block by block
-    (128 samples), chain segment by chain segment on the supporting rows only
+    (``_REGRESSOR_BLOCK``, 64 samples: their 64 x 24 x 240 tree regressors of the hexapod, 3 MB, half the
+    cache traffic of 128), chain segment by chain segment on the supporting rows only
     (see ``_chain_groups``).
     """
     redundant = mech.redundant
