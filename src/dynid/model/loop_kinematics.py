@@ -17,6 +17,11 @@ acceleration). Loop closures stack :math:`v_{p,b} - v_{p,a}` (and
 :math:`\\omega_b - \\omega_a` for ``6d``); their independent rows plus the independent
 coordinates form the square matrix :math:`A = [J_c; J_u]`, inverted in batch:
 :math:`G = A^{-1}[0; I]`, :math:`\\ddot q = G\\ddot u - A^{-1}[\\dot J_c\\dot q; \\dot J_u \\dot q]`.
+
+For joint coordinates the closure rows and the drift of all sides are computed at once, and where
+the mechanism has legs (a hexapod) :math:`J_{c,w}` is inverted by block elimination
+(:mod:`dynid.model.loop_blocks`: structure detected, the dense inverse where it is absent or its
+pivots are ill-conditioned; bench/README.md, "Closed-loop regressor speed, second pass").
 """
 
 from __future__ import annotations
