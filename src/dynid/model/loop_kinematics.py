@@ -17,6 +17,11 @@ acceleration). Loop closures stack :math:`v_{p,b} - v_{p,a}` (and
 :math:`\\omega_b - \\omega_a` for ``6d``); their independent rows plus the independent
 coordinates form the square matrix :math:`A = [J_c; J_u]`, inverted in batch:
 :math:`G = A^{-1}[0; I]`, :math:`\\ddot q = G\\ddot u - A^{-1}[\\dot J_c\\dot q; \\dot J_u \\dot q]`.
+
+For joint coordinates the closure rows and the drift of all sides are computed at once, and where
+the mechanism has legs (a hexapod) :math:`J_{c,w}` is inverted by block elimination
+(:mod:`dynid.model.loop_blocks`: structure detected, the dense inverse where it is absent or its
+pivots are ill-conditioned; bench/README.md, "Closed-loop regressor speed, second pass").
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ import pinocchio as pin
 
 from dynid._typing import FloatArray
 from dynid.errors import InputError, ModelError
-from dynid.model import loop_batch
+from dynid.model import loop_batch, loop_blocks
 from dynid.model.closure_geometry import (  # noqa: F401  (re-exported: their home before the split)
     _EPS, _SKEW, _closures, _PointRows, _sides, _skew, closure_geometry, closure_jacobian, closure_residual,
     lstsq_full_rank, point_closure_rows, row_space)
@@ -61,9 +66,11 @@ def _placements(mech: Mechanism, q: FloatArray, data: pin.Data) -> tuple[FloatAr
     view = loop_batch.placement_view(mech, data) if k else None
     if view is not None:  # one copy per sample through the strided view (the same numbers)
         jsel = np.array(sd.joints, dtype=int)
+        if np.array_equal(jsel, np.arange(jsel[0], jsel[0] + k)):  # consecutive joints: a slice, not a gather
+            jsel = slice(int(jsel[0]), int(jsel[0]) + k)
         flat = np.empty((n, k, 12))
-        for i in range(n):
-            J[i] = cjj(model, data, q[i])
+        for i, qi in enumerate(q):
+            J[i] = cjj(model, data, qi)
             flat[i] = view[jsel]
         H[:, :, :3, :3] = flat[:, :, :9].reshape(n, k, 3, 3).transpose(0, 1, 3, 2)
         H[:, :, :3, 3] = flat[:, :, 9:]
@@ -154,6 +161,9 @@ def _velocity_rows(mech: Mechanism, q: FloatArray, data: pin.Data | None = None)
     data = mech.pin_model.createData() if data is None else data
     J, H = _placements(mech, q, data)
     p = _side_points(mech, H)
+    sc = loop_blocks.side_scatter(mech)
+    if sc is not None:  # all sides at once (the same products and sums as side by side)
+        return loop_blocks.scattered_rows(sc, J, p), (J, p)
     cols = _sides(mech).columns
 
     def side_rows(s: int) -> tuple[FloatArray, FloatArray]:
@@ -164,17 +174,19 @@ def _velocity_rows(mech: Mechanism, q: FloatArray, data: pin.Data | None = None)
     return _assemble(mech, q.shape[0], side_rows), (J, p)
 
 
-def _invert(A: FloatArray, max_cond: float, what: str = "[J_c; J_u]", offset: int = 0) -> tuple[FloatArray, FloatArray]:
-    """Batched inverse and 1-norm condition numbers; a one-line error at the first singular sample."""
-    try:
-        Ainv = np.linalg.inv(A)
-    except np.linalg.LinAlgError:
-        Ainv = np.full_like(A, np.inf)
-        for i in range(A.shape[0]):
-            try:
-                Ainv[i] = np.linalg.inv(A[i])
-            except np.linalg.LinAlgError:
-                pass
+def _invert(A: FloatArray, max_cond: float, what: str = "[J_c; J_u]", offset: int = 0,
+            plan: loop_blocks.LegPlan | None = None, full: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+    """Batched inverse and 1-norm condition numbers; a one-line error at the first singular sample.
+    With a leg ``plan`` (:func:`dynid.model.loop_blocks.leg_plan`) of the rows ``full`` whose
+    dependent block is ``A``, the inverse by block elimination where its pivots allow, else dense
+    (sample by sample)."""
+    structured = None if plan is None else loop_blocks.inverse(plan, full)
+    if structured is None:
+        Ainv = _dense_inverse(A)
+    else:
+        Ainv, ok = structured
+        if not ok.all():  # pivots too ill-conditioned for block elimination: these samples densely
+            Ainv[~ok] = _dense_inverse(A[~ok])
     cond = np.abs(A).sum(axis=1).max(axis=1) * np.abs(Ainv).sum(axis=1).max(axis=1)
     bad = ~np.isfinite(cond) | (cond > max_cond)
     if np.any(bad):
@@ -183,6 +195,20 @@ def _invert(A: FloatArray, max_cond: float, what: str = "[J_c; J_u]", offset: in
             f"sample {offset + worst}: singular configuration (condition number of {what} = {cond[worst]:.3g} > {max_cond:.3g})"
         )
     return Ainv, cond
+
+
+def _dense_inverse(A: FloatArray) -> FloatArray:
+    """Batched LAPACK inverse; inf where a sample is singular."""
+    try:
+        return np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        Ainv = np.full_like(A, np.inf)
+        for i in range(A.shape[0]):
+            try:
+                Ainv[i] = np.linalg.inv(A[i])
+            except np.linalg.LinAlgError:
+                pass
+        return Ainv
 
 
 class _Maps:
@@ -195,7 +221,7 @@ class _Maps:
     (1-norm).
     """
 
-    def __init__(self, mech: Mechanism, rows: FloatArray, max_cond: float, offset: int = 0) -> None:
+    def __init__(self, mech: Mechanism, rows: FloatArray, max_cond: float, offset: int = 0, structured: bool = True) -> None:
         n = rows.shape[0]
         nv, n_u = mech.nv, mech.independent.size
         ind = mech.independent
@@ -204,7 +230,8 @@ class _Maps:
             u, w = sd.u, sd.w
             self.u, self.w = u, w
             nw = w.size
-            self.inv, self.cond = _invert(rows[:, :, :nw], max_cond, "the loop-closure Jacobian of the dependent joints", offset)
+            self.inv, self.cond = _invert(rows[:, :, :nw], max_cond, "the loop-closure Jacobian of the dependent joints", offset,
+                                          plan=loop_blocks.leg_plan(mech) if structured else None, full=rows)
             self.Jcu = rows[:, :, nw:]
             G = np.zeros((n, nv, n_u))
             G[:, u, np.arange(n_u)] = 1.0
@@ -237,6 +264,9 @@ def _drift(mech: Mechanism, q: FloatArray, dq: FloatArray, J: FloatArray, p: Flo
     for i in range(n):
         tv(model, data, q[i], dq[i])
         dJ[i] = data.dJ
+    sc = loop_blocks.side_scatter(mech)
+    if sc is not None:
+        return loop_blocks.scattered_drift(sc, J, dJ, dq, p)
     # spatial velocity (at the world origin) and acceleration (at q-ddot = 0) of every body that
     # carries a side, once per body (the platform of a hexapod carries six sides)
     spatial: dict[int, tuple[FloatArray, FloatArray]] = {}

@@ -1,0 +1,157 @@
+"""Per-stage cost of the hexapod's actuator-space regressor (states + regressor), the reference
+routes against the structured ones, in the same process (issue 37, item 1, second pass).
+
+Method
+------
+* ``builtin:hexapod`` along the motion of ``closed_loop_throughput.py`` (``--n`` samples, default
+  1024, the library's own blocks: 256 for the states, 64 for the regressor), one BLAS thread.
+* Every stage is timed by the CPU time of this thread (``time.thread_time``: on a shared machine
+  the wall time of a loaded core counts other processes' slices; the CPU time does not, though
+  their cache traffic still does), ``--rounds`` rounds alternating the two routes, median.
+* ``reference``: ``loop_blocks.leg_plan`` and ``loop_blocks.side_scatter`` off (dense LAPACK
+  inverse of J_c,w, the closure sides one by one), the regressor in blocks of 128 with the
+  platform chain's 60 columns multiplied (10 kept) and G^T F from the formed term columns F:
+  the routes before this pass. ``structured``: the library as it is.
+* Stages (us per sample): the three pinocchio passes (each with the copy of its result, the
+  tree regressor's copy apart), the numpy work between them, totals; the serial 6R regressor of
+  ``closed_loop_throughput.py`` and pinocchio's regressor call of the 6R alone as the yardstick.
+
+Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/closed_loop_stages.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+import pinocchio as pin
+from threadpoolctl import threadpool_limits
+
+from closed_loop_throughput import hexapod_motion
+from _util import print_machine
+
+from dynid.model import closed_loop as cl
+from dynid.model import load_robot
+from dynid.model import loop_blocks as lb
+from dynid.model import loop_kinematics as lk
+from dynid.model.base_parameters import random_states
+from dynid.model.robots import build_mechanism, hexapod
+from dynid.model.serial_dynamics import regressor
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--n", type=int, default=1024)
+    ap.add_argument("--rounds", type=int, default=15)
+    args = ap.parse_args(argv)
+    print_machine()
+    n, B = args.n, lk._BLOCK
+    rng = np.random.default_rng(2026)
+    mech = build_mechanism("hexapod")
+    model = mech.pin_model
+    data = model.createData()
+    q = hexapod.inverse_kinematics(hexapod_motion(n, rng))
+    du, ddu = 0.1 * rng.standard_normal((n, 6)), rng.standard_normal((n, 6))
+    robot = load_robot("builtin:generic6r")
+    lo, hi = robot.position_limits()
+    sq, sdq, sddq = random_states(lo, hi, n, rng)
+    sbuf = np.empty((n, robot.dof, robot.n_standard_params))
+    sdata = robot.create_data()
+    smodel = robot.pin_model
+    st = mech.states(q, du, ddu)
+    out = np.empty((n, 6, mech.n_standard_params))
+    fast = dict(leg_plan=lb.leg_plan, side_scatter=lb.side_scatter, terms=cl._projected_terms,
+                block=cl._REGRESSOR_BLOCK, groups=cl._chain_groups(mech))
+    rows, _, _, wcols = fast["groups"][-1]
+    old_groups = list(fast["groups"][:-1]) + [(rows, slice(180, 240), np.arange(50, 60), wcols)]
+
+    def mode(structured: bool) -> None:
+        lb.leg_plan = fast["leg_plan"] if structured else (lambda m: None)
+        lb.side_scatter = fast["side_scatter"] if structured else (lambda m: None)
+        cl._projected_terms = fast["terms"] if structured else (
+            lambda m, G, dq, ddq: np.matmul(G.transpose(0, 2, 1), cl.term_columns(m, dq, ddq)))
+        cl._REGRESSOR_BLOCK = fast["block"] if structured else 128
+        object.__setattr__(mech, "_chain_groups_cache", fast["groups"] if structured else old_groups)
+
+    def cpu(f) -> float:
+        t = time.thread_time()
+        f()
+        return (time.thread_time() - t) / n * 1e6
+
+    blocks = [slice(a, min(a + B, n)) for a in range(0, n, B)]
+
+    def stages() -> dict[str, float]:
+        r: dict[str, float] = {}
+        J = np.empty((n, 6, mech.nv))
+
+        def cjj() -> None:
+            for i in range(n):
+                J[i] = pin.computeJointJacobians(model, data, q[i])
+
+        r["pinocchio computeJointJacobians (+ copy)"] = cjj_t = cpu(cjj)
+        r["closure rows J_c: placements, points, assembly"] = cpu(lambda: [lk._velocity_rows(mech, q[b], data) for b in blocks]) - cjj_t
+        vr = [lk._velocity_rows(mech, q[b], data) for b in blocks]
+        r["inverse of J_c,w, its condition number, G"] = cpu(lambda: [lk._Maps(mech, v[0], 1e8) for v in vr])
+        maps = [lk._Maps(mech, v[0], 1e8) for v in vr]
+        dqs = [np.einsum("nij,nj->ni", m.G, du[b]) for m, b in zip(maps, blocks)]
+        dJ = np.empty((n, 6, mech.nv))
+
+        def tv() -> None:
+            for i in range(n):
+                pin.computeJointJacobiansTimeVariation(model, data, q[i], st.dq[i])
+                dJ[i] = data.dJ
+
+        r["pinocchio computeJointJacobiansTimeVariation (+ copy)"] = tv_t = cpu(tv)
+        r["drift: body velocities, point accelerations, rows"] = cpu(
+            lambda: [lk._drift(mech, q[b], d, v[1][0], v[1][1], data) for b, d, v in zip(blocks, dqs, vr)]) - tv_t
+        r["states, total (mech.states)"] = cpu(lambda: mech.states(q, du, ddu))
+        Y = np.empty((cl._REGRESSOR_BLOCK, mech.nv, 10 * (model.njoints - 1)))
+        m = Y.shape[0]
+
+        def jtr_only() -> None:
+            for i in range(n):
+                pin.computeJointTorqueRegressor(model, data, st.q[i], st.dq[i], st.ddq[i])
+
+        def jtr_copy() -> None:
+            for i in range(n):
+                Y[i % m] = pin.computeJointTorqueRegressor(model, data, st.q[i], st.dq[i], st.ddq[i])
+
+        r["pinocchio computeJointTorqueRegressor"] = jtr_t = cpu(jtr_only)
+        r["  its copy into the block"] = copy_t = cpu(jtr_copy) - jtr_t
+        r["joint terms G^T F"] = terms_t = cpu(lambda: cl._projected_terms(mech, st.G, st.dq, st.ddq))
+        r["regressor given the states, total"] = tot = cpu(lambda: cl.actuator_regressor(mech, st, data=data, out=out))
+        r["  projection G^T Y by chain segments, the rest"] = tot - jtr_t - copy_t - terms_t
+        r["states + regressor"] = r["states, total (mech.states)"] + tot
+        r["serial 6R regressor (one sample)"] = cpu(lambda: regressor(robot, sq, sdq, sddq, data=sdata, out=sbuf))
+        r["  pinocchio computeJointTorqueRegressor of the 6R"] = cpu(
+            lambda: [pin.computeJointTorqueRegressor(smodel, sdata, a, b, c) for a, b, c in zip(sq, sdq, sddq)])
+        r["hexapod's three pinocchio passes alone"] = cjj_t + tv_t + jtr_t
+        return r
+
+    res: dict[bool, list] = {False: [], True: []}
+    with threadpool_limits(1):
+        for k in range(args.rounds):
+            for structured in ((False, True) if k % 2 == 0 else (True, False)):
+                mode(structured)
+                res[structured].append(stages())
+    mode(True)
+    print(f"hexapod, n = {n}, {args.rounds} rounds, CPU time of this thread, median (us per sample)\n")
+    print(f"| {'stage':54s} | reference | structured |")
+    print(f"|{'-' * 56}|-----------|------------|")
+    for key in res[True][0]:
+        b = statistics.median(r[key] for r in res[False])
+        a = statistics.median(r[key] for r in res[True])
+        print(f"| {key:54s} | {b:9.2f} | {a:10.2f} |")
+    ser = statistics.median(r["serial 6R regressor (one sample)"] for r in res[True])
+    for label, structured in (("reference", False), ("structured", True)):
+        tot = statistics.median(r["states + regressor"] / r["serial 6R regressor (one sample)"] for r in res[structured])
+        print(f"\n{label}: states + regressor = {tot:.2f} serial 6R samples (median of the rounds' ratios)", end="")
+    floor = statistics.median(r["hexapod's three pinocchio passes alone"] for r in res[True])
+    print(f"\nfloor: the hexapod's three pinocchio passes alone = {floor:.2f} us = {floor / ser:.2f} serial 6R samples")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
