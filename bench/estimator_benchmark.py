@@ -11,7 +11,8 @@ consistent by construction; bench/physical_study.py's ``_simulate`` / ``_config`
 
 * ``cobot6r`` (serial 6R, ``builtin:cobot6r``): bench/estimator_study.py part C's set-up, a
   4-harmonic Fourier excitation at 0.5 Hz, computed torque at 500 Hz (Kp 400, Kd 40, 2 RK4
-  substeps), torque noise ``FORCE_STD`` = 0.5 N·m per joint;
+  substeps), 1 N·m of torque noise per joint (at 0.5 N·m the half-sample lag between the held
+  torque and the central-difference acceleration was a visible bias: WLS's chi2/p 2.1 on 4 s);
 * ``hexapod`` (``builtin:hexapod``): bench/control_loop_time.py's set-up, a 3-harmonic task-space
   excitation at 0.5 Hz, computed torque at 500 Hz (Kp 2500, Kd 100), 1 um strut encoders, 2 N of
   drive-force noise correlated 0.2;
@@ -19,9 +20,9 @@ consistent by construction; bench/physical_study.py's ``_simulate`` / ``_config`
   up to 0.5 Hz and 3 harmonics and a 500 Hz loop (the twin's own 0.1 Hz log takes minutes to
   simulate), 1 um encoders, 5 N of leg-force noise.
 
-Training: ``PERIODS`` periods of 2 s (full run 2, ``--quick`` 1); held out: one period of another
-trajectory (other seed), always simulated as in the clean situation, so that every situation of a
-robot is scored on the same held-out log.
+Training: ``PERIODS`` periods of 2 s (the arm 3, the parallel robots 2; ``--quick`` 1); held out:
+one period of another trajectory (other seed) with the training's encoders and no force noise (the
+held-out error is the model's alone), the same for every situation of a robot.
 
 Situations (what differs from the clean training log; the same trajectory and seeds otherwise):
 
@@ -57,13 +58,19 @@ scores every sample and the Kalman filters run sample by sample), the parallel r
   ``LOOP_ITERATIONS`` (5; CLOE ``CLOE_ITERATIONS`` = 2, its replays per iteration are one per
   estimated direction), the parallel robots with the smooth replay (``replay_coulomb_band =
   0.05``, ``directions_rtol = 1e-3``: bench/control_loop_time.py);
-* ``ekf``, ``ukf``: defaults.
+* ``ekf``, ``ukf``: defaults; on the arm on the first ``SHORT_ROWS`` rows (one 2 s period) of each
+  training log only (a fit on the whole log takes minutes there), on the 3-RPS on the whole log,
+  not on the hexapod (``NOT_RUN``: over 6 minutes a fit on 1000 rows);
+* CLOE is not run on the hexapod (``NOT_RUN``: about 100 estimated directions, one replay of the
+  experiment each per iteration, over 10 minutes a fit), recorded as "n/a" with the reason.
 
 A method that stops with a :class:`dynid.errors.DynidError` (TLS's refusal of an ill-posed problem,
 a replay that fails, a method that does not apply) is recorded as "refused" with the first line of
 its message: a result, not a gap.
 
-Figures per robot x situation x method (mean over ``--draws`` draws, default 2; 1 with ``--quick``):
+Figures per robot x situation x method (mean over ``--draws`` draws, default 2; 1 with ``--quick``;
+the recorded full run has 1 draw, each robot in its own process side by side, merged with
+``--merge``: a draw of the three robots took about 30 minutes on 2 loaded cores):
 
 * ``err %``: relative parameter error ||b_hat - b|| / ||b|| over the base parameters b of the truth;
 * ``chi2/p`` and ``cover``: the truth's Mahalanobis distance under the method's own covariance,
@@ -79,7 +86,7 @@ The rule (``RULE``) that names the best method of a robot and situation: among t
 95 % ellipsoid covers the truth (above), the lowest mean held-out error, provided one of them beats
 the nominal model's held-out error (the prior is the first baseline: a covered method that
 predicts worse than the CAD model is not worth recommending); otherwise the lowest held-out error
-among every method that ran, flagged "no covered method beats nominal". A method within ``TIE``
+among every method that ran, flagged "no covered method beats nominal". A method within a tie
 (the larger of the two methods' standard errors over the draws and 0.5 % of the lowest error,
 relative) of the lowest is tied with it, and the fastest of the tied wins.
 
@@ -135,11 +142,20 @@ RULE = ("best = lowest mean held-out relative RMSE among the methods whose 95 % 
         "model's held-out error; otherwise the lowest among every method that ran ('no covered method beats "
         "nominal'); a method within max(the two methods' standard errors over the draws, 0.5 % of the lowest) "
         "of the lowest is tied, and the fastest of the tied wins")
+SHORT_ROWS = {"cobot6r": 1000}
+"""The EKF and UKF (sample by sample, minutes a fit on these arms' full logs under load) on the
+first rows of each training log only: one 2 s period at 500 Hz; the 3-RPS runs them on its whole
+log."""
+SHORT_METHODS = ("ekf", "ukf")
 NOT_RUN = {
     ("hexapod", "cloe"): "time budget: CLOE replays the 4 s experiment once per estimated direction and iteration "
                          "(about 100 directions on the hexapod, 3 s a replay: over 10 min a fit); see "
                          "bench/README 'Control-loop identification time' for CLOE's cost",
 }
+_KALMAN_TIME = ("time budget: one fit on the first 1000 rows (2 s) of the hexapod's log ran over 6 minutes on the "
+                "loaded cores (the filters' state: 6 x 3 kinematic states and about 100 base parameters, a "
+                "square-root update per sample); see the 3-RPS and the arm for the filters")
+NOT_RUN[("hexapod", "ekf")] = NOT_RUN[("hexapod", "ukf")] = _KALMAN_TIME
 """(robot, method) -> why the full run does not run it (recorded as "n/a")."""
 QUICK = {
     "cobot6r": {"clean": ("ols", "wls", "wls+lmi", "gm", "irls", "tls", "ml", "iv", "didim", "cloe", "ukf"),
@@ -293,6 +309,11 @@ def simulate_robot(robot: str, situations, folder: Path, quick: bool, draw: int)
         actuators = tuple(sim.dataset.names)
         truth = np.asarray(sim.truth["true_parameters"])
         train[sit] = d
+        if robot in SHORT_ROWS:
+            with np.load(d / "log.npz") as z:
+                cols = {k: z[k][: SHORT_ROWS[robot]] for k in z.files}
+            (d / "short").mkdir(exist_ok=True)
+            save_npz(d / "short" / "log.npz", cols)
         exp = d / "experiment.toml"
         exp.write_text(_toml({"robot": s["robot"], "trajectory": traj, "control": s["control"],
                               "sensors": {**s["sensors"], "seed": sensor_seed}}))
@@ -331,7 +352,10 @@ def run_method(method: str, logs: Logs, situation: str, quick: bool) -> dict:
     ident, proc = ident_table(method, logs.robot, logs, situation, quick)
     t0 = time.perf_counter()
     try:
-        o = identify(_config(logs.setup, logs.actuators, logs.train[situation], logs.valid, ident, proc))
+        train = logs.train[situation]
+        if method in SHORT_METHODS and logs.robot in SHORT_ROWS and not quick:
+            train = train / "short"
+        o = identify(_config(logs.setup, logs.actuators, train, logs.valid, ident, proc))
     except DynidError as exc:
         return {"status": "refused", "reason": str(exc).splitlines()[0], "seconds": time.perf_counter() - t0}
     seconds = time.perf_counter() - t0
@@ -517,7 +541,8 @@ def merge(folders: list[Path], out: Path) -> str:
     results, meta = {}, None
     for f in folders:
         doc = json.loads((f / OUT_JSON.name).read_text())
-        results.update(doc["robots"])
+        for robot, r in doc["robots"].items():  # a robot's situations may come from several runs
+            results.setdefault(robot, {"situations": {}})["situations"].update(r["situations"])
         m = doc["meta"]
         if "load_average" not in m:  # the first runs' format
             m["load_average"] = [m["load_average_before"][0], m["load_average_after"][0]]
@@ -528,7 +553,12 @@ def merge(folders: list[Path], out: Path) -> str:
             meta["wall_s"] = max(meta["wall_s"], m["wall_s"])
             meta["load_average"] += m["load_average"]
     assert meta is not None
-    results = {r: results[r] for r in ROBOTS if r in results}
+    results = {r: {"situations": {s: results[r]["situations"][s] for s in SITUATIONS if s in results[r]["situations"]}}
+               for r in ROBOTS if r in results}
+    for r in results.values():  # the rule applied again (the same as run's)
+        for sit in r["situations"].values():
+            sit["best"] = best_method(sit["methods"])
+    meta["rule"] = RULE
     return write(results, meta, out)
 
 
