@@ -28,7 +28,7 @@ Situations (what differs from the clean training log; the same trajectory and se
 
 * ``clean``: the twin's sensors as above (white force noise, encoder quantization);
 * ``position noise``: plus white Gaussian noise on the logged actuator positions,
-  ``POSITION_STD`` (5e-4 rad on the arm, 2e-5 m on the parallel robots): the derivatives the
+  ``ROBOTS[robot]["position_std"]`` (5e-4 rad on the arm, 2e-5 m on the parallel robots): the derivatives the
   regressor is built from carry it (errors in the variables), the controller does not see it;
 * ``outliers``: the clean log with 1 % of the force samples (each actuator's samples drawn
   independently, ``OUTLIER_SHARE``) replaced by the sample plus a spike of
@@ -43,9 +43,11 @@ Situations (what differs from the clean training log; the same trajectory and se
   The replays of those methods run the experiment without d (the controller as configured).
 
 Identification, the same for every method: ``dynid identify`` on the training log, a 10 Hz order-4
-zero-phase low-pass of the positions (``filter_effort = false``), no decimation (time-domain ML
-scores every sample and the Kalman filters run sample by sample), the parallel robots with
-``structure = "full"`` (bench/physical_study.py). Method keys:
+zero-phase low-pass of the positions (``filter_effort = false``), ``min_velocity`` (0.05 rad/s on
+the arm, 3 mm/s on the hexapod, 2 mm/s on the 3-RPS: the slow rows, where the Coulomb sign of a
+filtered velocity is arbitrary, left out) and ``reversal_guard = "auto"`` (docs/guide, "Which
+method, when"), no decimation (time-domain ML scores every sample and the Kalman filters run sample
+by sample), the parallel robots with ``structure = "full"`` (bench/physical_study.py). Method keys:
 
 * ``ols``, ``wls``, ``gm``, ``irls``, ``tls``: defaults; ``wls+lmi``: ``wls`` with
   ``physical_consistency = true``;
@@ -70,7 +72,7 @@ its message: a result, not a gap.
 
 Figures per robot x situation x method (mean over ``--draws`` draws, default 2; 1 with ``--quick``;
 the recorded full run has 1 draw, each robot in its own process side by side, merged with
-``--merge``: a draw of the three robots took about 30 minutes on 2 loaded cores):
+``--merge``: a draw of the three robots took about 20 minutes of wall time so on 2 loaded cores):
 
 * ``err %``: relative parameter error ||b_hat - b|| / ||b|| over the base parameters b of the truth;
 * ``chi2/p`` and ``cover``: the truth's Mahalanobis distance under the method's own covariance,
@@ -91,9 +93,11 @@ among every method that ran, flagged "no covered method beats nominal". A method
 relative) of the lowest is tied with it, and the fastest of the tied wins.
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/estimator_benchmark.py`` (writes
-bench/data/estimator_benchmark.md and .json); ``--quick``: 1-period logs, one draw, the serial arm
-with every method and the hexapod with the closed-loop situation and a subset (what
-tests/test_estimator_benchmark.py runs); ``--robots``, ``--situations``, ``--draws``.
+bench/data/estimator_benchmark.md and .json); ``--quick`` (``QUICK``): 1-period logs, one draw, the
+arm with every method but the EKF on clean data and WLS and IV in the closed loop, the 3-RPS with WLS
+and the EKF, CLOE with one iteration (what tests/test_estimator_benchmark.py runs; about 15 s);
+``--robots``, ``--situations``, ``--methods``, ``--draws``, ``--first-draw``; ``--merge DIR ...``
+makes one table set from single-robot runs.
 """
 
 from __future__ import annotations
@@ -480,13 +484,13 @@ def parse_recommendation(text: str) -> dict[str, dict[str, str]]:
 
 
 # ---------------------------------------------------------------------- run
-def run(robots, situations, methods, quick: bool, draws: int, quick_plan: bool = False) -> dict:
+def run(robots, situations, methods, quick: bool, draws: int, quick_plan: bool = False, first_draw: int = 0) -> dict:
     results: dict = {}
     for robot in robots:
         sits = [s for s in situations if not quick_plan or s in QUICK[robot]]
         meths = [m for m in methods if not quick_plan or any(m in v for v in QUICK[robot].values())]
         per: dict = {s: {m: [] for m in meths} for s in sits}
-        for draw in range(draws):
+        for draw in range(first_draw, first_draw + draws):
             with tempfile.TemporaryDirectory() as tmp:
                 t0 = time.perf_counter()
                 logs = simulate_robot(robot, sits, Path(tmp), quick, draw)
@@ -569,6 +573,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--situations", default=",".join(SITUATIONS))
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--draws", type=int, default=None)
+    ap.add_argument("--first-draw", type=int, default=0, help="the first draw's index (another seed set: a check of "
+                    "the recorded draw 0)")
     ap.add_argument("--out", type=Path, default=None, help="folder of the .md and .json (default bench/data; "
                     "--quick: not written unless given)")
     ap.add_argument("--merge", type=Path, nargs="+", default=None,
@@ -586,8 +592,10 @@ def main(argv: list[str] | None = None) -> int:
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     results = run(robots, [s for s in SITUATIONS if s in args.situations.split(",")],
-                  [m for m in METHODS if m in args.methods.split(",")], args.quick, draws, quick_plan=args.quick)
-    meta = {"quick": args.quick, "draws": draws, "periods": {r: 1 if args.quick else PERIODS[r] for r in robots},
+                  [m for m in METHODS if m in args.methods.split(",")], args.quick, draws, quick_plan=args.quick,
+                  first_draw=args.first_draw)
+    meta = {"quick": args.quick, "draws": draws, "first_draw": args.first_draw,
+            "periods": {r: 1 if args.quick else PERIODS[r] for r in robots},
             "rule": RULE, "wall_s": time.perf_counter() - t0, "load_average": [load0, os.getloadavg()[0]],
             "machine": machine_info()}
     out = args.out or (OUT_MD.parent if not args.quick else None)
