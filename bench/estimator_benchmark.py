@@ -72,7 +72,7 @@ its message: a result, not a gap.
 
 Figures per robot x situation x method (mean over ``--draws`` draws, default 2; 1 with ``--quick``;
 the recorded full run has 1 draw, each robot in its own process side by side, merged with
-``--merge``: a draw of the three robots took about 20 minutes of wall time so on 2 loaded cores):
+``--merge``: a draw of the three robots took about 20 minutes of wall time on 2 loaded cores):
 
 * ``err %``: relative parameter error ||b_hat - b|| / ||b|| over the base parameters b of the truth;
 * ``chi2/p`` and ``cover``: the truth's Mahalanobis distance under the method's own covariance,
