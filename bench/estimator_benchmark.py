@@ -84,13 +84,15 @@ the recorded full run has 1 draw, each robot in its own process side by side, me
 * ``s/fit``: wall time of the identification (processing, fit and held-out scoring), with the load
   average recorded beside the tables (only ratios within one run mean anything).
 
-The rule (``RULE``) that names the best method of a robot and situation: among the methods whose
-95 % ellipsoid covers the truth (above), the lowest mean held-out error, provided one of them beats
+The rule (``RULE``) that names the best method of a robot and situation, over the methods that ran
+in every draw (one that fails in some draw is not recommended): among the methods whose 95 %
+ellipsoid covers the truth (above), the lowest mean held-out error, provided one of them beats
 the nominal model's held-out error (the prior is the first baseline: a covered method that
 predicts worse than the CAD model is not worth recommending); otherwise the lowest held-out error
 among every method that ran, flagged "no covered method beats nominal". A method within a tie
-(the larger of the two methods' standard errors over the draws and 0.5 % of the lowest error,
-relative) of the lowest is tied with it, and the fastest of the tied wins.
+(the larger of the standard error over the draws of its held-out difference to the lowest, paired
+draw by draw since every method of a draw is scored on the same held-out log, and 0.5 % of the
+lowest error, relative) of the lowest is tied with it, and the fastest of the tied wins.
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/estimator_benchmark.py`` (writes
 bench/data/estimator_benchmark.md and .json); ``--quick`` (``QUICK``): 1-period logs, one draw, the
@@ -141,11 +143,12 @@ PERIODS = {"cobot6r": 3, "hexapod": 2, "rps3": 2}
 DRAWS = {False: 2, True: 1}
 OUTLIER_SHARE, OUTLIER_SIZE = 0.01, 50.0
 DISTURBANCE_HZ, DISTURBANCE_GAIN = 2.0, 5.0
-RULE = ("best = lowest mean held-out relative RMSE among the methods whose 95 % ellipsoid covers the true base "
+RULE = ("best = among the methods that ran in every draw, the lowest mean held-out relative RMSE among those whose "
+        "95 % ellipsoid covers the true base "
         "parameters (chi2 <= chi2_0.95(p)) in at least half the draws, if one of them beats the nominal (CAD) "
         "model's held-out error; otherwise the lowest among every method that ran ('no covered method beats "
-        "nominal'); a method within max(the two methods' standard errors over the draws, 0.5 % of the lowest) "
-        "of the lowest is tied, and the fastest of the tied wins")
+        "nominal'); a method within max(the standard error over the draws of its held-out difference to the "
+        "lowest, paired draw by draw, and 0.5 % of the lowest) of the lowest is tied, and the fastest of the tied wins")
 SHORT_ROWS = {"cobot6r": 1000}
 """The EKF and UKF (sample by sample, minutes a fit on these arms' full logs under load) on the
 first rows of each training log only: one 2 s period at 500 Hz; the 3-RPS runs them on its whole
@@ -409,9 +412,18 @@ def aggregate(draws: list[dict]) -> dict:
     return out
 
 
+def _paired_se(a: dict, b: dict) -> float:
+    """Standard error over the draws of the held-out difference a - b, paired draw by draw (every
+    method of a draw is scored on the same held-out log, whose own difficulty varies from draw to
+    draw); 0 with one draw."""
+    d = np.array([x["heldout_pct"] - y["heldout_pct"] for x, y in zip(a.get("per_draw", ()), b.get("per_draw", ()))
+                  if x["status"] == "ok" and y["status"] == "ok"])
+    return float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0
+
+
 def best_method(rows: dict[str, dict]) -> dict:
     """The rule of the module docstring (``RULE``) over one robot and situation."""
-    ran = {m: r for m, r in rows.items() if r["status"] == "ok"}
+    ran = {m: r for m, r in rows.items() if r["status"] == "ok" and r["runs"] == r["draws"]}
     if not ran:
         return {"method": None, "why": "no method ran"}
     covered = {m: r for m, r in ran.items() if r["covered"]}
@@ -419,8 +431,7 @@ def best_method(rows: dict[str, dict]) -> dict:
     pool, flag = (covered, "covered") if useful else (ran, "no covered method beats nominal")
     low = min(pool, key=lambda m: pool[m]["heldout_pct"])
     h0 = pool[low]["heldout_pct"]
-    tied = [m for m, r in pool.items()
-            if r["heldout_pct"] - h0 <= max(r["heldout_se"], pool[low]["heldout_se"], 0.005 * h0)]
+    tied = [m for m, r in pool.items() if r["heldout_pct"] - h0 <= max(_paired_se(r, pool[low]), 0.005 * h0)]
     best = min(tied, key=lambda m: pool[m]["seconds"])
     return {"method": best, "lowest": low, "tied": sorted(tied), "pool": flag,
             "heldout_pct": pool[best]["heldout_pct"], "nominal_heldout_pct": pool[best]["nominal_heldout_pct"],
@@ -440,8 +451,10 @@ def table_md(robot: str, res: dict) -> str:
         if r["status"] != "ok":
             return f"{r['status']}: {r['reason'][:90]}"
         chi = "-" if r["chi2_over_p"] is None else f"{r['chi2_over_p']:.3g}{' (in)' if r['covered'] else ' (out)'}"
-        it = f", it {r['iterations']:.0f}{'' if r['converged'] else ' unconv.'}" if "iterations" in r else ""
-        return f"{r['param_error_pct']:.3g} / {chi} / {r['heldout_pct']:.3g} / {r['seconds']:.2g}{it}"
+        it = (f", it {r['iterations']:.0f}{'' if r['converged'] == r['runs'] else ' unconv.'}"
+              if "iterations" in r else "")
+        part = f"; ran in {r['runs']} of {r['draws']} draws" if r["runs"] < r["draws"] else ""
+        return f"{r['param_error_pct']:.3g} / {chi} / {r['heldout_pct']:.3g} / {r['seconds']:.2g}{it}{part}"
 
     for m in METHODS:
         if not any(m in res["situations"][s]["methods"] for s in sits):
@@ -509,7 +522,7 @@ def run(robots, situations, methods, quick: bool, draws: int, quick_plan: bool =
                             if x["status"] == "ok" else f"{x['status']} ({x['reason']})"), flush=True)
         rs: dict = {"situations": {}}
         for s in sits:
-            rows = {m: aggregate(v) for m, v in per[s].items() if v}
+            rows = {m: {**aggregate(v), "per_draw": v} for m, v in per[s].items() if v}
             noms = [r["nominal_heldout_pct"] for r in rows.values() if r["status"] == "ok"]
             rs["situations"][s] = {"methods": rows, "best": best_method(rows),
                                    "nominal_heldout_pct": float(np.mean(noms)) if noms else None}
@@ -540,13 +553,31 @@ def write(results: dict, meta: dict, out: Path) -> str:
     return text
 
 
+def _draw_row(row: dict) -> dict:
+    """A one-draw aggregate (the first recorded run kept no per-draw rows) as that draw's row."""
+    if row.get("draws", 1) != 1:
+        raise ValueError("a run of several draws without per-draw rows cannot be merged")
+    if row["status"] != "ok":
+        return {k: row[k] for k in ("status", "reason", "seconds")}
+    out = {"status": "ok", "seconds": row["seconds"], "p": row["p"], "param_error_pct": row["param_error_pct"],
+           "heldout_pct": row["heldout_pct"], "nominal_heldout_pct": row["nominal_heldout_pct"],
+           "chi2": None if row["chi2_over_p"] is None else row["chi2_over_p"] * row["p"], "covered": row["covered"]}
+    if "iterations" in row:
+        out.update(iterations=row["iterations"], converged=bool(row["converged"]))
+    return out
+
+
 def merge(folders: list[Path], out: Path) -> str:
     """One table set from runs of single robots (``--robots R --out DIR`` run side by side)."""
     results, meta = {}, None
     for f in folders:
         doc = json.loads((f / OUT_JSON.name).read_text())
-        for robot, r in doc["robots"].items():  # a robot's situations may come from several runs
-            results.setdefault(robot, {"situations": {}})["situations"].update(r["situations"])
+        for robot, r in doc["robots"].items():  # a robot's situations may come from several runs (and draws)
+            sits = results.setdefault(robot, {"situations": {}})["situations"]
+            for sit, x in r["situations"].items():
+                per = sits.setdefault(sit, {})
+                for m, row in x["methods"].items():
+                    per.setdefault(m, []).extend(row.get("per_draw") or [_draw_row(row)])
         m = doc["meta"]
         if "load_average" not in m:  # the first runs' format
             m["load_average"] = [m["load_average_before"][0], m["load_average_after"][0]]
@@ -559,9 +590,14 @@ def merge(folders: list[Path], out: Path) -> str:
     assert meta is not None
     results = {r: {"situations": {s: results[r]["situations"][s] for s in SITUATIONS if s in results[r]["situations"]}}
                for r in ROBOTS if r in results}
-    for r in results.values():  # the rule applied again (the same as run's)
-        for sit in r["situations"].values():
-            sit["best"] = best_method(sit["methods"])
+    for r in results.values():  # the draws aggregated and the rule applied again (the same as run's)
+        for name, per in r["situations"].items():
+            rows = {m: {**aggregate(v), "per_draw": v} for m, v in per.items()}
+            noms = [x["nominal_heldout_pct"] for x in rows.values() if x["status"] == "ok"]
+            r["situations"][name] = {"methods": rows, "best": best_method(rows),
+                                     "nominal_heldout_pct": float(np.mean(noms)) if noms else None}
+    meta["draws"] = max(len(x["per_draw"]) for r in results.values() for sit in r["situations"].values()
+                        for x in sit["methods"].values())
     meta["rule"] = RULE
     return write(results, meta, out)
 

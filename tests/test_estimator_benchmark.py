@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import statistics
 import sys
 
 import pytest
@@ -68,12 +69,17 @@ def test_every_method_ran_or_gave_a_stated_refusal(quick):
 
 def _rule(rows: dict) -> str:
     """The stated rule (bench.RULE), written again independently of bench.best_method."""
-    ran = {m: r for m, r in rows.items() if r["status"] == "ok"}
+    ran = {m: r for m, r in rows.items() if r["status"] == "ok" and r["runs"] == r["draws"]}
     covered = {m: r for m, r in ran.items() if r["covered"]}
     pool = covered if any(r["heldout_pct"] < r["nominal_heldout_pct"] for r in covered.values()) else ran
-    h0 = min(r["heldout_pct"] for r in pool.values())
-    se0 = next(r["heldout_se"] for r in pool.values() if r["heldout_pct"] == h0)
-    tied = {m: r for m, r in pool.items() if r["heldout_pct"] - h0 <= max(r["heldout_se"], se0, 0.005 * h0)}
+    low = min(pool, key=lambda m: pool[m]["heldout_pct"])
+    h0 = pool[low]["heldout_pct"]
+
+    def se(m):  # the paired difference's standard error over the draws
+        d = [x["heldout_pct"] - y["heldout_pct"] for x, y in zip(pool[m]["per_draw"], pool[low]["per_draw"])]
+        return statistics.stdev(d) / len(d) ** 0.5 if len(d) > 1 else 0.0
+
+    tied = {m: r for m, r in pool.items() if r["heldout_pct"] - h0 <= max(se(m), 0.005 * h0)}
     return min(tied, key=lambda m: tied[m]["seconds"])
 
 
