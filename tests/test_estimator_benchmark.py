@@ -80,7 +80,9 @@ def _rule(rows: dict) -> str:
         return statistics.stdev(d) / len(d) ** 0.5 if len(d) > 1 else 0.0
 
     tied = {m: r for m, r in pool.items() if r["heldout_pct"] - h0 <= max(se(m), 0.005 * h0)}
-    return min(tied, key=lambda m: tied[m]["seconds"])
+    best = min(tied, key=lambda m: tied[m]["seconds"])
+    # a fit that predicts worse than the CAD model is not recommended: keep the nominal model
+    return best if tied[best]["heldout_pct"] < tied[best]["nominal_heldout_pct"] else "nominal"
 
 
 def _best_row(md: str) -> dict[str, list[str]]:
