@@ -313,16 +313,6 @@ FINDINGS = {
     # there (EKF 26.7, 35.6, 15.7, 13.8; WLS 19.2, 17.2, 17.6, 8.4)
     ("ukf", "arm"): "the UKF's covariance is optimistic on the arm's fast periodic motion (chi-square 67.6 "
                     "for p = 22 on this draw, 494 to 5.1e5 on three others)",
-    # CLOE on white position noise (its covariance's assumption), one iteration from the truth: the
-    # covariance it reports for the 17 directions it estimates has rank 9 (8 eigenvalues at rounding
-    # level, |lambda| < 1e-23 against a largest of 7.2e-6), so it claims certainty in 8 directions.
-    # With the default directions_rtol (25 directions): rank 12, and the truth's statistic on those 12
-    # is 89.9 (the 1 - 1e-3 quantile of chi-square 12 is 32.9). Where it comes from: the forward-
-    # difference Jacobian of the positions (1626 x 17, no column zero: norms 0.64-1 of the largest) has
-    # rank 9 (singular values past the 9th below 6e-37 of the largest; 12 of 25 with the default), and
-    # output_error_covariance inverts its Gram matrix by np.linalg.pinv, which drops those directions
-    ("cloe", "shang2dof"): "CLOE's covariance is singular (rank 9 of the 17 directions it estimates) on "
-                           "white position noise",
 }
 
 
