@@ -4,7 +4,9 @@
   (the undamped Gauss-Newton step reaches the solution in one step), Rosenbrock's valley (the
   minimum (1, 1), every accepted step lowering the cost, a failing region handled as a rejection).
 * The output-error covariance on a linear model with white errors of unequal variances and
-  weights that do not match them: the truth inside the chi-square bound at 1e-3.
+  weights that do not match them: the truth inside the chi-square bound at 1e-3. A rank-deficient
+  Jacobian is refused in one line (no pseudo-inverse), and so is a finite-difference step that moves
+  the replayed positions by rounding only (the cause of the contract suite's singular CLOE covariance).
 * On a shang2dof twin (tests/test_control_loop.py's robot and controller, a 1-turn circle): with
   the truth as nominal model and noise-free positions the start's output error is at rounding
   level and CLOE stays at the truth; from the nominal model of a 10 % perturbed truth it lowers
