@@ -4,7 +4,9 @@
   (the undamped Gauss-Newton step reaches the solution in one step), Rosenbrock's valley (the
   minimum (1, 1), every accepted step lowering the cost, a failing region handled as a rejection).
 * The output-error covariance on a linear model with white errors of unequal variances and
-  weights that do not match them: the truth inside the chi-square bound at 1e-3.
+  weights that do not match them: the truth inside the chi-square bound at 1e-3. A rank-deficient
+  Jacobian is refused in one line (no pseudo-inverse), and so is a finite-difference step that moves
+  the replayed positions by rounding only (the cause of the contract suite's singular CLOE covariance).
 * On a shang2dof twin (tests/test_control_loop.py's robot and controller, a 1-turn circle): with
   the truth as nominal model and noise-free positions the start's output error is at rounding
   level and CLOE stays at the truth; from the nominal model of a 10 % perturbed truth it lowers
@@ -23,7 +25,7 @@ from scipy import stats
 
 from conftest import seed
 from dynid.config.simulate import parse_simulate_config
-from dynid.errors import ConfigError
+from dynid.errors import ConfigError, InputError
 from dynid.pipeline import identify
 from dynid.pipeline.cloe import levenberg_marquardt, output_error_covariance
 from dynid.pipeline.simulate import run_simulation, write_simulation
@@ -104,6 +106,41 @@ def test_output_error_covariance_covers_a_linear_model():
     assert d @ np.linalg.solve(cov, d) < stats.chi2.ppf(1 - 1e-3, 3)
     # the best weighting's information is larger (its covariance smaller) than the sandwich's inverse
     assert np.all(np.linalg.eigvalsh(cov - np.linalg.inv(info)) > -1e-12 * np.abs(cov).max())
+
+
+def test_output_error_covariance_refuses_a_rank_deficient_jacobian():
+    """Sensitivities whose third column is the sum of the first two (exactly: small integers) leave one
+    direction without information: the covariance is refused in one line, not a pseudo-inverse that
+    reports that direction as known exactly (its variance 0)."""
+    rng = np.random.default_rng(seed(12))
+    S = rng.integers(-4, 5, size=(200, 2, 2)).astype(float)
+    J = np.concatenate([S, S.sum(axis=2, keepdims=True)], axis=2).reshape(400, 3)
+    e = rng.standard_normal((200, 2))
+    with pytest.raises(InputError, match="determine only 2 of the 3 estimated directions") as err:
+        output_error_covariance(J, e, np.ones(2))
+    assert "\n" not in str(err.value)
+    J[:, 2] += 1e-3 * rng.standard_normal(400)  # a weak but independent third direction: a covariance
+    cov, _, _ = output_error_covariance(J, e, np.ones(2))
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_cloe_refuses_finite_differences_at_rounding(tmp_path, monkeypatch):
+    """The cause of the contract suite's singular CLOE covariance (tests/test_every_method_contract.py):
+    on exact forces (position noise only) the start's force regression fits to rounding (3e-13 N*m),
+    and with the coordinates scaled by its standard deviations alone (no floor: the old scale) the
+    finite-difference step moved the parameters by 1e-15 to 3e-14, the replays differed by rounding
+    (1e-15 rad) and the Jacobian was that rounding (rank 9 of 17). Such a step is refused in one line
+    at the first direction (the floor off here, to reproduce it); with the floor the contract case
+    measures the sensitivities (its columns scale by 10 and keep their directions to a cosine of 1 from
+    a floor of 1e-4 to 1e-3: linear)."""
+    import dynid.pipeline.cloe as cloe
+    from test_every_method_contract import _loop
+
+    monkeypatch.setattr(cloe, "_FORCE_FLOOR", 0.0)
+    with pytest.raises(InputError, match="along direction 1 moves the positions by at most .* rounding") as err:
+        _loop(tmp_path, "cloe", {"position_noise_std": 1e-5}, {"derivatives": "central"}, k=11, perturbation=0.0,
+              max_iterations=1, directions_rtol=1e-3)
+    assert "\n" not in str(err.value)
 
 
 def _twin(d, sim: dict, turns: int = 1) -> None:
