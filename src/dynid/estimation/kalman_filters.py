@@ -75,6 +75,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -82,7 +83,8 @@ from scipy.linalg import solve_triangular
 from dynid._typing import FloatArray
 from dynid.errors import InputError
 
-__all__ = ["FilterRun", "predict", "update", "unscented_arrays", "bilinear_second_order", "run", "root", "KINDS"]
+__all__ = ["FilterRun", "predict", "update", "unscented_arrays", "bilinear_second_order", "run", "root", "nis_bound",
+           "KINDS"]
 
 KINDS = ("ekf", "ukf")
 
@@ -150,6 +152,47 @@ def bilinear_second_order(U: FloatArray, B: FloatArray, G: FloatArray) -> tuple[
     return shift, root(0.5 * (Tm @ Tm.T))
 
 
+def _partially_linear_update(k: int, x: FloatArray, S: FloatArray, Rh: FloatArray, z: FloatArray,
+                             measure: Callable[[int, FloatArray], Any], linear: int
+                             ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The UKF's measurement update for ``h(x) = f(u) + H(u) b`` with ``x = (u, b)``, ``b`` the last
+    ``linear`` entries (module docstring, "partially linear"). ``measure(k, X)`` returns ``(h, H)``:
+    ``h`` (c, m) at each row of ``X`` and ``H`` (c, m, linear) its coefficients of ``b`` there."""
+    n = S.shape[1]
+    nu = n - linear
+    S = _r(S)  # upper triangular: rows nu: are b's conditional square root given u (zero in u's columns)
+    Su, Sb = S[:nu], S[nu:]
+    gamma = np.sqrt(nu)
+    sig = gamma * Su
+    Zb, Hb = measure(k, np.vstack([x + sig, x - sig]))
+    hx, A, B = unscented_arrays(Su, Zb[:nu], Zb[nu:])
+    Rbb = Sb[:, nu:]
+    V = np.einsum("ij,cmj->cim", Rbb, Hb)  # (2 nu, linear, m): R_bb H(u_c)^T
+    Vbar = V.mean(axis=0)
+    D = (V - Vbar).reshape(-1, V.shape[2]) / np.sqrt(V.shape[0])
+    m = Rh.shape[0]
+    top = np.vstack([Rh, B, D])
+    pre = np.block([[top, np.zeros((top.shape[0], n))], [np.vstack([A, Vbar]), S]])
+    post = _r(pre)
+    X, Y, Z = post[:m, :m], post[:m, m:], post[m:m + n, m:]
+    w = solve_triangular(X, z - hx, trans="T")
+    return x + Y.T @ w, Z, X, hx
+
+
+def nis_bound(steps: int, channels: int, false_alarm: float = 1e-3) -> float:
+    """The largest per-channel normalized innovation mean square (:attr:`FilterRun.nis` over
+    ``steps`` steps) a consistent filter exceeds on any of ``channels`` channels with probability at
+    most ``false_alarm``: the innovations of a filter whose model holds are white and Gaussian with
+    the covariance it predicts, so ``steps * nis_c`` is chi-square with ``steps`` degrees of freedom
+    (the NIS test of Bar-Shalom, Li & Kirubarajan 2001, *Estimation with Applications to Tracking
+    and Navigation*, Sec. 5.4.2, per channel), at level ``false_alarm / channels`` per channel
+    (Bonferroni). One-sided: a mean square below 1 is a cautious filter, not a diverged one."""
+    from scipy.stats import chi2
+
+    steps = max(int(steps), 1)
+    return float(chi2.ppf(1.0 - false_alarm / max(int(channels), 1), steps) / steps)
+
+
 @dataclasses.dataclass(frozen=True)
 class FilterRun:
     """The filter's last state and square root, and its innovations: ``nis`` (m,) the mean over
@@ -175,7 +218,7 @@ Linearize = Callable[[int, FloatArray, FloatArray], tuple[FloatArray, FloatArray
 
 def run(kind: str, z: FloatArray, x0: FloatArray, S0: FloatArray, F: FloatArray, Qh: FloatArray, Rh: FloatArray, *,
         linearize: Linearize | None = None,
-        measure: Callable[[int, FloatArray], FloatArray] | None = None, skip: int = 0,
+        measure: Callable[[int, FloatArray], Any] | None = None, skip: int = 0, linear: int = 0,
         progress: Callable[[int, int], None] | None = None) -> FilterRun:
     """Run the square-root EKF or UKF (module docstring) over measurements ``z`` (N, m) from the
     a-priori state ``x0`` (n,) with square root ``S0`` (``S0^T S0 = P0``): at each step a
@@ -196,6 +239,9 @@ def run(kind: str, z: FloatArray, x0: FloatArray, S0: FloatArray, F: FloatArray,
         if kind == "ekf":
             hx, H, extra = linearize(k, x, S)
             x, S, X = update(x, S, S @ H.T, Rh, z[k] - hx, extra)
+            E[k], V[k] = z[k] - hx, np.sum(X * X, axis=0)
+        elif linear:
+            x, S, X, hx = _partially_linear_update(k, x, S, Rh, z[k], measure, linear)
             E[k], V[k] = z[k] - hx, np.sum(X * X, axis=0)
         else:
             L = S.shape[0]

@@ -90,13 +90,13 @@ import numpy as np
 from dynid._typing import FloatArray
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, IdentifiabilityError, InputError
-from dynid.estimation.kalman_filters import KINDS, bilinear_second_order, root, run
+from dynid.estimation.kalman_filters import KINDS, bilinear_second_order, nis_bound, root, run
 from dynid.estimation.results import IdentificationResult
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System
 from dynid.signals.kalman import ORDER, _model, _start, fit_noise_ratio, steady_state
 
-__all__ = ["PRIOR_FACTOR", "kalman_identify", "kalman_estimate"]
+__all__ = ["PRIOR_FACTOR", "NIS_FALSE_ALARM", "kalman_identify", "kalman_estimate"]
 
 PRIOR_FACTOR = 1.0
 """The prior standard deviation of each base parameter, in units of the largest of its nominal value,
@@ -104,6 +104,9 @@ its WLS estimate and 10 WLS standard errors (module docstring): a 100 % prior, a
 errors wide. A 10 times wider one was tried on the simulated arm of tests/test_kalman_estimators.py:
 the first samples, linearized far from the estimate, then bias both filters (the truth's chi-square
 50 to 136 for 22 parameters in three draws, against 22 to 29 with this one)."""
+NIS_FALSE_ALARM = 1e-3
+"""The false-alarm rate of the innovations' consistency test (:func:`dynid.estimation.kalman_filters.nis_bound`):
+a filter whose normalized innovation mean square exceeds its bound on any channel reports no covariance."""
 UNIFORM_RTOL = 1e-3
 """The largest relative deviation of a sample interval from the median the filter accepts."""
 FD_STEP = 6e-6
@@ -215,10 +218,11 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
         Xs = X[:, :ns].reshape(-1, n_a, order)
         return Xs[:, :, 0], Xs[:, :, 1] / T, Xs[:, :, 2] / T**2
 
-    def measure(k: int, X: FloatArray) -> FloatArray:
+    def measure(k: int, X: FloatArray) -> tuple[FloatArray, FloatArray]:
         q, dq, ddq = kinematics(X)
         W, _ = regress(q, dq, ddq, k)
-        return np.column_stack([q, np.einsum("bcp,bp->bc", W, X[:, ns:])])
+        Hb = np.concatenate([np.zeros((X.shape[0], n_a, p)), W], axis=1)
+        return np.column_stack([q, np.einsum("bcp,bp->bc", W, X[:, ns:])]), Hb
 
     cols_u = np.concatenate([pos + d for d in range(3)])  # the state entries of (q, dq, ddq), in that order
     scale_u = np.repeat(scales, n_a)
@@ -253,8 +257,11 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
         if progress is not None:
             progress(kind, done, total)
 
-    fr = run(kind, z, x0, S0, F, Qh, Rh, linearize=linearize, measure=measure,
-             skip=min(N // 10, 200), progress=tick)
+    skip = min(N // 10, 200)
+    fr = run(kind, z, x0, S0, F, Qh, Rh, linearize=linearize, measure=measure, skip=skip, progress=tick,
+             linear=p if kind == "ukf" else 0)
+    bound = nis_bound(N - skip, n_a + n_ch, NIS_FALSE_ALARM)
+    consistent = bool(np.all(fr.nis <= bound))
     beta = fr.x[ns:]
     Sb = fr.S[:, ns:]
     cov = Sb.T @ Sb
@@ -276,6 +283,7 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
         "force_noise_source": "residuals of a WLS fit on the same processed log (rows at the processed derivatives)",
         "innovation_nms": {**{f"q_{a}": float(v) for a, v in zip(system.actuator_names, fr.nis[:n_a])},
                            **{c: float(v) for c, v in zip(names, fr.nis[n_a:])}},
+        "nis_test": {"bound": bound, "false_alarm": NIS_FALSE_ALARM, "steps": int(N - skip), "passed": consistent},
         "wls_params": beta_w.tolist(),
         "seconds": time.perf_counter() - t0,
     }
@@ -297,8 +305,14 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
         notes += (f"{kind.upper()} with Coulomb friction: the filter's rows use the sign smoothed over the velocity's "
                   "uncertainty, and near the reversals no linearization describes its jump: the covariance is "
                   "optimistic there (see solver['innovation_nms'])",)
+    if not consistent:
+        worst_ch = max(solver["innovation_nms"].items(), key=lambda kv: kv[1])
+        notes += (f"{kind.upper()} innovations inconsistent with the filter's covariance: normalized mean square "
+                  f"{worst_ch[1]:.3g} on {worst_ch[0]} above the NIS test's bound {bound:.3g} (false alarm "
+                  f"{NIS_FALSE_ALARM:g}): the filter diverged or its model does not hold, so no covariance is "
+                  "reported (solver['innovation_nms'], solver['nis_test'])",)
     result = IdentificationResult(
-        method=kind.upper(), names=base.names, params=beta, cov_params=0.5 * (cov + cov.T), dof=int(N * n_ch - p),
+        method=kind.upper(), names=base.names, params=beta, cov_params=0.5 * (cov + cov.T) if consistent else None, dof=int(N * n_ch - p),
         scale=1.0, channel_names=tuple(channels), n_obs=np.full(n_ch, N), rss_per_channel=np.sum(r * r, axis=0),
         noise_std=sig_f, condition_number=cond, expressions=base.expressions(), solver=solver, notes=notes)
     return result, worst
