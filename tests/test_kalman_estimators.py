@@ -100,6 +100,75 @@ def test_bilinear_second_order_terms_are_the_gaussian_moments_of_the_quadratic_f
     assert np.max(np.abs(R2.T @ R2 - cov)) <= 1e3 * L**2 * EPS * scale**2
 
 
+def test_partially_linear_unscented_update_is_the_exact_gaussian_update_of_a_bilinear_measurement():
+    """The UKF's update for ``h = (u_0, W(u) beta)`` with ``W`` affine in ``u``, ``u`` and ``beta``
+    independent Gaussians (the arm's measurement with the parameters uncertain and the kinematic
+    state's rows of ``W`` linearized): the first two moments of ``h`` and its cross-covariance with
+    the state are then closed-form (``E[d_i d_j] = P_uu,ij`` and the independence of ``beta``), and
+    the update with them is the exact Gaussian (linear-MMSE) update. The partially linear unscented
+    update (sigma points over ``u`` only, ``beta`` marginalized exactly) must reproduce it: its
+    conditional mean is affine in ``u`` and its conditional covariance quadratic, which the unscented
+    transform integrates exactly. The square root is given in a basis that mixes ``u`` and ``beta``
+    (any square root of P is valid). Margin: backward-stable QR as in the first test,
+    1e3 n eps cond(P_zz) ||.|| (about 1e-9 here; a missing term is O(1) of P_zz: asserted below,
+    the product term ``sum P_uu,ij G_i P_bb G_j^T`` that the plain 2L-point transform on a
+    block-diagonal square root leaves out)."""
+    from dynid.estimation.kalman_filters import root, run, unscented_arrays
+
+    rng = np.random.default_rng(seed(77))
+    a, p, mf = 3, 4, 2  # kinematic entries u, linear entries beta, force channels
+    n, m = a + p, 1 + mf
+    Puu, Pbb = _random_spd(rng, a, 10.0) * 0.3, _random_spd(rng, p, 10.0) * 2.0
+    P = np.zeros((n, n))
+    P[:a, :a], P[a:, a:] = Puu, Pbb
+    x = rng.standard_normal(n)
+    ub, bb = x[:a], x[a:]
+    W0, G = rng.standard_normal((mf, p)), rng.standard_normal((a, mf, p))
+    R = np.diag([0.1, 0.3, 0.2]) ** 2
+    z = rng.standard_normal(m)
+
+    def W(U):  # (c, mf, p) at the rows of U (c, a)
+        return W0 + np.einsum("ci,imp->cmp", U - ub, G)
+
+    def measure(k, X):
+        Wc = W(X[:, :a])
+        h = np.column_stack([X[:, 0], np.einsum("cmp,cp->cm", Wc, X[:, a:])])
+        return h, np.concatenate([np.zeros((X.shape[0], 1, p)), Wc], axis=1)
+
+    # the exact moments
+    Gb = np.einsum("imp,p->im", G, bb)  # (a, mf): G_i beta_hat
+    cross = np.einsum("ij,imp,pq,jnq->mn", Puu, G, Pbb + np.outer(bb, bb), G)
+    Pzz = np.zeros((m, m))
+    Pzz[0, 0] = Puu[0, 0]
+    Pzz[0, 1:] = Pzz[1:, 0] = Puu[0] @ Gb
+    Pzz[1:, 1:] = W0 @ Pbb @ W0.T + cross
+    Pzz += R
+    Pxz = np.zeros((n, m))
+    Pxz[:a, 0], Pxz[:a, 1:], Pxz[a:, 1:] = Puu[:, 0], Puu @ Gb, Pbb @ W0.T
+    K = Pxz @ np.linalg.inv(Pzz)
+    zhat = np.concatenate([[ub[0]], W0 @ bb])
+    x_ref, P_ref = x + K @ (z - zhat), P - K @ Pzz @ K.T
+
+    Qo, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    S = Qo @ root(P)  # rows mixing u and beta
+    fr = run("ukf", z[None], x, S, np.eye(n), np.zeros((0, n)), root(R), measure=measure, linear=p)
+    tol = 1e3 * n * EPS * np.linalg.cond(Pzz)
+    assert np.max(np.abs(fr.innovations[0] - (z - zhat))) <= tol * np.max(np.abs(z - zhat))
+    assert np.max(np.abs(fr.innovation_var[0] - np.diag(Pzz))) <= tol * np.linalg.norm(Pzz, 2)
+    assert np.max(np.abs(fr.P - P_ref)) <= tol * np.linalg.norm(P, 2)
+    assert np.max(np.abs(fr.x - x_ref)) <= tol * np.linalg.norm(x_ref) * 10
+    # the term the plain transform on a block-diagonal root misses (its sigma points move u or beta,
+    # never both) is a sizable part of the force channels' innovation variance here
+    Sb = root(P)
+    sig = np.sqrt(n) * Sb
+    Zp, Zm = measure(0, x + sig)[0], measure(0, x - sig)[0]
+    _, A, B = unscented_arrays(Sb, Zp, Zm)
+    plain = A.T @ A + B.T @ B + R
+    assert np.all(np.diag(Pzz - plain)[1:] >= 0.5 * np.diag(cross - np.einsum("ij,imp,p,q,jnq->mn", Puu, G, bb,
+                                                                               bb, G)))
+    assert np.min(np.diag(Pzz - plain)[1:] / np.diag(Pzz)[1:]) > 0.1
+
+
 # ------------------------------------------------------------------ (c) recursive least squares
 @pytest.mark.parametrize("kind", ["ekf", "ukf"])
 def test_filter_on_a_linear_measurement_is_batch_weighted_least_squares(kind):
@@ -209,9 +278,30 @@ def test_filters_recover_the_simulated_arm(arm_log, wls_exact, kind):
     # ~2000 residuals (relative std about 1.6 %); the position noise by maximum likelihood
     assert np.allclose(res.noise_std, 0.05, rtol=0.1)
     assert np.allclose(res.solver["position_noise_std"], 1e-4, rtol=0.2)
-    assert all(0.8 < v < 1.25 for v in res.solver["innovation_nms"].values())
+    assert all(0.8 < v < 1.25 for v in res.solver["innovation_nms"].values()) and res.solver["nis_test"]["passed"]
     assert res.solver["prior"]["center"] == "nominal base parameters" and len(res.solver["prior"]["std"]) == p
     assert any("assumes the model's noise levels" in n for n in res.notes)
+
+
+@pytest.mark.numerics
+def test_an_inconsistent_filter_reports_no_covariance(arm_log):
+    """The NIS test: told a position noise 10 times below the log's (1e-5 rad given, 1e-4 in the
+    log), the UKF's position innovations are about 1e-4 / sqrt(P_zz) times too large, so their
+    normalized mean square is far above the test's bound (about 1.12 for 1800 steps and 6
+    channels at false alarm 1e-3; the predicted innovation std is at most that of the state's
+    a-priori position plus 1e-5, well below 1e-4 for the white-snap model fitted to this smooth
+    motion): the result must carry no covariance and say why, with the figures in ``solver``.
+    The same log with its own noise estimate passes (test_filters_recover_the_simulated_arm)."""
+    from dynid.estimation.kalman_filters import nis_bound
+    from dynid.pipeline.kalman_estimate import kalman_identify
+
+    system, base, _, ds, _ = arm_log
+    res, _ = kalman_identify("ukf", system, base, ds, position_noise_std=np.full(3, 1e-5))
+    test = res.solver["nis_test"]
+    assert not test["passed"] and res.cov_params is None
+    assert test["bound"] == pytest.approx(nis_bound(test["steps"], 6, FALSE_ALARM))
+    assert max(res.solver["innovation_nms"].values()) > test["bound"]
+    assert any("no covariance is reported" in n and "NIS test" in n for n in res.notes)
 
 
 @pytest.fixture(scope="module")

@@ -169,9 +169,9 @@ def _partially_linear_update(k: int, x: FloatArray, S: FloatArray, Rh: FloatArra
     Rbb = Sb[:, nu:]
     V = np.einsum("ij,cmj->cim", Rbb, Hb)  # (2 nu, linear, m): R_bb H(u_c)^T
     Vbar = V.mean(axis=0)
-    D = (V - Vbar).reshape(-1, V.shape[2]) / np.sqrt(V.shape[0])
+    D = (V - Vbar).reshape(-1, V.shape[2])
     m = Rh.shape[0]
-    top = np.vstack([Rh, B, D])
+    top = np.vstack([Rh, B, root(D.T @ D / V.shape[0])])  # m rows for the 2 nu linear blocks
     pre = np.block([[top, np.zeros((top.shape[0], n))], [np.vstack([A, Vbar]), S]])
     post = _r(pre)
     X, Y, Z = post[:m, :m], post[:m, m:], post[m:m + n, m:]
@@ -234,6 +234,9 @@ def run(kind: str, z: FloatArray, x0: FloatArray, S0: FloatArray, F: FloatArray,
     z = np.asarray(z, dtype=float)
     N, m = z.shape
     x, S = np.array(x0, dtype=float), np.array(S0, dtype=float)
+    if kind == "ukf" and not 0 <= linear < x.size:
+        raise InputError(f"linear must count 0 to {x.size - 1} trailing state entries (sigma points need a "
+                         f"nonlinear part), got {linear}")
     E, V = np.empty((N, m)), np.empty((N, m))
     for k in range(N):
         if kind == "ekf":
