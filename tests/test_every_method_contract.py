@@ -19,7 +19,7 @@ freedom. Why this margin holds on any machine: under each method's own assumptio
 chi-square with p degrees of freedom whatever the BLAS kernel or thread count (those move the
 estimate by rounding, ~1e-12 of a standard deviation for the linear methods, 1e-3 for the replays
 of IV and DIDIM: tests/test_control_loop.py's rounding test; the statistics here are 6.7 or more below
-their bounds, the UKF xfail's 19 above); the seeds are fixed, so a case fails on
+their bounds); the seeds are fixed, so a case fails on
 correct code with probability 1e-3 per draw (the draws were not chosen: seed k of conftest.seed for
 every case), and a systematic failure is a method whose intervals do not hold.
 
@@ -310,16 +310,16 @@ CASES = {
 LOOP = ("iv", "didim", "cloe")  # the experiment replayed under its controller: one closed chain (cost)
 ROBOTS = ("arm", "fivebar")
 FINDINGS = {
-    # Found by this suite (issue 36, item 1), not fixed here: on the arm's 2 s periodic motion (4
-    # harmonics of 0.5 Hz, 2 periods: 400 training samples) the UKF's covariance is optimistic. The
-    # truth's chi-square for p = 22 on draws seed(8..11) (same logs for the three methods): UKF 67.6,
-    # 494, 673, 5.1e5 (its largest innovations' normalized mean square 1.29, 1.81, 2.62, 491 where 1
-    # is consistent); EKF 22.1, 22.4, 23.0 and 6.6e5 (draw 11: both filters diverge, innovations 490-
-    # 640 times their predicted variance); WLS on the exact states 20.5, 18.9, 19.5, 25.9. On the
-    # fivebar (p = 17, bound 40.8) the UKF's 34.1, 64.8, 14.9, 15.0: optimistic on one draw of four
-    # there (EKF 26.7, 35.6, 15.7, 13.8; WLS 19.2, 17.2, 17.6, 8.4)
-    ("ukf", "arm"): "the UKF's covariance is optimistic on the arm's fast periodic motion (chi-square 67.6 "
-                    "for p = 22 on this draw, 494 to 5.1e5 on three others)",
+    # (fixed, not a finding any more) the UKF was optimistic on the arm's 2 s periodic motion: the
+    # truth's chi-square for p = 22 on draws seed(8..11) 67.6, 494, 673, 5.1e5, because its 2L sigma
+    # points moved the kinematic state or the parameters along a square root whose rows separate
+    # them, and so left out the product of their uncertainties in W(u) beta (the EKF adds it:
+    # bilinear_second_order). The partially linear unscented update (dynid.estimation.kalman_filters)
+    # marginalizes the parameters exactly: 21.7, 22.7, 22.9 (EKF 22.1, 22.4, 23.0; WLS on the exact
+    # states 20.5, 18.9, 19.5); fivebar 28.2, 32.1, 15.9, 12.2 (was 34.1, 64.8, 14.9, 15.0). On draw
+    # 11 both filters still diverge from the 100 % prior (innovations' normalized mean square 596 and
+    # 644 on a position channel; with a 10 % prior the UKF gives 17.0): the NIS test then withholds
+    # the covariance and says so (solver["nis_test"]), and this case would fail on that draw
 }
 
 

@@ -67,8 +67,44 @@ Jacobian times the square root (the statistical linearization), :math:`B/\\gamma
 of the second-order spread added to :math:`R`. The process is linear, and the unscented
 transform of a linear map is exact: the time update is :func:`predict`.
 
+Partially linear measurements (``run(..., linear=p)``: the UKF of the identification)
+-------------------------------------------------------------------------------------
+With :math:`x = (u, b)`, :math:`b` the last ``p`` entries and :math:`h(x) = f(u) + H(u) b` (the
+forces :math:`W(q, \\dot q, \\ddot q)\\beta`: linear in the parameters), the plain 2L-point transform
+above is short of the product of the uncertainties of :math:`u` and :math:`b`. For
+:math:`h = x^T M x` it integrates :math:`\\sum_i (s_i^T M s_i)^2`-type terms only, the diagonal of
+:math:`M` in the basis of the rows :math:`s_i`, whereas the Gaussian variance is
+:math:`2 \\sum_{ij} (s_i^T M s_j)^2`: the terms :math:`i \\ne j` are missing, so a row that
+moves only :math:`b` (an upper-triangular square root has :math:`p` of them) never meets the
+:math:`u` part of the others, and most of :math:`\\mathrm{Var}(\\delta u^T G b)` is left out of
+:math:`P_{zz}` (the symmetric set matches the moments up to the second only: Julier & Uhlmann
+2004). On the serial arm's 2 s periodic motion the covariance was then optimistic: the truth's chi-square 67.6 to
+5.1e5 for 22 parameters in four draws (tests/test_every_method_contract.py, bench/README.md).
+The update used instead integrates over :math:`u` by sigma points and over :math:`b` exactly, given
+:math:`u` (the linear substructure of Morelande & Ristic 2006, "Reduced sigma point filtering for
+partially linear models", ICASSP; the same moments in the linear-regression Kalman filters of
+arXiv:2009.07571). With the square root upper triangular (a QR of :math:`S`),
+:math:`S = [S_u;\\ 0\\ R_b]`, :math:`x - \\hat x = S^T \\zeta` splits into :math:`\\xi` (the first
+:math:`n_u` rows, which move :math:`u` and :math:`b`'s conditional mean with it) and :math:`\\eta`
+(:math:`R_b`: :math:`b`'s covariance given :math:`u`, independent of :math:`u`). The sigma points
+:math:`\\hat x \\pm \\sqrt{n_u}\\, s_i` over the :math:`n_u` rows of :math:`S_u` give :math:`\\hat z`,
+:math:`A`, :math:`B` as above, and :math:`V_c = R_b H(u_c)^T` at each of them the rest:
+:math:`E_u[H R_b^T R_b H^T] = \\bar V^T \\bar V + \\sum_c (V_c - \\bar V)^T (V_c - \\bar V)/(2 n_u)` and
+:math:`\\mathrm{Cov}(x, H(u) R_b^T \\eta) = S_\\eta^T \\bar V`, so the pre-array
+
+.. math::
+
+    \\begin{bmatrix} R^{1/2} & 0 \\\\ B/\\gamma & 0 \\\\ D & 0 \\\\ A/\\gamma & S_u \\\\ \\bar V & S_\\eta \\end{bmatrix},
+    \\quad D^T D = \\sum_c (V_c - \\bar V)^T (V_c - \\bar V)/(2 n_u),\\ \\gamma = \\sqrt{n_u},
+
+gives :math:`P_{zz}`, :math:`P_{xz}` and the updated square root by the same QR. Exact when
+:math:`H` is affine and :math:`f` quadratic in :math:`u` (tests/test_kalman_estimators.py), with
+:math:`2 n_u` sigma points instead of :math:`2 L`.
+
 Consistency: per channel the normalized innovation :math:`e_c^2 / (P_{zz})_{cc}` has mean 1
-when the model's noise levels and linearization hold (:attr:`FilterRun.nis`).
+when the model's noise levels and linearization hold (:attr:`FilterRun.nis`); :func:`nis_bound` is
+the largest mean a consistent filter exceeds with a given false-alarm rate (a diverged filter's is
+hundreds).
 """
 
 from __future__ import annotations
@@ -226,7 +262,9 @@ def run(kind: str, z: FloatArray, x0: FloatArray, S0: FloatArray, F: FloatArray,
     (EKF) returns ``(h, H, extra)``: the predicted measurement, the Jacobian ``H`` (m, n) and ``extra``
     (r, m) or None, more rows of the innovation's square root (:func:`bilinear_second_order`);
     ``measure(k, X)`` (UKF) returns ``h_k`` of each
-    row of ``X`` (b, n) as (b, m). ``skip``: steps left out of the NIS mean (the start)."""
+    row of ``X`` (b, n) as (b, m); with ``linear = p`` > 0 (UKF) it returns ``(h, H)``, ``H`` (b, m, p) the
+    coefficients of the last ``p`` state entries, in which ``h`` is linear (module docstring: partially
+    linear measurements). ``skip``: steps left out of the NIS mean (the start)."""
     if kind not in KINDS:
         raise InputError(f"filter kind must be one of {KINDS}, got {kind!r}")
     if kind == "ekf" and linearize is None or kind == "ukf" and measure is None:
