@@ -94,7 +94,8 @@ arXiv:2009.07571). With the square root upper triangular (a QR of :math:`S`),
 
 .. math::
 
-    \\begin{bmatrix} R^{1/2} & 0 \\\\ B/\\gamma & 0 \\\\ D & 0 \\\\ A/\\gamma & S_u \\\\ \\bar V & S_\\eta \\end{bmatrix},
+    \\begin{bmatrix} R^{1/2} & 0 \\\\ B/\\gamma & 0 \\\\ D & 0 \\\\ A/\\gamma & S_u \\\\
+    \\bar V & S_\\eta \\end{bmatrix},
     \\quad D^T D = \\sum_c (V_c - \\bar V)^T (V_c - \\bar V)/(2 n_u),\\ \\gamma = \\sqrt{n_u},
 
 gives :math:`P_{zz}`, :math:`P_{xz}` and the updated square root by the same QR. Exact when

@@ -328,7 +328,8 @@ def kalman_identify(kind: str, system: System, base: BaseParameters, ds: Dataset
                   f"{NIS_FALSE_ALARM:g}): the filter diverged or its model does not hold, so no covariance is "
                   "reported (solver['innovation_nms'], solver['nis_test'])",)
     result = IdentificationResult(
-        method=kind.upper(), names=base.names, params=beta, cov_params=0.5 * (cov + cov.T) if consistent else None, dof=int(N * n_ch - p),
+        method=kind.upper(), names=base.names, params=beta,
+        cov_params=0.5 * (cov + cov.T) if consistent else None, dof=int(N * n_ch - p),
         scale=1.0, channel_names=tuple(channels), n_obs=np.full(n_ch, N), rss_per_channel=np.sum(r * r, axis=0),
         noise_std=sig_f, condition_number=cond, expressions=base.expressions(), solver=solver, notes=notes)
     return result, worst
