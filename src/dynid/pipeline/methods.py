@@ -174,13 +174,13 @@ def _maximum_likelihood_time(cfg: Config, system: System, base: BaseParameters, 
     low, high = icfg.cutoff_range_hz or (0.5 * lp.cutoff_hz, 2.0 * lp.cutoff_hz)
     high = min(high, 0.5 * fs * (1 - 1e-9))
     cutoffs = log_cutoff_grid(low, high, ML_TIME_CANDIDATES)
-    trim = pcfg.trim_samples if pcfg.trim_samples is not None else padlen_for(lp.order, low, fs)
+    trim = pcfg.trim_samples if pcfg.trim_samples is not None else padlen_for(lp.order, lp.cutoff_hz, fs)
     fixed = dataclasses.replace(pcfg, trim_samples=trim)
     raw, _ = preprocess(train_a, dataclasses.replace(fixed, lowpass=None), "data")
     ref, steps = preprocess(train_a, fixed, "data")
     guard = None
     if pcfg.reversal_guard is not None:
-        guard = zero_phase_settling_time(lp.order, low) if pcfg.reversal_guard == "auto" else float(pcfg.reversal_guard)
+        guard = zero_phase_settling_time(lp.order, lp.cutoff_hz) if pcfg.reversal_guard == "auto" else float(pcfg.reversal_guard)
         keep = reversal_keep(ref.dq, ref.t, guard, pcfg.min_velocity)
     else:
         keep = velocity_mask(ref.dq, pcfg.min_velocity)
