@@ -30,7 +30,8 @@ low-pass, whose cost varies continuously with the cut-off: the candidates are a 
 grid over the searched range and the estimate is reported with its neighbours on the grid
 (``bin_width_hz = None``). The row selection (``processing.min_velocity``,
 ``processing.reversal_guard``) and the samples trimmed at the ends are decided once, for every
-candidate, so that each cost is the likelihood of the same data: the force rows that are kept
+candidate, at the configured cut-off (the rows the other methods fit), so that each cost is the
+likelihood of the same data: the force rows that are kept
 per actuator are whitened with the covariance of the kept actuators
 (:class:`~dynid.estimation.problem.CrossBlock`), and :math:`\\delta` counts at the same rows.
 
