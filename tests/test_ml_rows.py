@@ -104,7 +104,8 @@ def test_ml_fits_the_rows_of_the_configured_processing(short_log):
     propagated encoder noise and its estimate's own covariance predicts the held-out forces: the
     held-out RMSE of ML is within that of Gauss-Markov plus 3 times the larger of the two
     methods' predicted standard deviations of the held-out force (their covariances propagated
-    through the held-out regressor), where the old rows gave 1e6 %."""
+    through the held-out regressor). (That margin grows with the covariances, which the old rows
+    inflated as much as the error, 1e6 %: the row counts are what caught the defect.)"""
     cov = (FORCE_STD**2 * np.eye(3)).tolist()
     gm = identify(parse_config(_doc(short_log, {"method": "gm", "noise_covariance": cov}), short_log))
     ml = identify(parse_config(_doc(short_log, {"method": "ml", "noise_covariance": cov,
