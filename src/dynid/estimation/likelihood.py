@@ -30,7 +30,8 @@ low-pass, whose cost varies continuously with the cut-off: the candidates are a 
 grid over the searched range and the estimate is reported with its neighbours on the grid
 (``bin_width_hz = None``). The row selection (``processing.min_velocity``,
 ``processing.reversal_guard``) and the samples trimmed at the ends are decided once, for every
-candidate, so that each cost is the likelihood of the same data: the force rows that are kept
+candidate, at the configured cut-off (the rows the other methods fit), so that each cost is the
+likelihood of the same data: the force rows that are kept
 per actuator are whitened with the covariance of the kept actuators
 (:class:`~dynid.estimation.problem.CrossBlock`), and :math:`\\delta` counts at the same rows.
 
@@ -391,19 +392,31 @@ def _corrected(s, N: FloatArray, known: bool):
     :math:`\\|c - R\\beta\\|^2 + \\rho^2` at :math:`\\beta_c` and the sandwich covariance
     :math:`(R^T R - N)^{-1} R^T R (R^T R - N)^{-1}`. Raises :class:`IdentifiabilityError` where the
     correction takes all the information of some direction (the cut-off lets in more noise than
-    the motion excites)."""
-    G = s.R.T @ s.R
-    Gc = G - N
-    try:
-        Lc = np.linalg.cholesky(Gc)
-    except np.linalg.LinAlgError:
+    the motion excites).
+
+    Computed in the coordinates of :math:`R`, never through :math:`G = R^T R`: with
+    :math:`M = R^{-T} N R^{-1}` (the share of each direction's information that is noise, its
+    eigenvalues :math:`\\lambda` those of :math:`N v = \\lambda G v`),
+    :math:`G - N = R^T (I - M) R`, so :math:`\\beta_c = R^{-1} (I - M)^{-1} c` and the covariance is
+    :math:`R^{-1} (I - M)^{-2} R^{-T}`. Forming :math:`G` squares the condition number of :math:`R`;
+    on the parallel twins of the estimator benchmark (bench/README.md, "Estimator benchmark") it is
+    about 1e9, so :math:`G` is singular in double precision and a Cholesky factor of :math:`G - N`
+    that happens to complete returns estimates of 1e5 where the truth is 1 (issue 36)."""
+    p = s.R.shape[0]
+    Ri = sla.solve_triangular(s.R, np.eye(p))
+    M = Ri.T @ np.asarray(N, dtype=float) @ Ri
+    lam, V = np.linalg.eigh(0.5 * (M + M.T))
+    keep = 1.0 - lam  # the share of each direction's information left after the correction
+    if not keep.min() > 0:
         raise IdentifiabilityError("the noise the processing carries into the regressor outweighs the information of "
-                                   "the motion in some direction (errors-in-variables correction)") from None
-    beta = sla.cho_solve((Lc, True), s.R.T @ s.c)
+                                   f"the motion in some direction (errors-in-variables correction: {lam.max():.3g} of "
+                                   "its information is noise)")
+    u = V @ ((V.T @ s.c) / keep)  # (I - M)^{-1} c
+    beta = Ri @ u
     cost = s.scale * s.dof + float(np.sum((s.R @ (beta - s.beta)) ** 2))
-    inv = sla.cho_solve((Lc, True), np.eye(G.shape[0]))
+    B = Ri @ (V / keep)  # R^{-1} V (I - Lambda)^{-1}
     scale = cost / s.dof
-    cov = (1.0 if known else scale) * (inv @ G @ inv)
+    cov = (1.0 if known else scale) * (B @ B.T)
     return dataclasses.replace(s, beta=beta, scale=scale, cov=cov)
 
 
