@@ -71,18 +71,23 @@ def _rule(rows: dict) -> str:
     """The stated rule (bench.RULE), written again independently of bench.best_method."""
     ran = {m: r for m, r in rows.items() if r["status"] == "ok" and r["runs"] == r["draws"]}
     covered = {m: r for m, r in ran.items() if r["covered"]}
-    pool = covered if any(r["heldout_pct"] < r["nominal_heldout_pct"] for r in covered.values()) else ran
-    low = min(pool, key=lambda m: pool[m]["heldout_pct"])
-    h0 = pool[low]["heldout_pct"]
+    def ratio(r):  # held-out error over the CAD model's on the same rows, mean over the draws that ran
+        ok = [d for d in r["per_draw"] if d["status"] == "ok"]
+        return sum(d["heldout_pct"] / d["nominal_heldout_pct"] for d in ok) / len(ok)
+
+    pool = covered if any(ratio(r) < 1 for r in covered.values()) else ran
+    low = min(pool, key=lambda m: ratio(pool[m]))
+    h0 = ratio(pool[low])
 
     def se(m):  # the paired difference's standard error over the draws
-        d = [x["heldout_pct"] - y["heldout_pct"] for x, y in zip(pool[m]["per_draw"], pool[low]["per_draw"])]
+        d = [x["heldout_pct"] / x["nominal_heldout_pct"] - y["heldout_pct"] / y["nominal_heldout_pct"]
+             for x, y in zip(pool[m]["per_draw"], pool[low]["per_draw"])]
         return statistics.stdev(d) / len(d) ** 0.5 if len(d) > 1 else 0.0
 
-    tied = {m: r for m, r in pool.items() if r["heldout_pct"] - h0 <= max(se(m), 0.005 * h0)}
+    tied = {m: r for m, r in pool.items() if ratio(r) - h0 <= max(se(m), 0.005 * h0)}
     best = min(tied, key=lambda m: tied[m]["seconds"])
     # a fit that predicts worse than the CAD model is not recommended: keep the nominal model
-    return best if tied[best]["heldout_pct"] < tied[best]["nominal_heldout_pct"] else "nominal"
+    return best if ratio(tied[best]) < 1 else "nominal"
 
 
 def _best_row(md: str) -> dict[str, list[str]]:
