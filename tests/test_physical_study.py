@@ -189,7 +189,14 @@ def test_parallel_twin(capsys):
     # not identifiable from the training log's fewer reversals)
     e = sweep[0.002]
     assert e["floor_stribeck"] < 0.45 * e["cad"] and e["truth"] < 0.45 * e["cad"], e
-    assert "dFs_" in mov["refused"]["Nonlinear (Opt.), min_velocity 2 mm/s"], mov["refused"]
+    # there the training log's Stribeck fit is refused for its hump term on the recorded draw (and in
+    # the full study); on another draw (DYNID_TEST_SEED=1) it ran: either way it is reported, never
+    # dropped, and being tuned on held-out results it is not part of the verdict above
+    label = "Nonlinear (Opt.), min_velocity 2 mm/s"
+    if label in mov["refused"]:
+        assert "dFs_" in mov["refused"][label], mov["refused"]
+    else:
+        assert label in mov["rows"], sorted(mov["rows"])
     # the product's derived min_velocity (dynid init: 3 sigma of the velocity noise, 1 um encoders)
     # keeps every moving row but the chatter too: there CAD is better than the fits
     d = mov["rows"]["Nonlinear (Opt.), min_velocity derived (3 sigma_v)"]
