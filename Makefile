@@ -64,14 +64,13 @@ docs: setup
 docs-clean:
 	rm -rf docs/_build docs/auto_tutorials docs/reference/api/generated docs/sg_execution_times.rst
 
+# every bench script that checks a target runs, a failing one does not stop the others; the list of
+# failing scripts ends the run (exit 1)
+BENCH_SCRIPTS := regressor_throughput identify_scaling closed_loop_throughput simulate_hexapod \
+	simulate_vs_mujoco design_time montecarlo_scaling control_loop_time fleet_scaling vs_figaroh
 bench: setup
-	$(BIN)/python bench/regressor_throughput.py
-	$(BIN)/python bench/identify_scaling.py
-	$(BIN)/python bench/closed_loop_throughput.py
-	$(BIN)/python bench/simulate_hexapod.py
-	$(BIN)/python bench/simulate_vs_mujoco.py
-	$(BIN)/python bench/design_time.py
-	$(BIN)/python bench/montecarlo_scaling.py
+	@fail=; for s in $(BENCH_SCRIPTS); do echo "== bench/$$s.py"; $(BIN)/python bench/$$s.py || fail="$$fail $$s"; done; \
+	if [ -n "$$fail" ]; then echo "make bench: FAIL:$$fail" >&2; exit 1; fi
 
 clean:
 	rm -rf $(VENV) out build src/*.egg-info .pytest_cache docs/_build docs/auto_tutorials docs/reference/api/generated
