@@ -177,8 +177,16 @@ def _simulate(setup: SimulationSetup):
     if setup.mech:
         # a replay with the regularized Coulomb law (IV, DIDIM): the projection's shortcut (simulate_mechanism_control)
         exact = not (setup.replay and setup.plant.coulomb_band is not None)
-        motion = simulate_mechanism_control(setup.plant, setup.controller, setup.reference, duration=setup.duration,
-                                            dt=setup.dt, substeps=c.substeps, exact_projection=exact)
+        motion = None
+        if not exact:  # the same loop with its per-period NumPy work compiled (numba, loaded here only)
+            from dynid.pipeline import _sim_kernels
+
+            if _sim_kernels.supports(setup.plant, setup.controller):
+                motion = _sim_kernels.compiled_replay(setup.plant, setup.controller, setup.reference,
+                                                      duration=setup.duration, dt=setup.dt, substeps=c.substeps)
+        if motion is None:
+            motion = simulate_mechanism_control(setup.plant, setup.controller, setup.reference, duration=setup.duration,
+                                                dt=setup.dt, substeps=c.substeps, exact_projection=exact)
         q_act = motion.q[:, list(robot.actuated)]
         track_actuators = None
         if c.kind != "computed_torque":  # the drives' own errors (paper 002, Fig. 10; paper 004, Fig. 6)
