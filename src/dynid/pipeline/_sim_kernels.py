@@ -14,8 +14,8 @@ and everything between them runs in ``numba.njit`` kernels on buffers allocated 
   :func:`dynid.model.loop_one._one_geometry` and :func:`~dynid.model.loop_one._one_coordinates`
   (the rows :math:`J_v - [p]_\\times J_\\omega` of the closure sides, stacked by the constant
   matrix ``T`` of ``_Sides``, whose rows have at most two entries of +-1, taken here as index
-  and sign; the LU inverse of the square block and its 1-norm condition number; ``G``; the
-  independent coordinates and their rates), then the commanded acceleration
+  and sign; the LU inverse of the dependent joints' block and its 1-norm condition number; ``G``;
+  the independent joints' positions and rates), then the commanded acceleration
   :math:`a_u = \\ddot u_d + K_v(\\dot u_d - \\dot u) + K_p(u_d - u)` (the augmented PD of
   Shang et al. 2009, Eq. 22) and :math:`\\dot q = G\\dot u`;
 * :func:`_accelerations`: the drift :math:`\\dot J\\dot q` of the sides' points and the joint
@@ -55,22 +55,77 @@ _MAX_COND = 1e8  # AugmentedPD's bound on the condition number of the inverted b
 
 # ----------------------------------------------------------------------------- kernels
 
-@numba.njit(cache=True)
 def _sparse_rows(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index and value of the (at most two) non-zero entries of each row of ``T`` (0 value: none)."""
-    n = T.shape[0]
-    idx = np.zeros((n, 2), dtype=np.int64)
-    val = np.zeros((n, 2))
-    for r in range(n):
-        m = 0
-        for c in range(T.shape[1]):
-            if T[r, c] != 0.0:
-                if m == 2:
-                    raise ValueError("a row of T with more than two non-zero entries")
-                idx[r, m] = c
-                val[r, m] = T[r, c]
-                m += 1
+    """Index and value of the (at most two) non-zero entries of each row of ``T`` (value 0: none);
+    the constant matrices of :mod:`dynid.model.closure_geometry` have entries 0 and +-1 and at most
+    two non-zero per row, so the kernels' sums over them are those products exactly."""
+    idx = np.zeros((T.shape[0], 2), dtype=np.int64)
+    val = np.zeros((T.shape[0], 2))
+    for r, row in enumerate(T):
+        nz = np.flatnonzero(row)
+        if nz.size > 2:
+            raise ValueError("a constant row with more than two non-zero entries")
+        idx[r, : nz.size], val[r, : nz.size] = nz, row[nz]
     return idx, val
+
+
+@numba.njit(cache=True)
+def _lu(A, piv):
+    """In-place LU factorization with partial pivoting (LAPACK ``dgetf2``'s algorithm, unblocked):
+    ``A`` holds L (unit diagonal) and U, ``piv`` the row swaps; False where a pivot is zero or
+    not finite."""
+    n = A.shape[0]
+    for c in range(n):
+        p, big = c, abs(A[c, c])
+        for i in range(c + 1, n):
+            if abs(A[i, c]) > big:
+                p, big = i, abs(A[i, c])
+        if not (big > 0.0 and big < np.inf):
+            return False
+        piv[c] = p
+        if p != c:
+            for j in range(n):
+                A[c, j], A[p, j] = A[p, j], A[c, j]
+        d = 1.0 / A[c, c]
+        for i in range(c + 1, n):
+            A[i, c] *= d
+            f = A[i, c]
+            if f != 0.0:
+                for j in range(c + 1, n):
+                    A[i, j] -= f * A[c, j]
+    return True
+
+
+@numba.njit(cache=True)
+def _lu_solve(LU, piv, b):
+    """``x`` with ``A x = b`` from :func:`_lu`'s factors (in place in ``b``)."""
+    n = b.size
+    for c in range(n):
+        p = piv[c]
+        if p != c:
+            b[c], b[p] = b[p], b[c]
+    for i in range(n):
+        x = b[i]
+        for j in range(i):
+            x -= LU[i, j] * b[j]
+        b[i] = x
+    for i in range(n - 1, -1, -1):
+        x = b[i]
+        for j in range(i + 1, n):
+            x -= LU[i, j] * b[j]
+        b[i] = x / LU[i, i]
+
+
+@numba.njit(cache=True)
+def _norm1(A):
+    """The 1-norm (largest column sum of absolute values)."""
+    m = 0.0
+    for j in range(A.shape[1]):
+        x = 0.0
+        for i in range(A.shape[0]):
+            x += abs(A[i, j])
+        m = max(m, x)
+    return m
 
 
 @numba.njit(cache=True)
@@ -88,12 +143,11 @@ def _points(H, slot, ground, r, pk):
 
 @numba.njit(cache=True)
 def _geometry(J, H, q, dq, k, ur, dur, ddur, kp, kv, slot, ground, r, order, mask, t_idx, t_val,
-              w, u, coord_index, n_ind, pk, rows, G, du, acc, dq_u):
-    """The controller's geometry and commanded motion at period ``k``: fills ``pk``, ``rows``, ``G``,
-    ``du``, ``acc`` (the commanded :math:`a_u`), ``dq_u`` (:math:`G\\dot u`); returns the inverse
-    of the inverted block and its condition number (inf: singular). ``w.size > 0``: joint
-    coordinates (``u``, ``w``: the independent and dependent joints); otherwise point
-    coordinates (``coord_index`` into the points, ``n_ind`` of them)."""
+              w, u, pk, rows, G, du, acc, dq_u):
+    """The controller's geometry and commanded motion at period ``k``, in joint coordinates (``u``,
+    ``w``: the independent and dependent joints; :func:`supports`): fills ``pk``, ``rows``,
+    ``G``, ``du``, ``acc`` (the commanded :math:`a_u`), ``dq_u`` (:math:`G\\dot u`); returns the
+    inverse of the dependent joints' block and its condition number (inf: singular)."""
     nv = q.size
     _points(H, slot, ground, r, pk)
     nr = rows.shape[0]
@@ -120,47 +174,41 @@ def _geometry(J, H, q, dq, k, ur, dur, ddur, kp, kv, slot, ground, r, order, mas
                 else:
                     x = m * J[comp, jj]
                 rows[i, j] += v * x
-    joint = w.size > 0
-    nw = w.size if joint else nv
-    A = np.ascontiguousarray(rows[:, :nw])
-    cond = np.inf
+    nw = w.size
+    LU = np.empty((nw, nw))
+    for i in range(nw):
+        for j in range(nw):
+            LU[i, j] = rows[i, j]
+    piv = np.empty(nw, dtype=np.int64)
     inv = np.zeros((nw, nw))
-    if np.isfinite(A).all():
-        try:
-            inv = np.linalg.inv(A)
-            cond = np.abs(A).sum(axis=0).max() * np.abs(inv).sum(axis=0).max()
-        except Exception:  # noqa: BLE001  (numba: singular matrix)
-            cond = np.inf
-    if not cond <= 1e300:
-        return inv, cond
-    nu = G.shape[1]
-    if joint:
-        for i in range(nv):
-            for j in range(nu):
-                G[i, j] = 0.0
-        for j in range(nu):
-            G[u[j], j] = 1.0
+    if not _lu(LU, piv):
+        return inv, np.inf
+    e = np.empty(nw)
+    for j in range(nw):  # the inverse column by column (LAPACK's getri: the same matrix to rounding)
         for i in range(nw):
-            for j in range(nu):
-                x = 0.0
-                for m in range(nw):
-                    x += inv[i, m] * rows[m, nw + j]
-                G[w[i], j] = -x
+            e[i] = 0.0
+        e[j] = 1.0
+        _lu_solve(LU, piv, e)
+        for i in range(nw):
+            inv[i, j] = e[i]
+    cond = _norm1(rows[:, :nw]) * _norm1(inv)
+    if not cond <= 1e300:  # not finite
+        return inv, np.inf
+    nu = G.shape[1]
+    for i in range(nv):
         for j in range(nu):
-            du[j] = dq[u[j]]
-            acc[j] = ddur[k, j] + kv[j] * (dur[k, j] - du[j]) + kp[j] * (ur[k, j] - q[u[j]])
-    else:
-        for i in range(nv):
-            for j in range(nu):
-                G[i, j] = inv[i, nv - n_ind + j]
+            G[i, j] = 0.0
+    for j in range(nu):
+        G[u[j], j] = 1.0
+    for i in range(nw):
         for j in range(nu):
             x = 0.0
-            rr = nr - n_ind + j
-            for m in range(nv):
-                x += rows[rr, m] * dq[m]
-            du[j] = x
-            c = coord_index[j]
-            acc[j] = ddur[k, j] + kv[j] * (dur[k, j] - du[j]) + kp[j] * (ur[k, j] - pk[c // 3, c % 3])
+            for m in range(nw):
+                x += inv[i, m] * rows[m, nw + j]
+            G[w[i], j] = -x
+    for j in range(nu):
+        du[j] = dq[u[j]]
+        acc[j] = ddur[k, j] + kv[j] * (dur[k, j] - du[j]) + kp[j] * (ur[k, j] - q[u[j]])
     for i in range(nv):
         x = 0.0
         for j in range(nu):
@@ -175,11 +223,11 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 
 @numba.njit(cache=True)
-def _accelerations(J, dJ, dq_u, body_mask_q, body_of, pk, t_idx, t_val, rows, inv, G, acc, w, u, ddq):
+def _accelerations(J, dJ, dq_u, body_mask_q, body_of, pk, t_idx, t_val, rows, inv, acc, w, u, ddq):
     """Joint accelerations at the commanded :math:`a_u`: the drift :math:`\\dot J\\dot q` of the
     sides' points (classical accelerations: :math:`v_p = v + \\omega\\times p`,
     :math:`a_p = a + \\alpha\\times p + \\omega\\times v_p`, at :math:`\\ddot q = 0`), then
-    :math:`\\ddot q_w = A_w^{-1}(-A_u a_u - \\dot J\\dot q)` or :math:`G a_u - A^{-1}\\dot J\\dot q`."""
+    :math:`\\ddot q_u = a_u`, :math:`\\ddot q_w = A_w^{-1}(-A_u a_u - \\dot J\\dot q)`."""
     nv = dq_u.size
     nb = body_mask_q.shape[0]
     X = np.zeros((nb, 12))
@@ -218,31 +266,20 @@ def _accelerations(J, dJ, dq_u, body_mask_q, body_of, pk, t_idx, t_val, rows, in
                 c = t_idx[i, e]
                 x += v * S6[c // 6, c % 6]
         drift[i] = x
-    nu = acc.size
-    if w.size > 0:
-        nw = w.size
+    nu, nw = acc.size, w.size
+    for j in range(nu):
+        ddq[u[j]] = acc[j]
+    rhs = np.empty(nw)
+    for i in range(nw):
+        x = 0.0
         for j in range(nu):
-            ddq[u[j]] = acc[j]
-        rhs = np.empty(nw)
-        for i in range(nw):
-            x = 0.0
-            for j in range(nu):
-                x += rows[i, nw + j] * acc[j]
-            rhs[i] = -x - drift[i]
-        for i in range(nw):
-            x = 0.0
-            for m in range(nw):
-                x += inv[i, m] * rhs[m]
-            ddq[w[i]] = x
-    else:
-        for i in range(nv):
-            x = 0.0
-            for j in range(nu):
-                x += G[i, j] * acc[j]
-            y = 0.0
-            for m in range(nr):
-                y += inv[i, m] * drift[m]
-            ddq[i] = x - y
+            x += rows[i, nw + j] * acc[j]
+        rhs[i] = -x - drift[i]
+    for i in range(nw):
+        x = 0.0
+        for m in range(nw):
+            x += inv[i, m] * rhs[m]
+        ddq[w[i]] = x
 
 
 @numba.njit(cache=True)
@@ -292,17 +329,16 @@ def _forces(tau_rnea, dq_u, ddq, G, ctrl_coef, inertia, own, local, solve, act, 
             x += G[i, j] * tau[i]
         proj[j] = x
     na = act.size
-    if solve:
+    out = proj
+    if solve:  # G_a^T x = proj by LU with partial pivoting (LAPACK's gesv, unblocked)
         Ga_T = np.empty((na, na))
         for i in range(na):
             for j in range(na):
                 Ga_T[i, j] = G[act[j], i]
-        try:
-            out = np.linalg.solve(Ga_T, proj)
-        except Exception:  # noqa: BLE001  (numba: singular matrix)
+        piv = np.empty(na, dtype=np.int64)
+        if not _lu(Ga_T, piv):
             return False
-    else:
-        out = proj
+        _lu_solve(Ga_T, piv, out)
     for i in range(nv):
         Q[k, i] = W[0, i]
         V[k, i] = W[1, i]
@@ -413,13 +449,15 @@ def _closure_check(J, H, q, dq, slot, r1, mask, d_idx, d_val, d0, t_idx, t_val):
 def supports(sim, controller) -> bool:
     """Whether :func:`compiled_replay` runs this plant and controller: the constrained simulator
     with its piecewise-linear joint law (no ground-truth friction callable) and the augmented PD
-    whose forces take the per-joint route without a redundant distribution (the replays of IV and
-    DIDIM); anything else keeps :func:`~dynid.simulation.closed_loop.simulate_mechanism_control`."""
+    whose forces take the per-joint route without a redundant distribution, in joint coordinates
+    (the replays of IV and DIDIM on the hexapod, the 3-RPS, the five-bar); anything else (point
+    coordinates, redundant actuation: shang2dof) keeps
+    :func:`~dynid.simulation.closed_loop.simulate_mechanism_control`."""
     if not (isinstance(sim, ConstrainedSimulator) and type(controller) is AugmentedPD and sim.friction is None):
         return False
     f = controller._forces
     sd = _sides(sim.mech)
-    return not f.general and not f.redundant and (sd.u is not None or sd.coordinate_side is not None)
+    return not f.general and not f.redundant and sd.u is not None
 
 
 class _Kinematics:
@@ -470,11 +508,7 @@ def _replay(sim, controller, reference, duration, dt, substeps, q0) -> Simulated
     order = np.ascontiguousarray(sd.order, dtype=np.int64)
     mask = np.ascontiguousarray(sd.side_mask.reshape(len(sd.moving), nv))
     t_idx, t_val = _sparse_rows(np.ascontiguousarray(sd.T))
-    joint = sd.u is not None
-    u_idx = np.asarray(sd.u if joint else [], dtype=np.int64)
-    w_idx = np.asarray(sd.w if joint else [], dtype=np.int64)
-    coord = np.asarray([] if joint else sd.coordinate_index, dtype=np.int64)
-    n_ind = 0 if joint else coord.size
+    u_idx, w_idx = np.asarray(sd.u, dtype=np.int64), np.asarray(sd.w, dtype=np.int64)
     nu = mech.dof
     kp, kv = np.ascontiguousarray(controller.kp, dtype=float), np.ascontiguousarray(controller.kv, dtype=float)
     body_mask_q = np.ascontiguousarray(sd.body_mask_q)
@@ -523,16 +557,15 @@ def _replay(sim, controller, reference, duration, dt, substeps, q0) -> Simulated
         if check_charts:
             mech.check_ball_charts(q, "states")
         inv, cond = _geometry(J, H, q, v, k, ur, dur, ddur, kp, kv, slot, ground, r, order, mask, t_idx, t_val,
-                              w_idx, u_idx, coord, n_ind, pk, rows, G, du, acc, dq_u)
+                              w_idx, u_idx, pk, rows, G, du, acc, dq_u)
         if not cond <= _MAX_COND:
-            what = "the loop-closure Jacobian of the dependent joints" if joint else "[J_c; J_u]"
-            raise ModelError(f"sample 0: singular configuration (condition number of {what} = {cond:.3g} > "
-                             f"{_MAX_COND:.3g})")
+            raise ModelError("sample 0: singular configuration (condition number of the loop-closure Jacobian of the "
+                             f"dependent joints = {cond:.3g} > {_MAX_COND:.3g})")
         if not np.isfinite(acc).all():
             raise InputError("the commanded acceleration of the independent coordinates is not finite")
         time_variation(kin.model, kin.data, q, dq_u)
-        _accelerations(J, kin.data.dJ, dq_u, body_mask_q, body_of, pk, t_idx, t_val, rows, inv, G, acc, w_idx,
-                       u_idx, ddq)
+        _accelerations(J, kin.data.dJ, dq_u, body_mask_q, body_of, pk, t_idx, t_val, rows, inv, acc, w_idx, u_idx,
+                       ddq)
         tau_rnea = rnea(model, cdata, q, dq_u, ddq)
         if not _forces(tau_rnea, dq_u, ddq, G, ctrl_coef, inertia, own, f.local, solve, act, k, W, plant_coef,
                        band, Q, V, T):
