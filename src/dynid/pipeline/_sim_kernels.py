@@ -117,6 +117,39 @@ def _lu_solve(LU, piv, b):
 
 
 @numba.njit(cache=True)
+def _lu_inverse(LU, piv, inv):
+    """The inverse from :func:`_lu`'s factors, column by column (forward substitution from the
+    unit vector's first non-zero entry: the entries above it are exact zeros)."""
+    n = piv.size
+    e = np.empty(n)
+    for j in range(n):
+        for i in range(n):
+            e[i] = 0.0
+        e[j] = 1.0
+        first = n
+        for c in range(n):
+            p = piv[c]
+            if p != c:
+                e[c], e[p] = e[p], e[c]
+        for i in range(n):
+            if e[i] != 0.0:
+                first = i
+                break
+        for i in range(first + 1, n):
+            x = e[i]
+            for m in range(first, i):
+                x -= LU[i, m] * e[m]
+            e[i] = x
+        for i in range(n - 1, -1, -1):
+            x = e[i]
+            for m in range(i + 1, n):
+                x -= LU[i, m] * e[m]
+            e[i] = x / LU[i, i]
+        for i in range(n):
+            inv[i, j] = e[i]
+
+
+@numba.njit(cache=True)
 def _norm1(A):
     """The 1-norm (largest column sum of absolute values)."""
     m = 0.0
@@ -147,8 +180,15 @@ def _geometry(J, H, q, dq, k, ur, dur, ddur, kp, kv, slot, ground, r, order, mas
     """The controller's geometry and commanded motion at period ``k``, in joint coordinates (``u``,
     ``w``: the independent and dependent joints; :func:`supports`): fills ``pk``, ``rows``,
     ``G``, ``du``, ``acc`` (the commanded :math:`a_u`), ``dq_u`` (:math:`G\\dot u`); returns the
-    inverse of the dependent joints' block and its condition number (inf: singular)."""
+    inverse of the dependent joints' block, its condition number (inf: singular) and a status: 0,
+    or 1 where the state is not finite (nothing computed), 2 singular, 3 where the commanded
+    acceleration is not finite."""
     nv = q.size
+    nw = w.size
+    inv = np.zeros((nw, nw))
+    for i in range(nv):
+        if not (np.isfinite(q[i]) and np.isfinite(dq[i])):
+            return inv, np.inf, 1
     _points(H, slot, ground, r, pk)
     nr = rows.shape[0]
     for i in range(nr):  # rows = T @ [J_v - [p]x J_w; J_w] per moving side, T's +-1 entries only
@@ -174,26 +214,17 @@ def _geometry(J, H, q, dq, k, ur, dur, ddur, kp, kv, slot, ground, r, order, mas
                 else:
                     x = m * J[comp, jj]
                 rows[i, j] += v * x
-    nw = w.size
     LU = np.empty((nw, nw))
     for i in range(nw):
         for j in range(nw):
             LU[i, j] = rows[i, j]
     piv = np.empty(nw, dtype=np.int64)
-    inv = np.zeros((nw, nw))
     if not _lu(LU, piv):
-        return inv, np.inf
-    e = np.empty(nw)
-    for j in range(nw):  # the inverse column by column (LAPACK's getri: the same matrix to rounding)
-        for i in range(nw):
-            e[i] = 0.0
-        e[j] = 1.0
-        _lu_solve(LU, piv, e)
-        for i in range(nw):
-            inv[i, j] = e[i]
+        return inv, np.inf, 2
+    _lu_inverse(LU, piv, inv)  # LAPACK's getri: the same matrix to rounding
     cond = _norm1(rows[:, :nw]) * _norm1(inv)
     if not cond <= 1e300:  # not finite
-        return inv, np.inf
+        return inv, np.inf, 2
     nu = G.shape[1]
     for i in range(nv):
         for j in range(nu):
@@ -214,7 +245,10 @@ def _geometry(J, H, q, dq, k, ur, dur, ddur, kp, kv, slot, ground, r, order, mas
         for j in range(nu):
             x += G[i, j] * du[j]
         dq_u[i] = x
-    return inv, cond
+    for j in range(nu):
+        if not np.isfinite(acc[j]):
+            return inv, cond, 3
+    return inv, cond, 0
 
 
 @numba.njit(cache=True)
@@ -550,18 +584,18 @@ def _replay(sim, controller, reference, duration, dt, substeps, q0) -> Simulated
     n_stages = 4 * substeps
     check_charts = bool(mech._ball_middle)
     J, H = kin(W[0])
+    q, v = W[0], W[1]  # views: the state, updated in place by the kernels (and by a projection below)
     for k in range(n):
-        q, v = W[0], W[1]
-        if not (np.isfinite(q).all() and np.isfinite(v).all()):
-            raise InputError(f"the controller needs finite joint positions and velocities of shape ({nv},)")
         if check_charts:
             mech.check_ball_charts(q, "states")
-        inv, cond = _geometry(J, H, q, v, k, ur, dur, ddur, kp, kv, slot, ground, r, order, mask, t_idx, t_val,
-                              w_idx, u_idx, pk, rows, G, du, acc, dq_u)
+        inv, cond, status = _geometry(J, H, q, v, k, ur, dur, ddur, kp, kv, slot, ground, r, order, mask, t_idx,
+                                      t_val, w_idx, u_idx, pk, rows, G, du, acc, dq_u)
+        if status == 1:
+            raise InputError(f"the controller needs finite joint positions and velocities of shape ({nv},)")
         if not cond <= _MAX_COND:
             raise ModelError("sample 0: singular configuration (condition number of the loop-closure Jacobian of the "
                              f"dependent joints = {cond:.3g} > {_MAX_COND:.3g})")
-        if not np.isfinite(acc).all():
+        if status == 3:
             raise InputError("the commanded acceleration of the independent coordinates is not finite")
         time_variation(kin.model, kin.data, q, dq_u)
         _accelerations(J, kin.data.dJ, dq_u, body_mask_q, body_of, pk, t_idx, t_val, rows, inv, acc, w_idx, u_idx,
@@ -580,11 +614,11 @@ def _replay(sim, controller, reference, duration, dt, substeps, q0) -> Simulated
             _rk4_stage(i, dynamics(pmodel, pdata, qs, vs, fs, cmodels, cdatas, prox), W, h, plant_coef, band,
                        i == n_stages - 1)
         # the projection's shortcut (simulate_mechanism_control, exact_projection=False)
-        J, H = kin(W[0])
+        J, H = kin(q)
         if point:
-            gap, vres = _closure_check(J, H, W[0], W[1], p_slot, p_r1, p_mask, d_idx, d_val, d0, pt_idx, pt_val)
+            gap, vres = _closure_check(J, H, q, v, p_slot, p_r1, p_mask, d_idx, d_val, d0, pt_idx, pt_val)
             if gap < _PROJECTION_TOL and vres <= vtol:
                 continue
-        W[0], W[1] = mech.project(W[0], W[1], data=kin.data, vtol=vtol)
-        J, H = kin(W[0])
+        q[:], v[:] = mech.project(q, v, data=kin.data, vtol=vtol)
+        J, H = kin(q)
     return SimulatedMotion(t=t, q=Q, dq=V, ddq=A, tau_a=T)
