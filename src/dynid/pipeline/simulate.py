@@ -158,6 +158,11 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, rob
 
     ``coulomb_band``: with ``plant``, the plant's Coulomb friction through the regularized law of
     :class:`~dynid.simulation.closed_loop.ConstrainedSimulator` (a parallel robot's replay only).
+    Such a replay runs its control loop with the per-period NumPy work compiled
+    (:mod:`dynid.pipeline._sim_kernels`, numba; the same motion to rounding, about half the time of
+    a period on the hexapod twin) where the plant and controller allow it (joint coordinates,
+    no redundant actuation), otherwise
+    :func:`~dynid.simulation.closed_loop.simulate_mechanism_control`.
     """
     t0 = time.perf_counter()
     outcome = _run_simulation(cfg, progress, robot, plant, coulomb_band)
