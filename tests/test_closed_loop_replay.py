@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from dynid.config.simulate import parse_simulate_config
+from dynid.errors import ModelError
 from dynid.pipeline import _sim_kernels
 from dynid.pipeline.sim_setup import simulation_setup
 from dynid.pipeline.simulate import run_simulation
@@ -164,3 +165,29 @@ def test_a_serial_arm_does_not_load_numba(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     rows, loaded = proc.stdout.split()[-2:]
     assert int(rows) > 1 and loaded == "False"
+
+
+def test_a_diverging_compiled_replay_fails_as_the_python_loop(tmp_path):
+    # bodies 1e6 times too light under the same controller: the motion diverges within 0.3 s; both
+    # loops must stop with the projection's error (a DynidError: IV and DIDIM halve their step on it)
+    doc = {"robot": {"model": "builtin:fivebar", "perturbation": 0.1, "perturbation_seed": 4},
+           "trajectory": {"kind": "fourier", "base_frequency_hz": 0.5, "harmonics": 3, "fill": 0.3, "periods": 1,
+                          "seed": 4},
+           "control": {"rate_hz": 500, "kp": 2500, "kd": 100, "substeps": 2},
+           "simulation": {"duration": 0.3}}
+    cfg = parse_simulate_config(doc, tmp_path)
+    robot = simulation_setup(cfg).robot
+    bad = robot.nominal_parameters()
+    bad[: robot.n_body_params] *= 1e-6
+    messages = []
+    for compiled in (False, True):
+        s = simulation_setup(cfg, plant_params=bad, coulomb_band=0.01)
+        with pytest.raises(ModelError, match="not finite") as err:
+            if compiled:
+                _sim_kernels.compiled_replay(s.plant, s.controller, s.reference, duration=s.duration, dt=s.dt,
+                                             substeps=2)
+            else:
+                simulate_mechanism_control(s.plant, s.controller, s.reference, duration=s.duration, dt=s.dt,
+                                           substeps=2, exact_projection=False)
+        messages.append(str(err.value))
+    assert messages[0] == messages[1]
