@@ -544,7 +544,7 @@ def _replay(sim, controller, reference, duration, dt, substeps, q0) -> Simulated
     t_idx, t_val = _sparse_rows(np.ascontiguousarray(sd.T))
     u_idx, w_idx = np.asarray(sd.u, dtype=np.int64), np.asarray(sd.w, dtype=np.int64)
     nu = mech.dof
-    kp, kv = np.ascontiguousarray(controller.kp, dtype=float), np.ascontiguousarray(controller.kv, dtype=float)
+    kp, kv = (np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=float), (nu,))) for x in (controller.kp, controller.kv))
     body_mask_q = np.ascontiguousarray(sd.body_mask_q)
     body_of = np.ascontiguousarray(sd.body_of, dtype=np.int64)
     ctrl_coef = np.array([f.a, f.b, f.c, f.d, f.e], dtype=float)
