@@ -158,6 +158,11 @@ def run_simulation(cfg: SimulateConfig, progress: Progress | None = None, *, rob
 
     ``coulomb_band``: with ``plant``, the plant's Coulomb friction through the regularized law of
     :class:`~dynid.simulation.closed_loop.ConstrainedSimulator` (a parallel robot's replay only).
+    Such a replay runs its control loop with the per-period NumPy work compiled
+    (:mod:`dynid.pipeline._sim_kernels`, numba; the same motion to rounding, about half the time of
+    a period on the hexapod twin) where the plant and controller allow it (joint coordinates,
+    no redundant actuation), otherwise
+    :func:`~dynid.simulation.closed_loop.simulate_mechanism_control`.
     """
     t0 = time.perf_counter()
     outcome = _run_simulation(cfg, progress, robot, plant, coulomb_band)
@@ -177,8 +182,16 @@ def _simulate(setup: SimulationSetup):
     if setup.mech:
         # a replay with the regularized Coulomb law (IV, DIDIM): the projection's shortcut (simulate_mechanism_control)
         exact = not (setup.replay and setup.plant.coulomb_band is not None)
-        motion = simulate_mechanism_control(setup.plant, setup.controller, setup.reference, duration=setup.duration,
-                                            dt=setup.dt, substeps=c.substeps, exact_projection=exact)
+        motion = None
+        if not exact:  # the same loop with its per-period NumPy work compiled (numba, loaded here only)
+            from dynid.pipeline import _sim_kernels
+
+            if _sim_kernels.supports(setup.plant, setup.controller):
+                motion = _sim_kernels.compiled_replay(setup.plant, setup.controller, setup.reference,
+                                                      duration=setup.duration, dt=setup.dt, substeps=c.substeps)
+        if motion is None:
+            motion = simulate_mechanism_control(setup.plant, setup.controller, setup.reference, duration=setup.duration,
+                                                dt=setup.dt, substeps=c.substeps, exact_projection=exact)
         q_act = motion.q[:, list(robot.actuated)]
         track_actuators = None
         if c.kind != "computed_torque":  # the drives' own errors (paper 002, Fig. 10; paper 004, Fig. 6)
