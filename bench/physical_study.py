@@ -151,6 +151,8 @@ RPS3 = {
     "quick_no_stribeck_floor": ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)",  # nor these rows'
                                 "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "Nonlinear (Opt.), min_velocity v_S/10",
                                 "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)",
+                                "Nonlinear (Opt.), min_velocity res * f_s (post hoc)",
+                                "Nonlinear (Opt.), min_velocity v_S-hat / 10 (post hoc)",
                                 "Nonlinear (Opt.), min_velocity v_S/10, guard 0.01 s",
                                 "Nonlinear (Opt.), min_velocity v_S/10, guard 0.02 s"),
 }
@@ -878,6 +880,30 @@ def kalman_moving(case: _Case, x_nl, bound: _Case, fits_bw: dict, timed, quick: 
     sweep = setup["kalman_sweep_quick" if quick else "kalman_sweep"]
     out["moving"] = moving_rows(case, fits, bound, truth, timed, quick, extra=KALMAN, settings=settings, sweep=sweep,
                                 sweep_stribeck=setup["moving_sweep_stribeck"] if quick else sweep)
+    # two rules written down after the recorded draw's sweep above (so "post hoc", never in that draw's
+    # verdict; other draws test them): one encoder count per sample, res * f_s (the smallest
+    # nonzero position step of the training log times its rate: below it the positions change by
+    # less than a count a sample and the velocity is the smoother's model, not the data), and
+    # v_S-hat / 10 (B8's a-priori Stribeck rule with the v_S of the first derived fit, a_rev / (2 pi f_K))
+    first = fits.get("Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)")
+    ds = case.train_sim.dataset
+    steps = np.abs(np.diff(np.asarray(ds.q, dtype=float), axis=0))
+    res_fs = [float(np.min(c[c > 0])) / float(np.median(np.diff(np.asarray(ds.t)))) for c in steps.T]
+    post = [("Nonlinear (Opt.), min_velocity res * f_s (post hoc)", "nonlinear", True, {"min_velocity": res_fs})]
+    if first is not None:
+        vs_hat = [float(f["vs"]) for f in first[0].result.solver["stribeck"].values()]
+        post.append(("Nonlinear (Opt.), min_velocity v_S-hat / 10 (post hoc)", "nonlinear", True,
+                     {"min_velocity": [v / 10 for v in vs_hat]}))
+        out["settings"]["vs_hat"] = vs_hat
+    out["settings"]["res_fs"] = res_fs
+    post_fits = {lin_label: fits[lin_label]}
+    post_out = moving_rows(case, post_fits, bound, truth, timed, quick, extra=KALMAN, settings=post, sweep=())
+    for label, r in post_out["rows"].items():
+        if label != lin_label:
+            out["moving"]["rows"][label] = r
+    out["moving"]["refused"].update(post_out["refused"])
+    out["stribeck"] = {label: {leg: {"dF": f["Fs"] - f["Fc"], "vs": f["vs"]} for leg, f in fit[0].result.solver["stribeck"].items()}
+                       for label, fit in {**fits, **post_fits}.items() if fit[1] == "nonlinear"}
     # the refused fit at 2 mm/s, with the warm-start grid from its second v_S (tuned: a diagnostic)
     out["grid"] = {}
     label = "Nonlinear (Opt.), min_velocity 2 mm/s, grid from 0.05"
@@ -1239,6 +1265,11 @@ def kalman_table(res: dict, title: str) -> str:
         lines.append(_moving_row_line(label, r))
     for label, why in k["moving"]["refused"].items():
         lines.append(f"{label:<60}refused: {why}")
+    lines.append("the Stribeck fits' humps F_S - F_C [N] and v_S [mm/s] per leg (truth 72 N, 5 mm/s): " + "; ".join(
+        f"{label.replace('Nonlinear (Opt.), min_velocity ', '')}: " + ", ".join(f"{f['dF']:.0f}/{1000 * f['vs']:.2g}" for f in st.values())
+        for label, st in k["stribeck"].items()))
+    if "vs_hat" in ks:
+        lines.append(f"post hoc rules: res * f_s {mm(ks['res_fs'])} mm/s; v_S-hat / 10 {mm([v / 10 for v in ks['vs_hat']])} mm/s")
     lines.append("the held-out log's moving rows as min_velocity rises, each / CAD on the same rows: Kalman | Butterworth (B9)")
     lines.append(f"  {'min_velocity [mm/s]':>20}{'CAD [N]':>9}{'floor lin':>10}{'floor Str':>10}{'truth':>7}{'noise':>7}   |"
                  f"{'CAD [N]':>9}{'floor Str':>10}{'truth':>7}  kept % (Kalman)")
