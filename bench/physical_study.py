@@ -147,12 +147,13 @@ RPS3 = {
     "kalman_sweep": (0.0002, 0.0003, 0.0005, 0.001, 0.002, 0.003, 0.005, 0.0075, 0.01),
     "kalman_sweep_quick": (0.0005, 0.002, 0.01),
     "grid_sweep": (0.002, 0.003, 0.005),
-    "grid_sweep_quick": (0.002,),
+    "grid_sweep_quick": (),
     "quick_no_stribeck_floor": ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)",  # nor these rows'
                                 "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "Nonlinear (Opt.), min_velocity v_S/10",
                                 "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)",
                                 "Nonlinear (Opt.), min_velocity res * f_s (post hoc)",
                                 "Nonlinear (Opt.), min_velocity v_S-hat / 10 (post hoc)",
+                                "Nonlinear (Opt.), min_velocity 2 mm/s, grid from 0.05",
                                 "Nonlinear (Opt.), min_velocity v_S/10, guard 0.01 s",
                                 "Nonlinear (Opt.), min_velocity v_S/10, guard 0.02 s"),
 }
@@ -879,12 +880,16 @@ def kalman_moving(case: _Case, x_nl, bound: _Case, fits_bw: dict, timed, quick: 
                             {"min_velocity": ks["min_velocity_3sigma"]}))
     sweep = setup["kalman_sweep_quick" if quick else "kalman_sweep"]
     out["moving"] = moving_rows(case, fits, bound, truth, timed, quick, extra=KALMAN, settings=settings, sweep=sweep,
-                                sweep_stribeck=setup["moving_sweep_stribeck"] if quick else sweep)
+                                sweep_stribeck=() if quick else sweep)
     # two rules written down after the recorded draw's sweep above (so "post hoc", never in that draw's
     # verdict; other draws test them): one encoder count per sample, res * f_s (the smallest
     # nonzero position step of the training log times its rate: below it the positions change by
     # less than a count a sample and the velocity is the smoother's model, not the data), and
     # v_S-hat / 10 (B8's a-priori Stribeck rule with the v_S of the first derived fit, a_rev / (2 pi f_K))
+    if quick:  # (the quick version leaves them out)
+        out["stribeck"] = {label: {leg: {"dF": f["Fs"] - f["Fc"], "vs": f["vs"]} for leg, f in fit[0].result.solver["stribeck"].items()}
+                           for label, fit in fits.items() if fit[1] == "nonlinear"}
+        return _grid_diagnostic(case, x_nl, bound, fits_bw, fits, out, timed, quick)
     first = fits.get("Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)")
     ds = case.train_sim.dataset
     steps = np.abs(np.diff(np.asarray(ds.q, dtype=float), axis=0))
@@ -904,7 +909,14 @@ def kalman_moving(case: _Case, x_nl, bound: _Case, fits_bw: dict, timed, quick: 
     out["moving"]["refused"].update(post_out["refused"])
     out["stribeck"] = {label: {leg: {"dF": f["Fs"] - f["Fc"], "vs": f["vs"]} for leg, f in fit[0].result.solver["stribeck"].items()}
                        for label, fit in {**fits, **post_fits}.items() if fit[1] == "nonlinear"}
-    # the refused fit at 2 mm/s, with the warm-start grid from its second v_S (tuned: a diagnostic)
+    return _grid_diagnostic(case, x_nl, bound, fits_bw, fits, out, timed, quick)
+
+
+def _grid_diagnostic(case: _Case, x_nl, bound: _Case, fits_bw: dict, fits: dict, out: dict, timed, quick: bool) -> dict:
+    """Section B10's last part: the refused fit at 2 mm/s with the warm-start grid from its second
+    v_S (:class:`_GridFromSecond`; tuned: a diagnostic), on both paths (the quick version: Kalman
+    only, without the floors)."""
+    setup, lin_label = case.setup, "WLS+LMI, min_velocity 2 v_S"
     out["grid"] = {}
     label = "Nonlinear (Opt.), min_velocity 2 mm/s, grid from 0.05"
     grid_sweep = setup["grid_sweep_quick" if quick else "grid_sweep"]
