@@ -145,9 +145,7 @@ RPS3 = {
     # section B10: the same description of the moving rows with Kalman-smoothed states (down to the
     # smoother's derived settings), and with the Stribeck warm-start grid from its second v_S
     "kalman_sweep": (0.0002, 0.0003, 0.0005, 0.001, 0.002, 0.003, 0.005, 0.0075, 0.01),
-    "kalman_sweep_quick": (0.0005, 0.002, 0.01),
     "grid_sweep": (0.002, 0.003, 0.005),
-    "grid_sweep_quick": (),
     "quick_no_stribeck_floor": ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)",  # nor these rows'
                                 "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "Nonlinear (Opt.), min_velocity v_S/10",
                                 "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)",
@@ -857,7 +855,9 @@ def kalman_moving(case: _Case, x_nl, bound: _Case, fits_bw: dict, timed, quick: 
     equivalent cut-off), the floors, the truth (the exact-state Stribeck fit ``x_nl`` on the
     Kalman-processed held-out states) and the noise as ``min_velocity`` rises; the processed states
     against the exact ones (:func:`state_errors`); and the refused 2 mm/s fit with the warm-start
-    grid from its second v_S (:class:`_GridFromSecond`), on both paths."""
+    grid from its second v_S (:class:`_GridFromSecond`), on both paths. The quick version fits only
+    the rule fixed in advance (v_S/10) and the smoother's 3 sigma_v, without the sweep, the post-hoc
+    rules and the grid's fits."""
     setup, lmi = case.setup, {"method": "wls", "physical_consistency": True}
     nl = {**lmi, "friction_model": "stribeck"}
     ks = kalman_settings(case)
@@ -875,10 +875,20 @@ def kalman_moving(case: _Case, x_nl, bound: _Case, fits_bw: dict, timed, quick: 
                  {"min_velocity": ks["min_velocity_3sigma"]}),
                 ("Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)", "nonlinear", False, {"min_velocity": mv_rev}),
                 ("Nonlinear (Opt.), min_velocity 2 mm/s", "nonlinear", True, {"min_velocity": [0.002]})]
-    if not quick:
+    if quick:  # the quick version: the rule fixed in advance and the product's derived one
+        settings = settings[:2]
+    else:
         settings.insert(1, ("WLS+LMI, min_velocity derived (3 sigma_v)", "linear", False,
                             {"min_velocity": ks["min_velocity_3sigma"]}))
-    sweep = setup["kalman_sweep_quick" if quick else "kalman_sweep"]
+    # why the 2 mm/s fit is refused: per leg, the largest dFs column entry exp(-(|v| / v_S)^2) over the
+    # training rows above 2 mm/s at the warm-start grid's first v_S (0.02 x the leg's RMS speed: the
+    # estimator's vs_grid) and at its second (0.05 x)
+    v = np.abs(np.asarray(o.train.dq))
+    rms, kept = np.sqrt(np.mean(v**2, axis=0)), v >= 0.002
+    out["grid_column"] = {c: [float(np.max(np.exp(-(v[kept[:, j], j] / (c * rms[j])) ** 2))) for j in range(v.shape[1])]
+                          for c in (0.02, 0.05)}
+    out["hump_band_rows"] = [int(np.sum(kept[:, j] & (v[:, j] < 0.01))) for j in range(v.shape[1])]
+    sweep = () if quick else setup["kalman_sweep"]
     out["moving"] = moving_rows(case, fits, bound, truth, timed, quick, extra=KALMAN, settings=settings, sweep=sweep,
                                 sweep_stribeck=() if quick else sweep)
     # two rules written down after the recorded draw's sweep above (so "post hoc", never in that draw's
@@ -889,7 +899,7 @@ def kalman_moving(case: _Case, x_nl, bound: _Case, fits_bw: dict, timed, quick: 
     if quick:  # (the quick version leaves them out)
         out["stribeck"] = {label: {leg: {"dF": f["Fs"] - f["Fc"], "vs": f["vs"]} for leg, f in fit[0].result.solver["stribeck"].items()}
                            for label, fit in fits.items() if fit[1] == "nonlinear"}
-        return _grid_diagnostic(case, x_nl, bound, fits_bw, fits, out, timed, quick)
+        return out
     first = fits.get("Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)")
     ds = case.train_sim.dataset
     steps = np.abs(np.diff(np.asarray(ds.q, dtype=float), axis=0))
@@ -914,16 +924,13 @@ def kalman_moving(case: _Case, x_nl, bound: _Case, fits_bw: dict, timed, quick: 
 
 def _grid_diagnostic(case: _Case, x_nl, bound: _Case, fits_bw: dict, fits: dict, out: dict, timed, quick: bool) -> dict:
     """Section B10's last part: the refused fit at 2 mm/s with the warm-start grid from its second
-    v_S (:class:`_GridFromSecond`; tuned: a diagnostic), on both paths (the quick version: Kalman
-    only, without the floors)."""
+    v_S (:class:`_GridFromSecond`; tuned: a diagnostic), on both paths (not in the quick version)."""
     setup, lin_label = case.setup, "WLS+LMI, min_velocity 2 v_S"
     out["grid"] = {}
     label = "Nonlinear (Opt.), min_velocity 2 mm/s, grid from 0.05"
-    grid_sweep = setup["grid_sweep_quick" if quick else "grid_sweep"]
+    grid_sweep = setup["grid_sweep"]
     with _GridFromSecond():
         for path, extra, lin in (("butterworth", {}, fits_bw[lin_label]), ("kalman", KALMAN, fits[lin_label])):
-            if quick and path == "butterworth":
-                continue
             out["grid"][path] = moving_rows(case, {lin_label: lin}, bound, _score(x_nl, lin[0]), timed, quick,
                                             extra=extra, settings=[(label, "nonlinear", True, {"min_velocity": [0.002]})],
                                             sweep=grid_sweep, sweep_stribeck=grid_sweep)
@@ -1305,7 +1312,11 @@ def kalman_table(res: dict, title: str) -> str:
                  f"{a['min_truth_ratio']:.2f}, lowest floor {a['min_floor_ratio']:.2f} x CAD")
     lines.append("the 2 mm/s fit (tuned) with the Stribeck warm-start grid of v_S from its second candidate (0.05 x the RMS "
                  "speed; the first, 0.02 x, leaves dFs a zero column above 2 mm/s):")
-    for path, g in k["grid"].items():
+    gc = k["grid_column"]
+    lines.append(f"  training rows per leg at 2-10 mm/s (the hump's band above 2 mm/s): {'/'.join(str(n) for n in k['hump_band_rows'])}; "
+                 f"largest dFs column entry above 2 mm/s (delta 2) at the grid's first v_S (0.02 x RMS speed) "
+                 f"{'/'.join(f'{x:.1e}' for x in gc[0.02])}, at its second (0.05 x) {'/'.join(f'{x:.1e}' for x in gc[0.05])}")
+    for path, g in k.get("grid", {}).items():
         for label, r in g["rows"].items():
             if r["kind"] == "nonlinear":
                 lines.append(f"  {path:<12}" + _moving_row_line(label, r))
