@@ -45,7 +45,10 @@ B. 3-RPS parallel twin (``builtin:rps3``, paper 000's robot; as examples/twins/r
    it, beside its whole-log error, CAD on the same rows and the held-out-fit floors (the linear
    structure by least squares, the Stribeck fit of the held-out log itself), the truth and the
    noise; two ``min_velocity`` values derived from the training log; a sweep of ``min_velocity``
-   describing the held-out log's moving rows.
+   describing the held-out log's moving rows. (10) the same with Kalman-smoothed states
+   (``processing.derivatives = "kalman"``, :func:`kalman_moving`) beside the Butterworth path: the
+   processed states against the exact ones, the settings the smoother derives, the sweep, and the
+   refused 2 mm/s Stribeck fit with the estimator's warm-start grid from its second v_S.
 
 Run: ``.venv/bin/python bench/physical_study.py`` (2 to 4 minutes on 2 cores; ``--quick``: a
 small version, used by the tests). The figures of the last full run are in bench/README.md.
