@@ -45,7 +45,10 @@ B. 3-RPS parallel twin (``builtin:rps3``, paper 000's robot; as examples/twins/r
    it, beside its whole-log error, CAD on the same rows and the held-out-fit floors (the linear
    structure by least squares, the Stribeck fit of the held-out log itself), the truth and the
    noise; two ``min_velocity`` values derived from the training log; a sweep of ``min_velocity``
-   describing the held-out log's moving rows.
+   describing the held-out log's moving rows. (10) the same with Kalman-smoothed states
+   (``processing.derivatives = "kalman"``, :func:`kalman_moving`) beside the Butterworth path: the
+   processed states against the exact ones, the settings the smoother derives, the sweep, and the
+   refused 2 mm/s Stribeck fit with the estimator's warm-start grid from its second v_S.
 
 Run: ``.venv/bin/python bench/physical_study.py`` (2 to 4 minutes on 2 cores; ``--quick``: a
 small version, used by the tests). The figures of the last full run are in bench/README.md.
@@ -142,8 +145,16 @@ RPS3 = {
     "moving_sweep": (0.0005, 0.001, 0.002, 0.003, 0.005, 0.0075, 0.01),
     "moving_sweep_quick": (0.0005, 0.002, 0.01),  # the quick version's sweep
     "moving_sweep_stribeck": (0.002,),  # the quick version fits the sweep's Stribeck floor at these only
+    # section B10: the same description of the moving rows with Kalman-smoothed states (down to the
+    # smoother's derived settings), and with the Stribeck warm-start grid from its second v_S
+    "kalman_sweep": (0.0002, 0.0003, 0.0005, 0.001, 0.002, 0.003, 0.005, 0.0075, 0.01),
+    "grid_sweep": (0.002, 0.003, 0.005),
     "quick_no_stribeck_floor": ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)",  # nor these rows'
                                 "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "Nonlinear (Opt.), min_velocity v_S/10",
+                                "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)",
+                                "Nonlinear (Opt.), min_velocity res * f_s (post hoc)",
+                                "Nonlinear (Opt.), min_velocity v_S-hat / 10 (post hoc)",
+                                "Nonlinear (Opt.), min_velocity 2 mm/s, grid from 0.05",
                                 "Nonlinear (Opt.), min_velocity v_S/10, guard 0.01 s",
                                 "Nonlinear (Opt.), min_velocity v_S/10, guard 0.02 s"),
 }
@@ -592,6 +603,7 @@ def limits(case: _Case, run: dict, folder: Path, quick: bool = False) -> dict:
                     "cad_fast": fast_sum(on_proc.measured, nom),
                     "exact_nonlinear_fast": fast_sum(on_proc.measured, on_proc.predicted)}
     out["moving"] = moving_rows(case, fits, bound, on_proc, timed, quick)
+    out["kalman"] = kalman_moving(case, x_nl, bound, fits, timed, quick)
     return out
 
 
@@ -608,7 +620,7 @@ def derived_min_velocity(case: _Case) -> list[float]:
     return [float(x) for x in d.min_velocity]
 
 
-def reversal_min_velocity(train) -> list[float]:
+def reversal_min_velocity(train, cutoff_hz=10.0) -> list[float]:
     """``min_velocity`` from the filter's time resolution and the motion at the reversals, from the
     processed training log alone: per actuator, the median |processed acceleration| at its velocity
     reversals times the 10 Hz low-pass's time constant 1/(2 pi f_c) (16 ms). Within about one time
@@ -621,11 +633,13 @@ def reversal_min_velocity(train) -> list[float]:
     for j in range(dq.shape[1]):
         pos = dq[:, j] >= 0
         flips = np.nonzero(pos[1:] != pos[:-1])[0]
-        out.append(float(np.median(np.abs(ddq[flips, j]))) / (2 * np.pi * 10.0))
+        f_c = float(np.broadcast_to(np.asarray(cutoff_hz, float), (dq.shape[1],))[j])
+        out.append(float(np.median(np.abs(ddq[flips, j]))) / (2 * np.pi * f_c))
     return out
 
 
-def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics, timed, quick: bool = False) -> dict:
+def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics, timed, quick: bool = False,
+                extra: dict | None = None, settings=None, sweep=None, sweep_stribeck=None) -> dict:
     """Issue 36, item 3: every fit with a ``min_velocity`` scored as a user judges it, on the
     held-out rows above that ``min_velocity`` (the processed speed of each actuator equation,
     :func:`dynid.pipeline.data.velocity_mask`; the reversal guard of a row is a training choice and
@@ -637,7 +651,12 @@ def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics,
     log itself with that ``min_velocity``, scored on those rows. Also the truth (the exact-state
     Stribeck fit) and the noise on those rows. The set-up's ``min_velocity`` values are fixed in
     advance; two more fits use the one ``dynid init`` derives from the training log
-    (:func:`derived_min_velocity`)."""
+    (:func:`derived_min_velocity`).
+
+    Section B10 (:func:`kalman_moving`) reuses it on another processing: ``extra`` (e.g.
+    ``{"derivatives": "kalman"}``) goes into every fit's and floor's ``[processing]``, ``settings``
+    replaces the derived fits (``(label, kind, tuned, processing)``, with ``"derived"``: the
+    derived values to report), ``sweep`` / ``sweep_stribeck`` the set-up's sweep values."""
     from dynid.pipeline.held_out_floor import pooled_rmse
     from dynid.pipeline.outcome import RowSelection
     from dynid.pipeline.validation import validate_with_prior
@@ -645,17 +664,21 @@ def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics,
     lmi = {"method": "wls", "physical_consistency": True}
     nl = {**lmi, "friction_model": "stribeck"}
     linear = next(f[0] for f in fits.values() if f[1] == "linear")  # any linear fit: the floor's regressor
-    mv = derived_min_velocity(case)
-    mv_rev = reversal_min_velocity(linear.train)
-    out: dict = {"derived_min_velocity": mv, "reversal_min_velocity": mv_rev, "rows": {}, "refused": {}}
-    for label, kind, tuned, processing in (
-            ("WLS+LMI, min_velocity derived (3 sigma_v)", "linear", False, {"min_velocity": mv}),
-            ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)", "nonlinear", False, {"min_velocity": mv}),
-            ("Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "nonlinear", False, {"min_velocity": mv_rev}),
-            ("Nonlinear (Opt.), min_velocity 2 mm/s", "nonlinear", True, {"min_velocity": [0.002]})):
+    extra = extra or {}
+    if settings is None:
+        mv = derived_min_velocity(case)
+        mv_rev = reversal_min_velocity(linear.train)
+        out: dict = {"derived_min_velocity": mv, "reversal_min_velocity": mv_rev, "rows": {}, "refused": {}}
+        settings = (("WLS+LMI, min_velocity derived (3 sigma_v)", "linear", False, {"min_velocity": mv}),
+                    ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)", "nonlinear", False, {"min_velocity": mv}),
+                    ("Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "nonlinear", False, {"min_velocity": mv_rev}),
+                    ("Nonlinear (Opt.), min_velocity 2 mm/s", "nonlinear", True, {"min_velocity": [0.002]}))
+    else:
+        out = {"rows": {}, "refused": {}}
+    for label, kind, tuned, processing in settings:
         try:
             fits[label] = (timed(label, lambda kind=kind, processing=processing: case.identify(
-                lmi if kind == "linear" else nl, processing)), kind, processing, tuned)
+                lmi if kind == "linear" else nl, {**extra, **processing})), kind, processing, tuned)
         except DynidError as exc:
             out["refused"][label] = str(exc).splitlines()[0]
             print(f"  B9 {label}: refused ({out['refused'][label]})", flush=True)
@@ -668,7 +691,7 @@ def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics,
         if mvs not in stribeck_floor:
             try:
                 f = timed(f"floor Stribeck, min_velocity {[round(x, 6) for x in mvs]}",
-                          lambda: bound.identify(nl, {"min_velocity": list(mvs)}))
+                          lambda: bound.identify(nl, {**extra, "min_velocity": list(mvs)}))
                 m = f.selected.metrics
                 stribeck_floor[mvs] = (float(m.rmse.sum()), pooled_rmse(m.rmse, m.rows_per_channel), m.kept)
             except DynidError as exc:
@@ -725,7 +748,10 @@ def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics,
     # where the floors, the truth and the noise lie against 0.5 x CAD as min_velocity rises (a
     # diagnostic of the held-out log: no fit is chosen from it)
     out["sweep"] = []
-    for v in case.setup["moving_sweep_quick" if quick else "moving_sweep"]:
+    sweep = case.setup["moving_sweep_quick" if quick else "moving_sweep"] if sweep is None else sweep
+    if sweep_stribeck is None:
+        sweep_stribeck = case.setup["moving_sweep_stribeck" if quick else "moving_sweep"]
+    for v in sweep:
         mvs = (float(v),) * len(case.actuators)
         lin = linear_of(mvs)
         kept = lin.metrics.kept
@@ -736,7 +762,7 @@ def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics,
 
         entry = {"min_velocity": float(v), "cad": float(lin.nominal.rmse.sum()), "floor_linear": float(lin.floor.rmse.sum()),
                  "truth": masked_(truth.predicted), "noise": masked_(clean), "kept_pct": (100 * kept.mean(axis=0)).tolist()}
-        if v in case.setup["moving_sweep_stribeck" if quick else "moving_sweep"] or mvs in stribeck_floor:
+        if v in sweep_stribeck or mvs in stribeck_floor:
             fl = floor_of(mvs)
             if isinstance(fl, str):
                 entry["floor_stribeck_refused"] = fl
@@ -761,6 +787,157 @@ def moving_acceptance(mov: dict) -> dict:
             "floor_stribeck_ratio": r["floor_stribeck"] / r["cad"] if "floor_stribeck" in r else None,
             "min_truth_ratio": min(x["truth"] / x["cad"] for x in rows.values()),
             "min_floor_ratio": min(min(x["floor_linear"], x.get("floor_stribeck", np.inf)) / x["cad"] for x in rows.values())}
+
+
+# ---------------------------------------------------------------------- B10: the moving rows with Kalman-smoothed states
+KALMAN = {"derivatives": "kalman"}  # the RTS smoother of dynid.signals.kalman (noise by maximum likelihood)
+
+
+def kalman_settings(case: _Case) -> dict:
+    """What the Kalman path's smoother reads from the training log alone (per actuator): its noise
+    ratio :math:`\\lambda` (maximum likelihood), the equivalent cut-off
+    :math:`f_K = \\lambda^{-1/8} / (2 \\pi T)` (dynid.signals.kalman's module docstring, white noise
+    in the 4th derivative: the steady-state smoother is the Wiener smoother
+    :math:`1 / (1 + (f / f_K)^8)`, the magnitude of a zero-phase 4th-order Butterworth at
+    :math:`f_K`), its own steady-state velocity std :math:`\\sigma_v` and the ``min_velocity`` it
+    gives as ``dynid init`` derives one (:data:`~dynid.pipeline.processing_choice.NOISE_SIGMAS`
+    :math:`\\sigma_v`)."""
+    from dynid.pipeline.processing_choice import NOISE_SIGMAS
+    from dynid.signals.kalman import ORDER, smooth
+
+    ds = case.train_sim.dataset
+    dt = float(np.median(np.diff(np.asarray(ds.t))))
+    k = smooth(np.asarray(ds.q, dtype=float), dt)
+    return {"ratio": k.ratio.tolist(), "noise_std": k.noise_std.tolist(), "sigma_v": k.std[:, 1].tolist(),
+            "cutoff_hz": (k.ratio ** (-1.0 / (2 * ORDER)) / (2 * np.pi * dt)).tolist(),
+            "min_velocity_3sigma": (NOISE_SIGMAS * k.std[:, 1]).tolist()}
+
+
+def state_errors(case: _Case, held_out) -> dict:
+    """RMS of the processed held-out velocities and accelerations minus the simulation's exact ones,
+    per actuator, on every row and on the rows whose true speed is below v_S (the reversals)."""
+    m, sig = case.valid_sim.motion, case.valid_sim.signals
+    act = [int(np.argmin(np.abs(m.q - sig.q[:, [k]]).max(axis=0))) for k in range(sig.q.shape[1])]
+    t = np.asarray(held_out.t)
+    i = np.clip(np.searchsorted(m.t, t - 1e-9), 0, m.t.size - 1)
+    if np.max(np.abs(m.t[i] - t)) > 1e-9:
+        raise RuntimeError("held-out rows off the simulation's instants")
+    dq, ddq = m.dq[i][:, act], m.ddq[i][:, act]
+    slow = np.abs(dq) < case.setup["robot"]["friction"]["vs"]
+
+    def rms(e, w=None):
+        w = np.ones_like(e, dtype=bool) if w is None else w
+        return np.sqrt(np.sum(np.where(w, e, 0.0) ** 2, axis=0) / w.sum(axis=0)).tolist()
+
+    ev, ea = np.asarray(held_out.dq) - dq, np.asarray(held_out.ddq) - ddq
+    return {"dq": rms(ev), "dq_slow": rms(ev, slow), "ddq": rms(ea), "ddq_slow": rms(ea, slow)}
+
+
+class _GridFromSecond:
+    """Section B10's diagnostic of the refused 2 mm/s fit: the Stribeck estimator's warm-start grid of
+    v_S without its smallest candidate (0.02 x the RMS speed). With ``min_velocity`` well above that
+    v_S the candidate's dFs column, exp(-(|v| / v_S)^delta) on the kept rows, is numerically zero
+    (e.g. exp(-(2 / 0.38)^2) = 4e-13 on the training log's P3) and the warm start refuses the whole
+    fit; the other candidates nest that model (dFs = 0), so the grid without it loses nothing. A
+    patch of the bench only (``dynid.pipeline.stribeck.estimator``), restored on exit."""
+
+    def __enter__(self):
+        self.orig = stribeck.estimator
+        stribeck.estimator = lambda cfg: dataclasses.replace(self.orig(cfg), vs_grid=self.orig(cfg).vs_grid[1:])
+        return self
+
+    def __exit__(self, *exc):
+        stribeck.estimator = self.orig
+
+
+def kalman_moving(case: _Case, x_nl, bound: _Case, fits_bw: dict, timed, quick: bool = False) -> dict:
+    """Section B10 (issue 36, item 3; bench/README "B10"): section B9's diagnostic with the Kalman
+    path (``processing.derivatives = "kalman"``) beside the Butterworth one: the same fits fixed in
+    advance, the settings the smoother derives from the training log (:func:`kalman_settings`: 3
+    sigma of its own velocity std; a_rev / (2 pi f_K), B9's reversal rule at the smoother's
+    equivalent cut-off), the floors, the truth (the exact-state Stribeck fit ``x_nl`` on the
+    Kalman-processed held-out states) and the noise as ``min_velocity`` rises; the processed states
+    against the exact ones (:func:`state_errors`); and the refused 2 mm/s fit with the warm-start
+    grid from its second v_S (:class:`_GridFromSecond`), on both paths. The quick version fits only
+    the rule fixed in advance (v_S/10) and the smoother's 3 sigma_v, without the sweep, the post-hoc
+    rules and the grid's fits."""
+    setup, lmi = case.setup, {"method": "wls", "physical_consistency": True}
+    nl = {**lmi, "friction_model": "stribeck"}
+    ks = kalman_settings(case)
+    fits: dict = {}
+    lin_label = "WLS+LMI, min_velocity 2 v_S"
+    o = timed(f"Kalman {lin_label}", lambda: case.identify(lmi, {**KALMAN, **setup["linear_processing"]}))
+    fits[lin_label] = (o, "linear", setup["linear_processing"], False)
+    truth = _score(x_nl, o)  # the truth's model on the Kalman-processed held-out states
+    mv_rev = reversal_min_velocity(o.train, ks["cutoff_hz"])
+    out: dict = {"settings": {**ks, "reversal_min_velocity": mv_rev},
+                 "states": {"butterworth": state_errors(case, fits_bw[lin_label][0].held_out),
+                            "kalman": state_errors(case, o.held_out)}}
+    settings = [("Nonlinear (Opt.), min_velocity v_S/10", "nonlinear", False, setup["stribeck_processing_mv"]),
+                ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)", "nonlinear", False,
+                 {"min_velocity": ks["min_velocity_3sigma"]}),
+                ("Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)", "nonlinear", False, {"min_velocity": mv_rev}),
+                ("Nonlinear (Opt.), min_velocity 2 mm/s", "nonlinear", True, {"min_velocity": [0.002]})]
+    if quick:  # the quick version: the rule fixed in advance and the product's derived one
+        settings = settings[:2]
+    else:
+        settings.insert(1, ("WLS+LMI, min_velocity derived (3 sigma_v)", "linear", False,
+                            {"min_velocity": ks["min_velocity_3sigma"]}))
+    # why the 2 mm/s fit is refused: per leg, the largest dFs column entry exp(-(|v| / v_S)^2) over the
+    # training rows above 2 mm/s at the warm-start grid's first v_S (0.02 x the leg's RMS speed: the
+    # estimator's vs_grid) and at its second (0.05 x)
+    v = np.abs(np.asarray(o.train.dq))
+    rms, kept = np.sqrt(np.mean(v**2, axis=0)), v >= 0.002
+    out["grid_column"] = {c: [float(np.max(np.exp(-(v[kept[:, j], j] / (c * rms[j])) ** 2))) for j in range(v.shape[1])]
+                          for c in (0.02, 0.05)}
+    out["hump_band_rows"] = [int(np.sum(kept[:, j] & (v[:, j] < 0.01))) for j in range(v.shape[1])]
+    sweep = () if quick else setup["kalman_sweep"]
+    out["moving"] = moving_rows(case, fits, bound, truth, timed, quick, extra=KALMAN, settings=settings, sweep=sweep,
+                                sweep_stribeck=() if quick else sweep)
+    # two rules written down after the recorded draw's sweep above (so "post hoc", never in that draw's
+    # verdict; other draws test them): one encoder count per sample, res * f_s (the smallest
+    # nonzero position step of the training log times its rate: below it the positions change by
+    # less than a count a sample and the velocity is the smoother's model, not the data), and
+    # v_S-hat / 10 (B8's a-priori Stribeck rule with the v_S of the first derived fit, a_rev / (2 pi f_K))
+    if quick:  # (the quick version leaves them out)
+        out["stribeck"] = {label: {leg: {"dF": f["Fs"] - f["Fc"], "vs": f["vs"]} for leg, f in fit[0].result.solver["stribeck"].items()}
+                           for label, fit in fits.items() if fit[1] == "nonlinear"}
+        return out
+    first = fits.get("Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)")
+    ds = case.train_sim.dataset
+    steps = np.abs(np.diff(np.asarray(ds.q, dtype=float), axis=0))
+    res_fs = [float(np.min(c[c > 0])) / float(np.median(np.diff(np.asarray(ds.t)))) for c in steps.T]
+    post = [("Nonlinear (Opt.), min_velocity res * f_s (post hoc)", "nonlinear", True, {"min_velocity": res_fs})]
+    if first is not None:
+        vs_hat = [float(f["vs"]) for f in first[0].result.solver["stribeck"].values()]
+        post.append(("Nonlinear (Opt.), min_velocity v_S-hat / 10 (post hoc)", "nonlinear", True,
+                     {"min_velocity": [v / 10 for v in vs_hat]}))
+        out["settings"]["vs_hat"] = vs_hat
+    out["settings"]["res_fs"] = res_fs
+    post_fits = {lin_label: fits[lin_label]}
+    post_out = moving_rows(case, post_fits, bound, truth, timed, quick, extra=KALMAN, settings=post, sweep=())
+    for label, r in post_out["rows"].items():
+        if label != lin_label:
+            out["moving"]["rows"][label] = r
+    out["moving"]["refused"].update(post_out["refused"])
+    out["stribeck"] = {label: {leg: {"dF": f["Fs"] - f["Fc"], "vs": f["vs"]} for leg, f in fit[0].result.solver["stribeck"].items()}
+                       for label, fit in {**fits, **post_fits}.items() if fit[1] == "nonlinear"}
+    return _grid_diagnostic(case, x_nl, bound, fits_bw, fits, out, timed, quick)
+
+
+def _grid_diagnostic(case: _Case, x_nl, bound: _Case, fits_bw: dict, fits: dict, out: dict, timed, quick: bool) -> dict:
+    """Section B10's last part: the refused fit at 2 mm/s with the warm-start grid from its second
+    v_S (:class:`_GridFromSecond`; tuned: a diagnostic), on both paths (not in the quick version)."""
+    setup, lin_label = case.setup, "WLS+LMI, min_velocity 2 v_S"
+    out["grid"] = {}
+    label = "Nonlinear (Opt.), min_velocity 2 mm/s, grid from 0.05"
+    grid_sweep = setup["grid_sweep"]
+    with _GridFromSecond():
+        for path, extra, lin in (("butterworth", {}, fits_bw[lin_label]), ("kalman", KALMAN, fits[lin_label])):
+            out["grid"][path] = moving_rows(case, {lin_label: lin}, bound, _score(x_nl, lin[0]), timed, quick,
+                                            extra=extra, settings=[(label, "nonlinear", True, {"min_velocity": [0.002]})],
+                                            sweep=grid_sweep, sweep_stribeck=grid_sweep)
+    return out
 
 
 # ---------------------------------------------------------------------- the two parts
@@ -1083,6 +1260,77 @@ def moving_table(res: dict, title: str) -> str:
     return "\n".join(lines)
 
 
+def _moving_row_line(label: str, r: dict) -> str:
+    fs = f"{r['floor_stribeck']:>10.2f}" if "floor_stribeck" in r else f"{('refused' if 'floor_stribeck_refused' in r else '-'):>10}"
+    return (f"{('*tuned* ' if r['tuned'] else '') + label:<60}{r['whole']:>8.2f}{r['whole_cad']:>8.2f}{r['total']:>8.2f}"
+            f"{r['cad']:>8.2f}{r['ratio']:>7.2f}{r['floor_linear']:>10.2f}{fs}{r['truth']:>7.2f}{r['noise']:>7.2f}  "
+            + "/".join(f"{k:.0f}" for k in r["kept_pct"]))
+
+
+def kalman_table(res: dict, title: str) -> str:
+    lim = res["runs"][0]["limits"]
+    k, bw = lim["kalman"], lim["moving"]
+    ks = k["settings"]
+    mm = lambda xs: "/".join(f"{1000 * x:.3g}" for x in xs)  # noqa: E731
+    lines = [title,
+             f"the smoother on the training log: noise ratio {'/'.join(f'{x:.3g}' for x in ks['ratio'])}, equivalent cut-off "
+             f"f_K {'/'.join(f'{x:.3g}' for x in ks['cutoff_hz'])} Hz (Butterworth path: 10 Hz), position noise "
+             f"{'/'.join(f'{x:.2g}' for x in ks['noise_std'])} m, velocity std {mm(ks['sigma_v'])} mm/s; derived min_velocity: "
+             f"3 sigma_v {mm(ks['min_velocity_3sigma'])} mm/s, a_rev / (2 pi f_K) {mm(ks['reversal_min_velocity'])} mm/s",
+             "processed held-out states minus exact, RMS per leg (all rows | true speed below v_S):"]
+    for path, e in k["states"].items():
+        lines.append(f"  {path:<12} dq [mm/s] {mm(e['dq'])} | {mm(e['dq_slow'])}   ddq [m/s^2] "
+                     f"{'/'.join(f'{x:.3f}' for x in e['ddq'])} | {'/'.join(f'{x:.3f}' for x in e['ddq_slow'])}")
+    lines.append(f"{'row (training selection), Kalman-smoothed states':<60}{'whole':>8}{'CAD':>8}{'moving':>8}{'CAD':>8}"
+                 f"{'/ CAD':>7}{'floor lin':>10}{'floor Str':>10}{'truth':>7}{'noise':>7}  kept %")
+    for label, r in k["moving"]["rows"].items():
+        lines.append(_moving_row_line(label, r))
+    for label, why in k["moving"]["refused"].items():
+        lines.append(f"{label:<60}refused: {why}")
+    lines.append("the Stribeck fits' humps F_S - F_C [N] and v_S [mm/s] per leg (truth 72 N, 5 mm/s): " + "; ".join(
+        f"{label.replace('Nonlinear (Opt.), min_velocity ', '')}: " + ", ".join(f"{f['dF']:.0f}/{1000 * f['vs']:.2g}" for f in st.values())
+        for label, st in k["stribeck"].items()))
+    if "vs_hat" in ks:
+        lines.append(f"post hoc rules: res * f_s {mm(ks['res_fs'])} mm/s; v_S-hat / 10 {mm([v / 10 for v in ks['vs_hat']])} mm/s")
+    lines.append("the held-out log's moving rows as min_velocity rises, each / CAD on the same rows: Kalman | Butterworth (B9)")
+    lines.append(f"  {'min_velocity [mm/s]':>20}{'CAD [N]':>9}{'floor lin':>10}{'floor Str':>10}{'truth':>7}{'noise':>7}   |"
+                 f"{'CAD [N]':>9}{'floor Str':>10}{'truth':>7}  kept % (Kalman)")
+    bws = {e["min_velocity"]: e for e in bw["sweep"]}
+
+    def fstr(e):
+        return (f"{e['floor_stribeck'] / e['cad']:>10.2f}" if "floor_stribeck" in e else
+                f"{('refused' if 'floor_stribeck_refused' in e else '-'):>10}")
+    for e in k["moving"]["sweep"]:
+        b = bws.get(e["min_velocity"])
+        right = f"{b['cad']:>9.2f}{fstr(b)}{b['truth'] / b['cad']:>7.2f}" if b else f"{'':>26}"
+        lines.append(f"  {1000 * e['min_velocity']:>20.3g}{e['cad']:>9.2f}{e['floor_linear'] / e['cad']:>10.2f}{fstr(e)}"
+                     f"{e['truth'] / e['cad']:>7.2f}{e['noise'] / e['cad']:>7.2f}   |{right}  "
+                     + "/".join(f"{x:.0f}" for x in e["kept_pct"]))
+    a = moving_acceptance(k["moving"])
+    fs = "-" if a["floor_stribeck_ratio"] is None else f"{a['floor_stribeck_ratio']:.2f}"
+    lines.append(f"issue 36 item 3 with Kalman-smoothed states (untuned rows): best Stribeck row {a['best_nonlinear']!r} "
+                 f"{a['best_nonlinear_ratio']:.2f} x CAD: {'met' if a['nonlinear_ok'] else 'NOT met'} (on its rows: floor "
+                 f"Stribeck {fs}, truth {a['truth_ratio']:.2f}, noise {a['noise_ratio']:.2f} x CAD); best linear row "
+                 f"{a['best_linear']!r} {a['best_linear_ratio']:.2f} x CAD; lowest truth on any untuned row's rows "
+                 f"{a['min_truth_ratio']:.2f}, lowest floor {a['min_floor_ratio']:.2f} x CAD")
+    lines.append("the 2 mm/s fit (tuned) with the Stribeck warm-start grid of v_S from its second candidate (0.05 x the RMS "
+                 "speed; the first, 0.02 x, leaves dFs a zero column above 2 mm/s):")
+    gc = k["grid_column"]
+    lines.append(f"  training rows per leg at 2-10 mm/s (the hump's band above 2 mm/s): {'/'.join(str(n) for n in k['hump_band_rows'])}; "
+                 f"largest dFs column entry above 2 mm/s (delta 2) at the grid's first v_S (0.02 x RMS speed) "
+                 f"{'/'.join(f'{x:.1e}' for x in gc[0.02])}, at its second (0.05 x) {'/'.join(f'{x:.1e}' for x in gc[0.05])}")
+    for path, g in k.get("grid", {}).items():
+        for label, r in g["rows"].items():
+            if r["kind"] == "nonlinear":
+                lines.append(f"  {path:<12}" + _moving_row_line(label, r))
+        for label, why in g["refused"].items():
+            lines.append(f"  {path:<12}{label}: refused: {why}")
+        lines.append(f"  {path:<12}Stribeck floor / CAD on the moving rows (grid from 0.05): " + ", ".join(
+            f"{1000 * e['min_velocity']:.3g} mm/s " + (f"{e['floor_stribeck'] / e['cad']:.2f}" if "floor_stribeck" in e else
+                                                       "refused") + f" (truth {e['truth'] / e['cad']:.2f})" for e in g["sweep"]))
+    return "\n".join(lines)
+
+
 def print_part(res: dict, part: str) -> None:
     name = "cobot6r (6R serial)" if res["robot"] == "cobot6r" else "rps3 (3-RPS parallel)"
     unit = "N*m" if res["robot"] == "cobot6r" else "N"
@@ -1099,6 +1347,8 @@ def print_part(res: dict, part: str) -> None:
         print(limits_table(res, f"{part}8. {name}: what limits the held-out Sum (issue 17, item 5) [{unit}]"), "\n")
         print(moving_table(res, f"{part}9. {name}: scored on the moving rows, beside the whole log and the held-out-fit "
                                 f"floor (issue 36, item 3) [{unit}]"), "\n")
+        print(kalman_table(res, f"{part}10. {name}: the moving rows with Kalman-smoothed states (issue 36, item 3) "
+                                f"[{unit}]"), "\n")
     if "rich" in res:
         print(contrast_table(res["rich"], f"{part}7. {name}: a rich training log (5 harmonics, 60 % of the ranges)"), "\n")
     sys.stdout.flush()
