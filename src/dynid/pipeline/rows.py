@@ -48,7 +48,8 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
             chunk_size: int = 20000, progress: Progress = _no_progress, task: str = "compress",
             periodic=None, reversal_guard: float | None = None,
             min_velocity: tuple[float, ...] | None = None, keep: np.ndarray | None = None,
-            joint_q: FloatArray | None = None, project: FloatArray | None = None) -> Iterator[Chunk]:
+            joint_q: FloatArray | None = None, project: FloatArray | None = None,
+            tap: Callable[[int, int, FloatArray, Any], None] | None = None) -> Iterator[Chunk]:
     """Yield the rows of ``ds`` chunk by chunk, at full rate or parallel-decimated.
 
     Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
@@ -75,6 +76,12 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     torques, ``m = 1``). Decimated, the product is formed at full rate and then filtered: the filter
     is linear, so this is the filtered regressor times ``project`` to rounding, at the cost of
     filtering ``m`` columns per channel instead of ``r``.
+
+    ``tap(a, b, W, rows)``: parallel decimation only, called with every full-rate block (input rows
+    ``a:b``, its base regressor ``W`` and the :class:`~dynid.model.system.Rows`) before it is
+    filtered: what a caller needs at the full rate of the same rows, without computing them again
+    (the held-out scores at the log's rate, :func:`~dynid.pipeline.validation.score_held_out`). The
+    blocks are those of the full-rate chunks (:data:`CHUNK_BYTES`), so ``W`` is what they would give.
     """
     if periodic is not None and periodic.domain == "pose":
         if reversal_guard is not None:
@@ -108,7 +115,7 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     if n <= 2 * k:
         raise InputError(f"{n} samples are too few to decimate by {k}")
     yield from _parallel_chunks(system, base, ds, force_model, k, sos, margin, size, rows, guard, joint_q,
-                                progress, task, project)
+                                progress, task, project, tap)
 
 
 CHUNK_BYTES = 8 * 2**20
@@ -119,7 +126,8 @@ the rows it holds, ``out_rows + margin`` of the packed columns, follow from it."
 def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, k: int,
                      sos: FloatArray, margin: int, size: int, rows, guard: np.ndarray | None,
                      joint_q: FloatArray | None, progress: Progress, task: str,
-                     project: FloatArray | None = None) -> Iterator[Chunk]:
+                     project: FloatArray | None = None,
+                     tap: Callable[[int, int, FloatArray, Any], None] | None = None) -> Iterator[Chunk]:
     """The parallel-decimated chunks of :func:`_chunks`, streamed (:class:`~dynid.signals.streamed.StreamedDecimation`):
     the base-regressor rows, outputs and velocities are computed in blocks of about
     :data:`CHUNK_BYTES`, packed side by side as the columns of one signal, low-passed and decimated
@@ -152,6 +160,8 @@ def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_mo
         b = min(a + block, n)
         rr = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
         Wb = base.regressor(rr.W)
+        if tap is not None:
+            tap(a, b, Wb, rr)
         fields = {"W": Wb if project is None else Wb @ project, "y": rr.y, "dq": ds.dq[a:b], "joint_dq": rr.joint_dq,
                   "tau": None if rr.Ga is None else ds.tau[a:b]}
         fields = {key: np.asarray(v, dtype=float).reshape(b - a, -1) for key, v in fields.items() if v is not None}
