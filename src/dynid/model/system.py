@@ -119,10 +119,12 @@ _BASE_LOCK = threading.Lock()
 def cached_base_parameters(owner: Any, key: tuple, compute: Callable[[], BaseParameters]) -> BaseParameters:
     """The base parameters of ``owner`` for the settings ``key``, computed once (issue 37, item 5).
 
-    An identify computed them up to three times for the same model: for the processing's and the
-    drive gains' row counts, twice in the structure decision (full and tied model) and once more
-    for the identification itself, each a full random-state regressor stack and pivoted QR
-    (:func:`~dynid.model.base_parameters.compute_base_parameters`).
+    Each computation is a random-state regressor stack and a pivoted QR
+    (:func:`~dynid.model.base_parameters.compute_base_parameters`: 0.9 s for a Stewart platform). An
+    identify asks more than once for the same model's: the structure decision of
+    ``identification.structure = "auto"`` computes the full and the tied model's, then the
+    identification asks for the chosen one's (a third computation before this cache); the drive
+    gains and the processing's message ask too.
 
     The cache is keyed on the **object** that defines the regressor, held weakly: the
     :class:`~dynid.model.robot.RobotModel` of a serial arm (frozen; a different Coulomb width,
@@ -130,7 +132,7 @@ def cached_base_parameters(owner: Any, key: tuple, compute: Callable[[], BasePar
     of a mechanism (frozen; its structure -- the tied or full parameters -- and its chart are a new
     system), plus ``key``: the force model, random-state count, seed and rank tolerance. Two
     objects never share an entry, even when equal, so a result is only reused for the very model
-    it was computed from; the entry goes when the model does (nothing outlives a run)."""
+    it was computed from; the entry goes when the model does."""
     try:
         with _BASE_LOCK:
             hit = _BASE_CACHE.get(owner, {}).get(key)
