@@ -36,7 +36,9 @@ mechanism has identical kinematic chains whose bodies may share parameters
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import threading
+import weakref
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -53,7 +55,8 @@ from dynid.model.serial_dynamics import regressor
 from dynid.model.robot import RobotModel, _normalize_extras, joint_kinds
 from dynid.model.transmission import Transmission
 
-__all__ = ["ClosedLoopSystem", "Rows", "SerialSystem", "System", "as_system", "with_actuator_extras", "with_motor_terms"]
+__all__ = ["ClosedLoopSystem", "Rows", "SerialSystem", "System", "as_system", "cached_base_parameters",
+           "with_actuator_extras", "with_motor_terms"]
 
 EXTRA_KINDS = {"Ia": "inertia", "fv": "viscous", "fc": "coulomb", "offset": "offset", "fv+": "viscous+",
                "fv-": "viscous-", "fc+": "coulomb+", "fc-": "coulomb-"}
@@ -107,6 +110,39 @@ class System(Protocol):
     def with_coulomb_width(self, actuator_width: Sequence[float] | None) -> System: ...
     def reduce_parameters(self, pi: FloatArray) -> FloatArray: ...
     def expand_parameters(self, params: FloatArray) -> FloatArray: ...
+
+
+_BASE_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_BASE_LOCK = threading.Lock()
+
+
+def cached_base_parameters(owner: Any, key: tuple, compute: Callable[[], BaseParameters]) -> BaseParameters:
+    """The base parameters of ``owner`` for the settings ``key``, computed once (issue 37, item 5).
+
+    Each computation is a random-state regressor stack and a pivoted QR
+    (:func:`~dynid.model.base_parameters.compute_base_parameters`: 0.9 s for a Stewart platform). An
+    identify asks more than once for the same model's: the structure decision of
+    ``identification.structure = "auto"`` computes the full and the tied model's, then the
+    identification asks for the chosen one's (a third computation before this cache); the drive
+    gains and the processing's message ask too.
+
+    The cache is keyed on the **object** that defines the regressor, held weakly: the
+    :class:`~dynid.model.robot.RobotModel` of a serial arm (frozen; a different Coulomb width,
+    payload, transmission or extras is a new model from ``replace``), the :class:`ClosedLoopSystem`
+    of a mechanism (frozen; its structure -- the tied or full parameters -- and its chart are a new
+    system), plus ``key``: the force model, random-state count, seed and rank tolerance. Two
+    objects never share an entry, even when equal, so a result is only reused for the very model
+    it was computed from; the entry goes when the model does."""
+    try:
+        with _BASE_LOCK:
+            hit = _BASE_CACHE.get(owner, {}).get(key)
+    except TypeError:  # an owner that cannot be weakly referenced: no cache
+        return compute()
+    if hit is not None:
+        return hit
+    base = compute()  # outside the lock: another thread may compute the same once more, never a wrong one
+    with _BASE_LOCK:
+        return _BASE_CACHE.setdefault(owner, {}).setdefault(key, base)
 
 
 def _velocity_unit(kind: str) -> str:
@@ -188,7 +224,9 @@ class SerialSystem:
 
     def base_parameters(self, force_model: str | None = None, *, n_samples: int | None = None,
                         seed: int = 0, rank_tol: float = 1e-8) -> BaseParameters:
-        return robot_base_parameters(self.model, n_samples=n_samples, seed=seed, rank_tol=rank_tol)
+        return cached_base_parameters(
+            self.model, (n_samples, seed, rank_tol),
+            lambda: robot_base_parameters(self.model, n_samples=n_samples, seed=seed, rank_tol=rank_tol))
 
     def standard_map(self, base: BaseParameters) -> StandardMap:
         return StandardMap.of(self.model, base)
@@ -395,8 +433,11 @@ class ClosedLoopSystem:
 
     def base_parameters(self, force_model: str | None = None, *, n_samples: int | None = None,
                         seed: int = 0, rank_tol: float = 1e-8) -> BaseParameters:
-        return mechanism_base_parameters(self.model, distribution=force_model if self.redundant else None,
-                                         n_samples=n_samples, seed=seed, rank_tol=rank_tol, reduction=self.reduction)
+        distribution = force_model if self.redundant else None
+        return cached_base_parameters(
+            self, (distribution, n_samples, seed, rank_tol),
+            lambda: mechanism_base_parameters(self.model, distribution=distribution, n_samples=n_samples, seed=seed,
+                                              rank_tol=rank_tol, reduction=self.reduction))
 
     def standard_map(self, base: BaseParameters) -> StandardMap:
         m, red = self.model, self.reduction

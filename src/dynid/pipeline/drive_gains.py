@@ -57,9 +57,9 @@ def estimate_drive_gains(system: System, base: BaseParameters, train: Dataset, f
     nominal = base.from_standard(system.nominal_parameters())
     ys, ts, vs = [], [], []
     for c in _chunks(system, base, train, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
-                     task="drive gains"):
+                     task="drive gains", project=nominal[:, None]):  # only the nominal torques are filtered
         ys.append(c.y)
-        ts.append(c.W @ nominal)
+        ts.append(c.W[..., 0])
         vs.append(c.dq)
     u, tau, dq = np.concatenate(ys), np.concatenate(ts), np.concatenate(vs)
     cur = np.linalg.solve(C.T, u.T).T  # the currents (the efforts are C^T i at unit gains)

@@ -48,7 +48,8 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
             chunk_size: int = 20000, progress: Progress = _no_progress, task: str = "compress",
             periodic=None, reversal_guard: float | None = None,
             min_velocity: tuple[float, ...] | None = None, keep: np.ndarray | None = None,
-            joint_q: FloatArray | None = None) -> Iterator[Chunk]:
+            joint_q: FloatArray | None = None, project: FloatArray | None = None,
+            tap: Callable[[int, int, FloatArray, Any], None] | None = None) -> Iterator[Chunk]:
     """Yield the rows of ``ds`` chunk by chunk, at full rate or parallel-decimated.
 
     Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
@@ -69,13 +70,26 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
 
     ``joint_q`` (n, n_v): all joint positions of a mechanism where known (a simulated motion,
     :mod:`dynid.pipeline.control_loop`), the starting points of its position solve.
+
+    ``project`` (r, m): the chunks carry ``W @ project`` (n, n_ch, m) instead of the base regressor,
+    for a caller that needs only ``m`` combinations of its columns (the drive gains: the nominal
+    torques, ``m = 1``). Decimated, the product is formed at full rate and then filtered: the filter
+    is linear, so this is the filtered regressor times ``project`` to rounding, at the cost of
+    filtering ``m`` columns per channel instead of ``r``.
+
+    ``tap(a, b, W, rows)``: parallel decimation only, called with every full-rate block (input rows
+    ``a:b``, its base regressor ``W`` and the :class:`~dynid.model.system.Rows`) before it is
+    filtered: what a caller needs at the full rate of the same rows, without computing them again
+    (the held-out scores at the log's rate, :func:`~dynid.pipeline.validation.score_held_out`). The
+    blocks are those of the full-rate chunks (:data:`CHUNK_BYTES`), so ``W`` is what they would give.
     """
     if periodic is not None and periodic.domain == "pose":
         if reversal_guard is not None:
             raise ConfigError("processing.reversal_guard applies to the time-domain processing, not to processing.periodic")
         r, dq = system.pose_rows(ds.q, ds.tau, 1.0 / float(np.median(np.diff(ds.t))), periodic.cutoff_hz, force_model)
         progress(task, ds.n_samples, ds.n_samples)
-        yield Chunk(base.regressor(r.W), r.y, dq, r.inconsistency, r.joint_dq)
+        Wb = base.regressor(r.W)
+        yield Chunk(Wb if project is None else Wb @ project, r.y, dq, r.inconsistency, r.joint_dq)
         return
     if ds.dq is None or ds.ddq is None:
         raise InputError("the dataset has no velocities/accelerations; preprocess it first")
@@ -91,7 +105,8 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
         for a in range(0, n, size):
             b = min(a + size, n)
             r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
-            yield Chunk(base.regressor(r.W), r.y, ds.dq[a:b], r.inconsistency, r.joint_dq,
+            Wb = base.regressor(r.W)
+            yield Chunk(Wb if project is None else Wb @ project, r.y, ds.dq[a:b], r.inconsistency, r.joint_dq,
                         None if guard is None else guard[a:b], r.Ga, None if r.Ga is None else ds.tau[a:b])
             progress(task, b, n)
         return
@@ -100,7 +115,7 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     if n <= 2 * k:
         raise InputError(f"{n} samples are too few to decimate by {k}")
     yield from _parallel_chunks(system, base, ds, force_model, k, sos, margin, size, rows, guard, joint_q,
-                                progress, task)
+                                progress, task, project, tap)
 
 
 CHUNK_BYTES = 8 * 2**20
@@ -110,7 +125,9 @@ the rows it holds, ``out_rows + margin`` of the packed columns, follow from it."
 
 def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str | None, k: int,
                      sos: FloatArray, margin: int, size: int, rows, guard: np.ndarray | None,
-                     joint_q: FloatArray | None, progress: Progress, task: str) -> Iterator[Chunk]:
+                     joint_q: FloatArray | None, progress: Progress, task: str,
+                     project: FloatArray | None = None,
+                     tap: Callable[[int, int, FloatArray, Any], None] | None = None) -> Iterator[Chunk]:
     """The parallel-decimated chunks of :func:`_chunks`, streamed (:class:`~dynid.signals.streamed.StreamedDecimation`):
     the base-regressor rows, outputs and velocities are computed in blocks of about
     :data:`CHUNK_BYTES`, packed side by side as the columns of one signal, low-passed and decimated
@@ -124,6 +141,7 @@ def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_mo
     n = ds.n_samples
     n_ch, r, n_std = len(system.channel_names(force_model)), base.n_base, base.n_standard
     block = min(size, max(4 * k, CHUNK_BYTES // (8 * n_ch * (n_std + r))))
+    m = r if project is None else project.shape[1]  # columns per channel that are filtered
     block = max(block, min(n, 3 * (2 * sos.shape[0] + 1) + 1))  # the first block holds the odd extension
     packed = None  # (start, stop) of each field in the packed columns
     stream = None
@@ -141,7 +159,10 @@ def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_mo
     for a in range(0, n, block):
         b = min(a + block, n)
         rr = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
-        fields = {"W": base.regressor(rr.W), "y": rr.y, "dq": ds.dq[a:b], "joint_dq": rr.joint_dq,
+        Wb = base.regressor(rr.W)
+        if tap is not None:
+            tap(a, b, Wb, rr)
+        fields = {"W": Wb if project is None else Wb @ project, "y": rr.y, "dq": ds.dq[a:b], "joint_dq": rr.joint_dq,
                   "tau": None if rr.Ga is None else ds.tau[a:b]}
         fields = {key: np.asarray(v, dtype=float).reshape(b - a, -1) for key, v in fields.items() if v is not None}
         if packed is None:
@@ -154,11 +175,11 @@ def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_mo
         take("inconsistency", a, rr.inconsistency)
         take("Ga", a, rr.Ga)
         take("guard", a, None if guard is None else guard[a:b])
-        del rr, fields
+        del rr, fields, Wb
         for s, e, out in stream.feed(x):
             i0, i1 = s // k, s // k + out.shape[0]
             cut = {key: out[:, lo:hi] for key, (lo, hi) in packed.items()}
-            yield Chunk(cut["W"].reshape(-1, n_ch, r), cut["y"], cut["dq"], sampled["inconsistency"][i0:i1],
+            yield Chunk(cut["W"].reshape(-1, n_ch, m), cut["y"], cut["dq"], sampled["inconsistency"][i0:i1],
                         cut.get("joint_dq"), sampled["guard"][i0:i1] if "guard" in sampled else None,
                         sampled["Ga"][i0:i1] if "Ga" in sampled else None, cut.get("tau"))
             progress(task, e, n)

@@ -46,6 +46,15 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
                         friction: stribeck.FrictionJoints | None = None,
                         periodic=None, selection: RowSelection | None = None,
                         ) -> tuple[ValidationMetrics, ValidationMetrics | None, OtherView | None, SelectedRows | None]:
+    return _validate(result, robot, base, ds, nominal, force_model=force_model, parallel_decimate=parallel_decimate,
+                     chunk_size=chunk_size, progress=progress, friction=friction, periodic=periodic,
+                     selection=selection)[:4]
+
+
+def _validate(result: IdentificationResult, robot, base: BaseParameters, ds: Dataset, nominal: FloatArray | None, *,
+              force_model: str | None = None, parallel_decimate: int = 1, chunk_size: int = 20000,
+              progress: Progress = _no_progress, friction: stribeck.FrictionJoints | None = None, periodic=None,
+              selection: RowSelection | None = None, full_rate: bool = False):
     """:func:`validate`, and in the same pass over the held-out rows the errors of the nominal
     model (base parameters ``nominal`` of the robot description's standard parameters; None:
     not computed): the prior every identified model has to beat. For a redundantly actuated
@@ -53,7 +62,12 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
     With ``selection`` (the training's row selection) also both models' errors on the held-out
     rows that selection keeps (:class:`SelectedRows`, None otherwise), with the held-out-fit floor on
     those rows and on every held-out row for a model linear in its parameters
-    (:mod:`dynid.pipeline.held_out_floor`: the structure fitted to the held-out rows themselves)."""
+    (:mod:`dynid.pipeline.held_out_floor`: the structure fitted to the held-out rows themselves).
+
+    :func:`_validate` with ``full_rate`` (parallel decimation only) also returns, fifth, both
+    models' metrics at the log's full rate, from the full-rate regressor blocks of the same pass
+    (the ``tap`` of :func:`~dynid.pipeline.rows._chunks`): the scores :func:`score_held_out`
+    computed in a second pass over the same rows (issue 37, item 5)."""
     system = as_system(robot)
     if friction is None and tuple(result.names) != base.names:
         raise InputError("the result's parameters are not the base parameters of this robot")
@@ -63,9 +77,20 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
     names = system.channel_names(force_model)
     floors = None if selection is None or friction is not None else (FloorAccumulator(names, base.n_base),
                                                                       FloorAccumulator(names, base.n_base))
+    full: tuple[list, list, list] | None = None
+    tap = None
+    if full_rate and parallel_decimate > 1 and periodic is None:
+        full = ([], [], [])
+
+        def tap(a: int, b: int, W: FloatArray, rr) -> None:  # what validate_with_prior(decimate 1) computes
+            full[0].append(np.asarray(rr.y, dtype=float))
+            full[1].append(_predict(result, friction, W, ds.dq[a:b], rr.Ga))
+            if nominal is not None:
+                full[2].append(W @ nominal)
+
     for c in _chunks(system, base, ds, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
                      progress=progress, task="validate", periodic=periodic, reversal_guard=guard,
-                     min_velocity=None if selection is None else selection.min_velocity):
+                     min_velocity=None if selection is None else selection.min_velocity, tap=tap):
         meas.append(c.y)
         if selection is not None:
             mask = row_mask(system, force_model, c.dq, selection.min_velocity,
@@ -76,9 +101,7 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
             if floors is not None:
                 floors[0].add(c.W, c.y, kept[-1])
                 floors[1].add(c.W, c.y)
-        pred.append(c.W @ result.params if friction is None else
-                    friction.predict(result, c.W, c.dq, c.Ga) if hasattr(friction, "predict")  # hierarchical
-                    else stribeck.predict(result, friction, c.W, c.dq))
+        pred.append(_predict(result, friction, c.W, c.dq, c.Ga))
         if nominal is not None:
             prior.append(c.W @ nominal)
         if c.Ga is not None and c.tau is not None:
@@ -112,7 +135,22 @@ def validate_with_prior(result: IdentificationResult, robot, base: BaseParameter
             nominal=None if nominal is None else ValidationMetrics.of(names, t, measured, np.concatenate(prior), src,
                                                                       kept=mask),
             floor=None if floors is None else floors[0].result(), floor_all=None if floors is None else floors[1].result())
-    return metrics, nominal_metrics, other, selected
+    at_full = None
+    if full is not None:
+        t_full = np.asarray(ds.t)[: sum(len(m) for m in full[0])]
+        f_meas = np.concatenate(full[0])
+        at_full = (ValidationMetrics.of(names, t_full, f_meas, np.concatenate(full[1]), src),
+                   None if nominal is None else ValidationMetrics.of(names, t_full, f_meas, np.concatenate(full[2]), src))
+    return metrics, nominal_metrics, other, selected, at_full
+
+
+def _predict(result: IdentificationResult, friction, W: FloatArray, dq: FloatArray, Ga: FloatArray | None) -> FloatArray:
+    """The identified model's outputs of base-regressor rows ``W``: linear, hierarchical or Stribeck friction."""
+    if friction is None:
+        return W @ result.params
+    if hasattr(friction, "predict"):  # hierarchical
+        return friction.predict(result, W, dq, Ga)
+    return stribeck.predict(result, friction, W, dq)
 
 
 def _selected_prior(sel: ValidationMetrics, nominal: ValidationMetrics, comparable: bool, label: str) -> dict[str, Any]:
@@ -171,14 +209,21 @@ def score_held_out(cfg0: Config, cfg: Config, system: System, base: BaseParamete
             rule.append(f"reversal_guard {pcfg.reversal_guard_s():.3g} s")
         rows_rule = RowSelection(pcfg.min_velocity, pcfg.min_velocity_passive, pcfg.reversal_guard_s(),
                                  ", ".join(rule))
-    metrics, prior, other, selected = validate_with_prior(
+    shared = parallel > 1 and periodic is None  # the full-rate rows are those the decimation filters
+    metrics, prior, other, selected, at_full = _validate(
         result, system, base, held_out, nominal, force_model=force_model, parallel_decimate=parallel,
-        chunk_size=icfg.chunk_size, progress=progress, friction=fj, periodic=periodic, selection=rows_rule)
+        chunk_size=icfg.chunk_size, progress=progress, friction=fj, periodic=periodic, selection=rows_rule,
+        full_rate=shared)
     full, held_full = None, None
     if pcfg.decimate > 1 and periodic is None:
-        held_full, _ = preprocess(valid_a, dataclasses.replace(pcfg, decimate=1), "validation")
-        fm, fn, _, _ = validate_with_prior(result, system, base, held_full, nominal, force_model=force_model,
-                                           chunk_size=icfg.chunk_size, progress=progress, friction=fj)
+        if shared:  # parallel decimation keeps every processed sample: the held-out log at full rate is held_out
+            held_full = held_out
+            assert at_full is not None
+            fm, fn = at_full
+        else:
+            held_full, _ = preprocess(valid_a, dataclasses.replace(pcfg, decimate=1), "validation")
+            fm, fn, _, _ = validate_with_prior(result, system, base, held_full, nominal, force_model=force_model,
+                                               chunk_size=icfg.chunk_size, progress=progress, friction=fj)
         full = FullRate(fm, fn, decimate=pcfg.decimate)
     if icfg.hierarchical:  # the CAD model with the description's friction, not the rigid part alone
         prior, sel_nominal, full_nominal = _hierarchical_prior(cfg0, result, force_model, held_out, held_full,

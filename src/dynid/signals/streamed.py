@@ -23,6 +23,15 @@ padding of ``padlen`` rows) of the whole signal:
   signal's range, the bound the chunked filtering it replaces already had (there on both sides; here
   the forward side is exact). Where ``e + margin`` reaches the padded end the backward pass starts
   where the whole signal's does and is exact.
+
+Columns that are exactly zero are not filtered (issue 37, item 5): a serial arm's base regressor is
+half zeros (the torque of joint ``j`` does not involve the parameters of the bodies before it: 197 of
+the TX40's 366 packed regressor columns). A column is *live* from the first block in which one of its
+values (the odd extension included) is not zero. Until then its forward output and state are zero,
+exactly what the recursion gives for zero input from the zero steady state ``zi * 0``, and its
+backward output is zero too; from then on it is filtered from that zero state like any other column.
+``sosfilt`` runs each column's recursion on its own, so the live columns' values are bit for bit those
+of filtering every column.
 """
 
 from __future__ import annotations
@@ -55,7 +64,8 @@ class StreamedDecimation:
         c = max(self.k, int(out_rows))
         self.out_rows = c - c % self.k  # chunk starts on the output grid
         self._zi = signal.sosfilt_zi(self.sos)[:, :, None]  # (sections, 2, 1)
-        self._state: FloatArray | None = None
+        self._state: FloatArray | None = None  # (sections, 2, c) forward state, zero for columns not yet live
+        self._live: np.ndarray | None = None  # (c,) columns with a value not zero so far (module docstring)
         self._fed = 0
         self._tail: FloatArray | None = None  # the last padlen + 1 input rows (odd extension at the end)
         self._blocks: list[FloatArray] = []  # forward-filtered rows [_f0, _f1), padded end included
@@ -80,22 +90,38 @@ class StreamedDecimation:
             if m < min(p + 1, self.n):
                 raise ValueError(f"the first block needs at least {p + 1} rows, got {m}")
             head = 2.0 * x[0] - x[p:0:-1]  # scipy's odd extension before the first row
-            _, self._state = self._sosfilt(self.sos, head, axis=0, zi=self._zi * (head[:1] if p else x[:1]))
-        y, self._state = self._sosfilt(self.sos, x, axis=0, zi=self._state)
-        self._push(y)
+            self._live = np.zeros(x.shape[1], dtype=bool)
+            self._state = np.zeros(self._zi.shape[:2] + (x.shape[1],))
+            self._forward(head, self._zi * (head[:1] if p else x[:1]))
+        self._push(self._forward(x, self._state))
         self._fed += m
         self._tail = x[-(p + 1):] if m >= p + 1 or self._tail is None else np.concatenate([self._tail, x])[-(p + 1):]
         if self._fed == self.n and p:
             end = 2.0 * self._tail[-1] - self._tail[-2::-1]  # x[-2], ..., x[-p-1]
-            y, self._state = self._sosfilt(self.sos, end, axis=0, zi=self._state)
-            self._push(y)
+            self._push(self._forward(end, self._state))
         return self._emit()
+
+    def _forward(self, x: FloatArray, zi: FloatArray) -> FloatArray:
+        """The forward recursion over rows ``x`` from the state ``zi`` (sections, 2, c), on the live
+        columns only (module docstring); keeps the final state, returns the filtered rows."""
+        assert self._live is not None
+        self._live |= np.any(x != 0, axis=0)  # NaN counts as not zero
+        live = self._live
+        if live.all():
+            y, self._state = self._sosfilt(self.sos, x, axis=0, zi=zi)
+            return y
+        y = np.zeros(x.shape)
+        state = np.zeros(zi.shape)
+        if live.any():
+            y[:, live], state[:, :, live] = self._sosfilt(self.sos, x[:, live], axis=0, zi=zi[:, :, live])
+        self._state = state
+        return y
 
     def _push(self, y: FloatArray) -> None:
         self._blocks.append(y)
         self._f1 += y.shape[0]
 
-    def _rows(self, a: int, b: int, cols: slice) -> FloatArray:
+    def _rows(self, a: int, b: int, cols: slice | np.ndarray) -> FloatArray:
         """Forward-filtered rows ``[a, b)``, columns ``cols`` (a copy)."""
         parts, lo = [], self._f0
         for blk in self._blocks:
@@ -116,9 +142,12 @@ class StreamedDecimation:
                 break
             keep = np.arange(s, e, self.k) - s
             cols = self._blocks[0].shape[1]
-            res = np.empty((keep.size, cols))
-            for g in range(0, cols, _COLUMN_GROUP):
-                sl = slice(g, min(g + _COLUMN_GROUP, cols))
+            live = np.flatnonzero(self._live)  # a column not live has forward rows zero so far: its output is zero
+            res = np.empty((keep.size, cols)) if live.size == cols else np.zeros((keep.size, cols))
+            for g in range(0, live.size, _COLUMN_GROUP):
+                sl = live[g:g + _COLUMN_GROUP]
+                if sl[-1] - sl[0] + 1 == sl.size:
+                    sl = slice(int(sl[0]), int(sl[-1]) + 1)
                 seg = self._rows(s, stop, sl)[::-1]
                 back, _ = self._sosfilt(self.sos, seg, axis=0, zi=self._zi * seg[:1])
                 res[:, sl] = back[::-1][keep]
