@@ -1,0 +1,354 @@
+"""Compiled per-sample kernels of the closed-chain states and regressor (issue 37, item 1, third pass).
+
+numba ``@njit(cache=True)`` loops over all samples of a block, each doing the per-sample work of
+the numpy routes it replaces on small matrices (3 x 3 to 24 x 240), with preallocated outputs:
+
+* :func:`closure_rows`: the side points :math:`p = t + R r` and the closure rows
+  :math:`J_v - p\\times J_\\omega` (:math:`J_\\omega` for ``6d``) of all moving sides, scattered
+  -side a + side b (``loop_blocks.scattered_rows`` and ``loop_kinematics._side_points``);
+* :func:`leg_inverse`: :math:`J_{c,w}^{-1}` by block elimination of the leg structure
+  (``loop_blocks.inverse``; Golub & Van Loan, *Matrix Computations*, 4th ed., §3.2.11: the Schur
+  complement :math:`S = -C D^{-1} B`, closed-form 3 x 3 inverses, :math:`S^{-1}` by Gauss-Jordan
+  with partial pivoting), with the pivots' test :math:`\\kappa_1(D_g)\\kappa_1(S)` <= the limit;
+* :func:`velocity_maps`: the 1-norm condition number of :math:`J_{c,w}`, the velocity map
+  :math:`G_w = -J_{c,w}^{-1}J_{c,u}` (``loop_kinematics._Maps``) and :math:`\\dot q = G\\dot u`;
+* :func:`drift_accelerations`: the drift :math:`\\dot J_c\\dot q` (the classical acceleration of
+  every side point, Featherstone, *Rigid Body Dynamics Algorithms*, §2.11;
+  ``loop_blocks.scattered_drift``) and :math:`\\ddot q` (``_Maps.accelerations``);
+* :func:`project_sample`: :math:`G^T Y_{tree}` of one sample, chain segment by chain segment on
+  the supporting rows (``closed_loop._chain_groups``), from the array pinocchio's
+  ``computeJointTorqueRegressor`` returns (no copy into a block);
+* :func:`projected_terms`: :math:`G^T F` of the unweighted joint terms without forming :math:`F`
+  (``closed_loop._projected_terms``).
+
+The same formulas as the numpy routes, element by element; sums over rows or columns may run in
+another order (rounding: tests/test_closed_loop_structured.py). This module imports numba: it is
+imported only inside the closed-chain functions (:mod:`dynid.model.loop_compiled`), never when
+dynid handles a serial arm.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def closure_rows(J, flat, slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b, n_dims, rows, ps):  # pragma: no cover (compiled)
+    """Closure rows of all samples. ``J`` (n, 6, n_v) world Jacobians; ``flat`` (n, k, 12) the side
+    joints' placements (column-major rotation, translation); ``slot`` (e,) the placement of each
+    computed point (-1: the base) and ``r`` (e, 3) its offset; ``moving_ref`` (S,) the computed
+    point of each moving side; ``cols`` (S, width) its support columns; targets (flat row x column)
+    and sources ((d S + k) width + t) of sides a and b. Out: ``rows`` (n, n_rows * n_v), ``ps``
+    (n, S, 3) the moving sides' points."""
+    n = J.shape[0]
+    S, width = cols.shape
+    vals = np.empty(n_dims * S * width)
+    for i in range(n):
+        for k in range(S):
+            e = moving_ref[k]
+            s = slot[e]
+            if s < 0:
+                for a in range(3):
+                    ps[i, k, a] = r[e, a]
+            else:
+                f = flat[i, s]
+                for a in range(3):  # R[a, b] = f[3 b + a]
+                    ps[i, k, a] = f[9 + a] + (f[a] * r[e, 0] + f[3 + a] * r[e, 1] + f[6 + a] * r[e, 2])
+            px, py, pz = ps[i, k, 0], ps[i, k, 1], ps[i, k, 2]
+            for t in range(width):
+                c = cols[k, t]
+                mx, my, mz = J[i, 3, c], J[i, 4, c], J[i, 5, c]
+                vals[(0 * S + k) * width + t] = J[i, 0, c] - (py * mz - pz * my)
+                vals[(1 * S + k) * width + t] = J[i, 1, c] - (pz * mx - px * mz)
+                vals[(2 * S + k) * width + t] = J[i, 2, c] - (px * my - py * mx)
+                for d in range(3, n_dims):
+                    vals[(d * S + k) * width + t] = J[i, d, c]
+        out = rows[i]
+        out[:] = 0.0
+        for x in range(tgt_a.size):
+            out[tgt_a[x]] = -vals[src_a[x]]
+        for x in range(tgt_b.size):
+            out[tgt_b[x]] += vals[src_b[x]]
+
+
+@njit(cache=True)
+def _inverse_gj(S, X):  # pragma: no cover (compiled)
+    """X = S^-1 by Gauss-Jordan elimination with partial pivoting; False where a pivot is zero or
+    not finite (S is overwritten)."""
+    m = S.shape[0]
+    X[:, :] = 0.0
+    for a in range(m):
+        X[a, a] = 1.0
+    for c in range(m):
+        p, best = c, abs(S[c, c])
+        for a in range(c + 1, m):
+            if abs(S[a, c]) > best:
+                p, best = a, abs(S[a, c])
+        if not (best > 0.0) or not np.isfinite(best):
+            return False
+        if p != c:
+            for b in range(m):
+                S[c, b], S[p, b] = S[p, b], S[c, b]
+                X[c, b], X[p, b] = X[p, b], X[c, b]
+        piv = S[c, c]
+        for a in range(m):
+            if a == c:
+                continue
+            f = S[a, c] / piv
+            if f != 0.0:
+                for b in range(m):
+                    S[a, b] -= f * S[c, b]
+                    X[a, b] -= f * X[c, b]
+    for a in range(m):
+        piv = S[a, a]
+        for b in range(m):
+            X[a, b] /= piv
+    return True
+
+
+@njit(cache=True)
+def _norm1(A):  # pragma: no cover (compiled)
+    """1-norm (largest column sum of absolute values)."""
+    best = 0.0
+    for b in range(A.shape[1]):
+        s = 0.0
+        for a in range(A.shape[0]):
+            s += abs(A[a, b])
+        if not (s <= best):  # NaN propagates
+            best = s
+    return best
+
+
+@njit(cache=True)
+def leg_inverse(rows, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot, inv, ok):  # pragma: no cover
+    """:math:`J_{c,w}^{-1}` (n, n_w, n_c) by block elimination (``loop_blocks.LegPlan`` indices; legs
+    of k <= 3 joints) where :math:`\\kappa_1(D_g)\\kappa_1(S)` <= ``max_pivot``; ``ok`` (n,) says
+    where (elsewhere ``inv`` is left as it was: the caller inverts those samples densely)."""
+    n = rows.shape[0]
+    m, k = g_rows.shape
+    nc = m * k
+    n_u = shared.size
+    D = np.empty((k, k))
+    Dinv = np.empty((m, k, k))
+    E = np.empty((nc, n_u))
+    S = np.empty((n_u, n_u))
+    Sinv = np.empty((n_u, n_u))
+    ES = np.empty((nc, n_u))
+    full = np.empty((nc + n_u, nc))
+    for i in range(n):
+        R = rows[i]
+        cD = 0.0
+        for g in range(m):
+            for a in range(k):
+                for b in range(k):
+                    D[a, b] = R[g_rows[g, a], local[g, b]]
+            Di = Dinv[g]
+            if k == 1:
+                det = D[0, 0]
+                Di[0, 0] = 1.0 / det
+            elif k == 2:
+                det = D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]
+                Di[0, 0], Di[0, 1], Di[1, 0], Di[1, 1] = D[1, 1] / det, -D[0, 1] / det, -D[1, 0] / det, D[0, 0] / det
+            else:  # adjugate over determinant, as loop_blocks._inv_small
+                a_, b_, c_ = D[0, 0], D[0, 1], D[0, 2]
+                e_, f_, g_ = D[1, 0], D[1, 1], D[1, 2]
+                h_, i_, j_ = D[2, 0], D[2, 1], D[2, 2]
+                A0, A1, A2 = f_ * j_ - g_ * i_, c_ * i_ - b_ * j_, b_ * g_ - c_ * f_
+                A3, A4, A5 = g_ * h_ - e_ * j_, a_ * j_ - c_ * h_, c_ * e_ - a_ * g_
+                A6, A7, A8 = e_ * i_ - f_ * h_, b_ * h_ - a_ * i_, a_ * f_ - b_ * e_
+                det = a_ * A0 + b_ * A3 + c_ * A6
+                Di[0, 0], Di[0, 1], Di[0, 2] = A0 / det, A1 / det, A2 / det
+                Di[1, 0], Di[1, 1], Di[1, 2] = A3 / det, A4 / det, A5 / det
+                Di[2, 0], Di[2, 1], Di[2, 2] = A6 / det, A7 / det, A8 / det
+            c = _norm1(D) * _norm1(Di)
+            if not np.isfinite(c):
+                c = np.inf
+            if c > cD:
+                cD = c
+            for a in range(k):
+                for cc in range(n_u):
+                    s = 0.0
+                    for b in range(k):
+                        s += Di[a, b] * R[g_rows[g, b], shared[cc]]
+                    E[g * k + a, cc] = s
+        for a in range(n_u):
+            for b in range(n_u):
+                S[a, b] = -E[flat_u[a], b]
+        nS = _norm1(S)
+        if not _inverse_gj(S, Sinv):
+            ok[i] = False
+            continue
+        cS = nS * _norm1(Sinv)
+        ok[i] = cD * cS <= max_pivot  # NaN fails
+        if not ok[i]:
+            continue
+        for a in range(nc):
+            for b in range(n_u):
+                s = 0.0
+                for x in range(n_u):
+                    s += E[a, x] * Sinv[x, b]
+                ES[a, b] = s
+        full[:, :] = 0.0
+        # F = C D^-1: row x is row u_pos[x] of leg u_group[x]'s D^-1, in that leg's columns
+        for x in range(n_u):
+            g, p = u_group[x], u_pos[x]
+            for b in range(k):
+                fv = Dinv[g, p, b]
+                col = g * k + b
+                for a in range(nc):
+                    full[a, col] += ES[a, x] * fv
+                for a in range(n_u):
+                    full[nc + a, col] += -Sinv[a, x] * fv
+        for g in range(m):
+            for a in range(k):
+                for b in range(k):
+                    full[g * k + a, g * k + b] += Dinv[g, a, b]
+        out = inv[i]
+        for p in range(w_pos.size):
+            for q in range(nc):
+                out[p, q] = full[w_pos[p], eq_pos[q]]
+
+
+@njit(cache=True)
+def velocity_maps(rows, inv, u, w, du, G, cond, dq):  # pragma: no cover (compiled)
+    """Per sample: ``cond`` the 1-norm condition number of :math:`J_{c,w}` (``rows[:, :, :n_w]``,
+    inverse ``inv``), ``G`` (n, n_v, n_u) with :math:`G_u = I`, :math:`G_w = -J_{c,w}^{-1}J_{c,u}`,
+    and ``dq`` = G du."""
+    n, nc, _ = rows.shape
+    nw = w.size
+    n_u = u.size
+    for i in range(n):
+        R, Ai = rows[i], inv[i]
+        nA = 0.0
+        for b in range(nw):
+            s = 0.0
+            for a in range(nc):
+                s += abs(R[a, b])
+            if not (s <= nA):
+                nA = s
+        nI = 0.0
+        for b in range(nc):
+            s = 0.0
+            for a in range(nw):
+                s += abs(Ai[a, b])
+            if not (s <= nI):
+                nI = s
+        cond[i] = nA * nI
+        Gi = G[i]
+        Gi[:, :] = 0.0
+        for j in range(n_u):
+            Gi[u[j], j] = 1.0
+        for p in range(nw):
+            for j in range(n_u):
+                s = 0.0
+                for a in range(nc):
+                    s += Ai[p, a] * R[a, nw + j]
+                Gi[w[p], j] = -s
+        for a in range(Gi.shape[0]):
+            s = 0.0
+            for j in range(n_u):
+                s += Gi[a, j] * du[i, j]
+            dq[i, a] = s
+
+
+@njit(cache=True)
+def drift_accelerations(J, dJ, dq, ps, body_ptr, body_cols, body_of, dtgt_a, dsrc_a, dtgt_b, dsrc_b, n_dims,
+                        rows, inv, u, w, ddu, ddq):  # pragma: no cover (compiled)
+    """Per sample: each carrying body's :math:`V = J\\dot q`, :math:`\\dot J\\dot q` on its support
+    columns (``body_cols[body_ptr[b]:body_ptr[b + 1]]``), the classical acceleration of every moving
+    side's point, the drift rows (-side a + side b), then :math:`\\ddot q_u = \\ddot u`,
+    :math:`\\ddot q_w = J_{c,w}^{-1}(-J_{c,u}\\ddot u - \\text{drift})`."""
+    n = J.shape[0]
+    nb = body_ptr.size - 1
+    S = body_of.size
+    nc = rows.shape[1]
+    nw = w.size
+    n_u = u.size
+    V = np.empty((nb, 6))
+    A = np.empty((nb, 6))
+    vals = np.empty(n_dims * S)
+    drift = np.empty(nc)
+    rhs = np.empty(nc)
+    for i in range(n):
+        for b in range(nb):
+            for d in range(6):
+                sv = 0.0
+                sa = 0.0
+                for x in range(body_ptr[b], body_ptr[b + 1]):
+                    c = body_cols[x]
+                    sv += J[i, d, c] * dq[i, c]
+                    sa += dJ[i, d, c] * dq[i, c]
+                V[b, d] = sv
+                A[b, d] = sa
+        for k in range(S):
+            b = body_of[k]
+            px, py, pz = ps[i, k, 0], ps[i, k, 1], ps[i, k, 2]
+            wx, wy, wz = V[b, 3], V[b, 4], V[b, 5]
+            vx = V[b, 0] + (wy * pz - wz * py)
+            vy = V[b, 1] + (wz * px - wx * pz)
+            vz = V[b, 2] + (wx * py - wy * px)
+            ax, ay, az = A[b, 3], A[b, 4], A[b, 5]
+            vals[0 * S + k] = A[b, 0] + (ay * pz - az * py) + (wy * vz - wz * vy)
+            vals[1 * S + k] = A[b, 1] + (az * px - ax * pz) + (wz * vx - wx * vz)
+            vals[2 * S + k] = A[b, 2] + (ax * py - ay * px) + (wx * vy - wy * vx)
+            for d in range(3, n_dims):
+                vals[d * S + k] = A[b, d]
+        drift[:] = 0.0
+        for x in range(dtgt_a.size):
+            drift[dtgt_a[x]] = -vals[dsrc_a[x]]
+        for x in range(dtgt_b.size):
+            drift[dtgt_b[x]] += vals[dsrc_b[x]]
+        R = rows[i]
+        for a in range(nc):
+            s = 0.0
+            for j in range(n_u):
+                s += R[a, nw + j] * ddu[i, j]
+            rhs[a] = -s - drift[a]
+        for j in range(n_u):
+            ddq[i, u[j]] = ddu[i, j]
+        for p in range(nw):
+            s = 0.0
+            for a in range(nc):
+                s += inv[i, p, a] * rhs[a]
+            ddq[i, w[p]] = s
+
+
+@njit(cache=True)
+def project_sample(Y, G, out, i, g_ptr, g_rows, run_ptr, run_t0, run_w0, run_len):  # pragma: no cover (compiled)
+    """``out[i, u, w0 + c] = sum_r G[i, r, u] Y[r, t0 + c]`` for every chain group (rows
+    ``g_rows[g_ptr[g]:g_ptr[g + 1]]``) and each of its runs of consecutive columns (tree column
+    ``t0``, output column ``w0``, ``len`` columns); ``Y`` (n_v, 10 n_joints) the tree regressor of
+    sample ``i``."""
+    n_u = G.shape[2]
+    Gi, Oi = G[i], out[i]
+    for g in range(g_ptr.size - 1):
+        for x in range(run_ptr[g], run_ptr[g + 1]):
+            t0, w0, L = run_t0[x], run_w0[x], run_len[x]
+            for uu in range(n_u):
+                for c in range(L):
+                    Oi[uu, w0 + c] = 0.0
+            for y in range(g_ptr[g], g_ptr[g + 1]):
+                r = g_rows[y]
+                Yr = Y[r]
+                for uu in range(n_u):
+                    gv = Gi[r, uu]
+                    for c in range(L):
+                        Oi[uu, w0 + c] += gv * Yr[t0 + c]
+
+
+@njit(cache=True)
+def projected_terms(G, basis, kind_of, t_ptr, t_joint, t_weight, col0, out):  # pragma: no cover (compiled)
+    """``out[i, u, col0 + k] = sum_j G[i, j, u] basis[kind_of[k], i, j] I[j, k]`` over the joints of
+    term k (``t_joint[t_ptr[k]:t_ptr[k + 1]]``, incidence ``t_weight``)."""
+    n, _, n_u = G.shape
+    nt = kind_of.size
+    for i in range(n):
+        for k in range(nt):
+            kb = kind_of[k]
+            for uu in range(n_u):
+                s = 0.0
+                for x in range(t_ptr[k], t_ptr[k + 1]):
+                    j = t_joint[x]
+                    s += (G[i, j, uu] * basis[kb, i, j]) * t_weight[x]
+                out[i, uu, col0 + k] = s
