@@ -211,10 +211,11 @@ def leg_inverse(rows, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_p
 
 
 @njit(cache=True)
-def velocity_maps(rows, inv, u, w, du, G, cond, dq):  # pragma: no cover (compiled)
+def velocity_maps(rows, inv, u, w, cu_ptr, cu_rows, du, G, cond, dq):  # pragma: no cover (compiled)
     """Per sample: ``cond`` the 1-norm condition number of :math:`J_{c,w}` (``rows[:, :, :n_w]``,
-    inverse ``inv``), ``G`` (n, n_v, n_u) with :math:`G_u = I`, :math:`G_w = -J_{c,w}^{-1}J_{c,u}`,
-    and ``dq`` = G du."""
+    inverse ``inv``), ``G`` (n, n_v, n_u) with :math:`G_u = I`, :math:`G_w = -J_{c,w}^{-1}J_{c,u}`
+    (column j of :math:`J_{c,u}` on its structurally non-zero rows
+    ``cu_rows[cu_ptr[j]:cu_ptr[j + 1]]`` only: the others are exact zeros), and ``dq`` = G du."""
     n, nc, _ = rows.shape
     nw = w.size
     n_u = u.size
@@ -242,7 +243,8 @@ def velocity_maps(rows, inv, u, w, du, G, cond, dq):  # pragma: no cover (compil
         for p in range(nw):
             for j in range(n_u):
                 s = 0.0
-                for a in range(nc):
+                for x in range(cu_ptr[j], cu_ptr[j + 1]):
+                    a = cu_rows[x]
                     s += Ai[p, a] * R[a, nw + j]
                 Gi[w[p], j] = -s
         for a in range(Gi.shape[0]):
@@ -254,7 +256,7 @@ def velocity_maps(rows, inv, u, w, du, G, cond, dq):  # pragma: no cover (compil
 
 @njit(cache=True)
 def drift_accelerations(J, dJ, dq, ps, body_ptr, body_cols, body_of, dtgt_a, dsrc_a, dtgt_b, dsrc_b, n_dims,
-                        rows, inv, u, w, ddu, ddq):  # pragma: no cover (compiled)
+                        rows, inv, u, w, cu_ptr, cu_rows, ddu, ddq):  # pragma: no cover (compiled)
     """Per sample: each carrying body's :math:`V = J\\dot q`, :math:`\\dot J\\dot q` on its support
     columns (``body_cols[body_ptr[b]:body_ptr[b + 1]]``), the classical acceleration of every moving
     side's point, the drift rows (-side a + side b), then :math:`\\ddot q_u = \\ddot u`,
@@ -300,11 +302,13 @@ def drift_accelerations(J, dJ, dq, ps, body_ptr, body_cols, body_of, dtgt_a, dsr
         for x in range(dtgt_b.size):
             drift[dtgt_b[x]] += vals[dsrc_b[x]]
         R = rows[i]
+        rhs[:] = 0.0
+        for j in range(n_u):  # J_c,u ddu on its structurally non-zero entries (velocity_maps)
+            for x in range(cu_ptr[j], cu_ptr[j + 1]):
+                a = cu_rows[x]
+                rhs[a] += R[a, nw + j] * ddu[i, j]
         for a in range(nc):
-            s = 0.0
-            for j in range(n_u):
-                s += R[a, nw + j] * ddu[i, j]
-            rhs[a] = -s - drift[a]
+            rhs[a] = -rhs[a] - drift[a]
         for j in range(n_u):
             ddq[i, u[j]] = ddu[i, j]
         for p in range(nw):
@@ -315,26 +319,34 @@ def drift_accelerations(J, dJ, dq, ps, body_ptr, body_cols, body_of, dtgt_a, dsr
 
 
 @njit(cache=True)
-def project_sample(Y, G, out, i, g_ptr, g_rows, run_ptr, run_t0, run_w0, run_len):  # pragma: no cover (compiled)
-    """``out[i, u, w0 + c] = sum_r G[i, r, u] Y[r, t0 + c]`` for every chain group (rows
-    ``g_rows[g_ptr[g]:g_ptr[g + 1]]``) and each of its runs of consecutive columns (tree column
-    ``t0``, output column ``w0``, ``len`` columns); ``Y`` (n_v, 10 n_joints) the tree regressor of
-    sample ``i``."""
+def project_sample(Y, G, out, i, plan):  # pragma: no cover (compiled)
+    """``out[i, u, w0 + c] = sum_r G[i, r, u] Y[r, t0 + c]`` over each chain group's rows and each
+    of its runs of consecutive columns (tree column ``t0``, output column ``w0``, ``L`` columns);
+    ``Y`` (n_v, 10 n_joints) the tree regressor of sample ``i``. ``plan`` packs the groups (one
+    argument: each costs the dispatch some 0.1 us): ``[n_groups, (n_rows, rows..., n_runs,
+    (t0, w0, L)...)...]``. The rows outermost, the columns innermost (contiguous in ``Y`` and
+    ``out``: vectorized); the sum over the rows in their order."""
     n_u = G.shape[2]
     Gi, Oi = G[i], out[i]
-    for g in range(g_ptr.size - 1):
-        for x in range(run_ptr[g], run_ptr[g + 1]):
-            t0, w0, L = run_t0[x], run_w0[x], run_len[x]
+    x = 1
+    for _ in range(plan[0]):
+        nr = plan[x]
+        r_at = x + 1
+        x = r_at + nr
+        for _ in range(plan[x]):
+            t0, w0, L = plan[x + 1], plan[x + 2], plan[x + 3]
+            x += 3
             for uu in range(n_u):
-                for c in range(L):
-                    Oi[uu, w0 + c] = 0.0
-            for y in range(g_ptr[g], g_ptr[g + 1]):
-                r = g_rows[y]
-                Yr = Y[r]
+                Oi[uu, w0 : w0 + L] = 0.0
+            for y in range(r_at, r_at + nr):
+                r = plan[y]
+                Yr = Y[r, t0 : t0 + L]
                 for uu in range(n_u):
                     gv = Gi[r, uu]
+                    o = Oi[uu, w0 : w0 + L]
                     for c in range(L):
-                        Oi[uu, w0 + c] += gv * Yr[t0 + c]
+                        o[c] += gv * Yr[c]
+        x += 1
 
 
 @njit(cache=True)

@@ -61,6 +61,14 @@ class StatesPlan:
         self.drift_args = tuple(np.ascontiguousarray(a, dtype=_I) for a in (sc.dtgt_a, sc.dsrc_a, sc.dtgt_b, sc.dsrc_b))
         self.u = np.ascontiguousarray(sd.u, dtype=_I)
         self.w = np.ascontiguousarray(sd.w, dtype=_I)
+        # the structurally non-zero rows of each column of J_c,u: those the sides' rows reach
+        nv, nw = mech.nv, sd.w.size
+        tgt = np.concatenate([sc.tgt_a, sc.tgt_b]).astype(int)
+        reach = np.zeros((sc.n_rows, nv), dtype=bool)
+        reach[tgt // nv, tgt % nv] = True
+        cu = [np.flatnonzero(reach[:, nw + j]) for j in range(nv - nw)]
+        self.cu_ptr = np.cumsum([0] + [c.size for c in cu]).astype(_I)
+        self.cu_rows = np.ascontiguousarray(np.concatenate(cu) if cu else np.zeros(0), dtype=_I)
         plan = loop_blocks.leg_plan(mech)
         self.leg = None
         if plan is not None and plan.k <= 3:
@@ -113,15 +121,14 @@ def states_block(mech: Mechanism, plan: StatesPlan, q: FloatArray, du: FloatArra
             inv[~ok] = loop_blocks.dense_inverse(rows[~ok][:, :, :nw])
     else:
         inv = np.ascontiguousarray(loop_blocks.dense_inverse(rows[:, :, :nw]))
-    kern.velocity_maps(rows, inv, plan.u, plan.w, du, G, cond, dq)
+    kern.velocity_maps(rows, inv, plan.u, plan.w, plan.cu_ptr, plan.cu_rows, du, G, cond, dq)
     loop_blocks.check_condition(cond, max_cond, "the loop-closure Jacobian of the dependent joints", offset)
     dJ = np.empty((n, 6, nv))
     tv = pin.computeJointJacobiansTimeVariation
     for i, (qi, vi) in enumerate(zip(q, dq)):
-        tv(model, data, qi, vi)
-        dJ[i] = data.dJ
+        dJ[i] = tv(model, data, qi, vi)
     kern.drift_accelerations(J, dJ, dq, ps, plan.body_ptr, plan.body_cols, plan.body_of, *plan.drift_args, plan.n_dims,
-                             rows, inv, plan.u, plan.w, ddu, ddq)
+                             rows, inv, plan.u, plan.w, plan.cu_ptr, plan.cu_rows, ddu, ddq)
 
 
 def _runs(t: np.ndarray, w: np.ndarray) -> list[tuple[int, int, int]]:
@@ -135,26 +142,24 @@ def _runs(t: np.ndarray, w: np.ndarray) -> list[tuple[int, int, int]]:
     return [tuple(r) for r in runs]
 
 
-def _regressor_plan(mech: Mechanism, groups: list) -> tuple:
-    """The chain groups of ``closed_loop._chain_groups`` as flat index arrays (cached on ``mech``)."""
+def _regressor_plan(mech: Mechanism, groups: list) -> np.ndarray:
+    """The chain groups of ``closed_loop._chain_groups`` packed for
+    :func:`dynid.model._loop_kernels.project_sample` (cached on ``mech``)."""
     cached = mech.__dict__.get("_compiled_regressor_plan")
     if cached is not None and cached[0] is groups:
         return cached[1]
     nv, nt = mech.nv, 10 * (mech.pin_model.njoints - 1)
     nb = mech.n_body_params
-    g_ptr, g_rows, run_ptr, runs = [0], [], [0], []
+    packed = [len(groups)]
     for rows, ycols, keep, wcols in groups:
         r = np.arange(nv)[rows]
         t = np.arange(nt)[ycols]
         t = t if keep is None else t[keep]
-        w = np.arange(nb)[wcols]
-        g_rows += r.tolist()
-        g_ptr.append(len(g_rows))
-        runs += _runs(t, w)
-        run_ptr.append(len(runs))
-    ra = np.array(runs, dtype=_I).reshape(-1, 3)
-    plan = (np.array(g_ptr, dtype=_I), np.array(g_rows, dtype=_I), np.array(run_ptr, dtype=_I),
-            np.ascontiguousarray(ra[:, 0]), np.ascontiguousarray(ra[:, 1]), np.ascontiguousarray(ra[:, 2]))
+        runs = _runs(t, np.arange(nb)[wcols])
+        packed += [r.size, *r.tolist(), len(runs)]
+        for run in runs:
+            packed += list(run)
+    plan = np.array(packed, dtype=_I)
     object.__setattr__(mech, "_compiled_regressor_plan", (groups, plan))
     return plan
 
@@ -172,7 +177,7 @@ def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArr
     jtr = pin.computeJointTorqueRegressor
     proj = kern.project_sample
     for i, (qi, vi, ai) in enumerate(zip(q, dq, ddq)):
-        proj(jtr(model, data, qi, vi, ai), G, out, i, *plan)
+        proj(jtr(model, data, qi, vi, ai), G, out, i, plan)
 
 
 def projected_terms(mech: Mechanism, G: FloatArray, bases: list[FloatArray], out: FloatArray, col0: int) -> None:
