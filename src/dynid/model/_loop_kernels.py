@@ -1,6 +1,6 @@
 """Compiled per-sample kernels of the closed-chain states and regressor (issue 37, item 1, third pass).
 
-numba ``@njit(cache=True)`` loops over all samples of a block, each doing the per-sample work of
+numba ``@njit(cache=True, error_model="numpy")`` loops over all samples of a block, each doing the per-sample work of
 the numpy routes it replaces on small matrices (3 x 3 to 24 x 240), with preallocated outputs:
 
 * :func:`closure_rows`: the side points :math:`p = t + R r` and the closure rows
@@ -21,7 +21,9 @@ the numpy routes it replaces on small matrices (3 x 3 to 24 x 240), with preallo
 * :func:`projected_terms`: :math:`G^T F` of the unweighted joint terms without forming :math:`F`
   (``closed_loop._projected_terms``).
 
-The same formulas as the numpy routes, element by element; sums over rows or columns may run in
+Compiled with ``error_model="numpy"``: a division by zero gives inf or NaN as numpy's does (a
+singular pivot fails the pivots' test or the condition number's), never an exception. The same
+formulas as the numpy routes, element by element; sums over rows or columns may run in
 another order (rounding: tests/test_closed_loop_structured.py). This module imports numba: it is
 imported only inside the closed-chain functions (:mod:`dynid.model.loop_compiled`), never when
 dynid handles a serial arm.
@@ -33,7 +35,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def closure_rows(J, flat, slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b, n_dims, rows, ps):  # pragma: no cover (compiled)
     """Closure rows of all samples. ``J`` (n, 6, n_v) world Jacobians; ``flat`` (n, k, 12) the side
     joints' placements (column-major rotation, translation); ``slot`` (e,) the placement of each
@@ -72,7 +74,7 @@ def closure_rows(J, flat, slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b,
             out[tgt_b[x]] += vals[src_b[x]]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _inverse_gj(S, X):  # pragma: no cover (compiled)
     """X = S^-1 by Gauss-Jordan elimination with partial pivoting; False where a pivot is zero or
     not finite (S is overwritten)."""
@@ -107,7 +109,7 @@ def _inverse_gj(S, X):  # pragma: no cover (compiled)
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _norm1(A):  # pragma: no cover (compiled)
     """1-norm (largest column sum of absolute values)."""
     best = 0.0
@@ -120,7 +122,7 @@ def _norm1(A):  # pragma: no cover (compiled)
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def leg_inverse(rows, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot, inv, ok):  # pragma: no cover
     """:math:`J_{c,w}^{-1}` (n, n_w, n_c) by block elimination (``loop_blocks.LegPlan`` indices; legs
     of k <= 3 joints) where :math:`\\kappa_1(D_g)\\kappa_1(S)` <= ``max_pivot``; ``ok`` (n,) says
@@ -210,7 +212,7 @@ def leg_inverse(rows, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_p
                 out[p, q] = full[w_pos[p], eq_pos[q]]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def velocity_maps(rows, inv, u, w, cu_ptr, cu_rows, du, G, cond, dq):  # pragma: no cover (compiled)
     """Per sample: ``cond`` the 1-norm condition number of :math:`J_{c,w}` (``rows[:, :, :n_w]``,
     inverse ``inv``), ``G`` (n, n_v, n_u) with :math:`G_u = I`, :math:`G_w = -J_{c,w}^{-1}J_{c,u}`
@@ -254,13 +256,22 @@ def velocity_maps(rows, inv, u, w, cu_ptr, cu_rows, du, G, cond, dq):  # pragma:
             dq[i, a] = s
 
 
-@njit(cache=True)
-def drift_accelerations(J, dJ, dq, ps, body_ptr, body_cols, body_of, dtgt_a, dsrc_a, dtgt_b, dsrc_b, n_dims,
-                        rows, inv, u, w, cu_ptr, cu_rows, ddu, ddq):  # pragma: no cover (compiled)
-    """Per sample: each carrying body's :math:`V = J\\dot q`, :math:`\\dot J\\dot q` on its support
-    columns (``body_cols[body_ptr[b]:body_ptr[b + 1]]``), the classical acceleration of every moving
-    side's point, the drift rows (-side a + side b), then :math:`\\ddot q_u = \\ddot u`,
-    :math:`\\ddot q_w = J_{c,w}^{-1}(-J_{c,u}\\ddot u - \\text{drift})`."""
+@njit(cache=True, error_model="numpy")
+def drift_accelerations(J, dJ, from_j, dq, ps, body_ptr, body_cols, body_end, body_of, dtgt_a, dsrc_a, dtgt_b, dsrc_b,
+                        n_dims, rows, inv, u, w, cu_ptr, cu_rows, ddu, ddq):  # pragma: no cover (compiled)
+    """Per sample: each carrying body's spatial velocity :math:`V = J\dot q` and acceleration at
+    :math:`\ddot q = 0`, :math:`\dot J\dot q`, on its support columns
+    (``body_cols[body_ptr[b]:body_ptr[b + 1]]``, in the chain's order); the classical acceleration
+    of every moving side's point; the drift rows (-side a + side b); then
+    :math:`\ddot q_u = \ddot u`, :math:`\ddot q_w = J_{c,w}^{-1}(-J_{c,u}\ddot u - \text{drift})`.
+
+    ``from_j`` False: :math:`\dot J` is pinocchio's ``computeJointJacobiansTimeVariation`` (``dJ``,
+    (n, 6, n_v)). True: from :math:`J` itself, as pinocchio forms it: column k of :math:`\dot J` is
+    :math:`v_k \times J_k` (spatial motion cross product, world frame at the origin; Featherstone,
+    *Rigid Body Dynamics Algorithms*, Eq. 2.36 and §2.9, :math:`\dot S = v\times S` for a joint
+    whose axis is fixed in its body), :math:`v_k` the velocity of joint k's body: the sum of
+    :math:`J_m\dot q_m` over the supporting columns up to the last column of joint k
+    (``body_end``: the position of that column); ``dJ`` is then not read."""
     n = J.shape[0]
     nb = body_ptr.size - 1
     S = body_of.size
@@ -269,20 +280,47 @@ def drift_accelerations(J, dJ, dq, ps, body_ptr, body_cols, body_of, dtgt_a, dsr
     n_u = u.size
     V = np.empty((nb, 6))
     A = np.empty((nb, 6))
+    cum = np.empty((body_cols.size, 6))
+    v = np.empty(6)
     vals = np.empty(n_dims * S)
     drift = np.empty(nc)
     rhs = np.empty(nc)
     for i in range(n):
-        for b in range(nb):
-            for d in range(6):
-                sv = 0.0
-                sa = 0.0
+        if from_j:
+            for b in range(nb):
+                v[:] = 0.0
                 for x in range(body_ptr[b], body_ptr[b + 1]):
                     c = body_cols[x]
-                    sv += J[i, d, c] * dq[i, c]
-                    sa += dJ[i, d, c] * dq[i, c]
-                V[b, d] = sv
-                A[b, d] = sa
+                    for d in range(6):
+                        v[d] += J[i, d, c] * dq[i, c]
+                        cum[x, d] = v[d]
+                for d in range(6):
+                    V[b, d] = v[d]
+                    A[b, d] = 0.0
+                for x in range(body_ptr[b], body_ptr[b + 1]):
+                    c = body_cols[x]
+                    e = body_end[x]
+                    lx, ly, lz, ox, oy, oz = cum[e, 0], cum[e, 1], cum[e, 2], cum[e, 3], cum[e, 4], cum[e, 5]
+                    jx, jy, jz, kx, ky, kz = J[i, 0, c], J[i, 1, c], J[i, 2, c], J[i, 3, c], J[i, 4, c], J[i, 5, c]
+                    qd = dq[i, c]
+                    # (l, o) x (j, k) = (o x j + l x k, o x k)
+                    A[b, 0] += ((oy * jz - oz * jy) + (ly * kz - lz * ky)) * qd
+                    A[b, 1] += ((oz * jx - ox * jz) + (lz * kx - lx * kz)) * qd
+                    A[b, 2] += ((ox * jy - oy * jx) + (lx * ky - ly * kx)) * qd
+                    A[b, 3] += (oy * kz - oz * ky) * qd
+                    A[b, 4] += (oz * kx - ox * kz) * qd
+                    A[b, 5] += (ox * ky - oy * kx) * qd
+        else:
+            for b in range(nb):
+                for d in range(6):
+                    sv = 0.0
+                    sa = 0.0
+                    for x in range(body_ptr[b], body_ptr[b + 1]):
+                        c = body_cols[x]
+                        sv += J[i, d, c] * dq[i, c]
+                        sa += dJ[i, d, c] * dq[i, c]
+                    V[b, d] = sv
+                    A[b, d] = sa
         for k in range(S):
             b = body_of[k]
             px, py, pz = ps[i, k, 0], ps[i, k, 1], ps[i, k, 2]
@@ -318,7 +356,7 @@ def drift_accelerations(J, dJ, dq, ps, body_ptr, body_cols, body_of, dtgt_a, dsr
             ddq[i, w[p]] = s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def project_sample(Y, G, out, i, plan):  # pragma: no cover (compiled)
     """``out[i, u, w0 + c] = sum_r G[i, r, u] Y[r, t0 + c]`` over each chain group's rows and each
     of its runs of consecutive columns (tree column ``t0``, output column ``w0``, ``L`` columns);
@@ -349,7 +387,7 @@ def project_sample(Y, G, out, i, plan):  # pragma: no cover (compiled)
         x += 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def projected_terms(G, basis, kind_of, t_ptr, t_joint, t_weight, col0, out):  # pragma: no cover (compiled)
     """``out[i, u, col0 + k] = sum_j G[i, j, u] basis[kind_of[k], i, j] I[j, k]`` over the joints of
     term k (``t_joint[t_ptr[k]:t_ptr[k + 1]]``, incidence ``t_weight``)."""

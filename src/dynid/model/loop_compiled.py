@@ -36,6 +36,11 @@ Mechanism = Any  # a dynid.model.mechanism.Mechanism (named, not imported: no im
 __all__ = ["StatesPlan", "project_regressor", "projected_terms", "states_block", "states_plan"]
 
 _I = np.int64
+DJ_FROM_J = True
+"""The drift's :math:`\dot J\dot q` from :math:`J` in the kernel (pinocchio's formula,
+:func:`dynid.model._loop_kernels.drift_accelerations`) instead of pinocchio's
+``computeJointJacobiansTimeVariation`` per sample (False): the same values to rounding, one
+pinocchio pass (about 2 us a hexapod sample) less (bench/README.md, "Compiled per-sample kernels")."""
 
 
 class StatesPlan:
@@ -57,6 +62,17 @@ class StatesPlan:
         bodies = sd.body_columns
         self.body_ptr = np.cumsum([0] + [len(c) for c in bodies]).astype(_I)
         self.body_cols = np.ascontiguousarray(np.concatenate(bodies) if bodies else np.zeros(0), dtype=_I)
+        # the position (in body_cols) of the last column of each column's joint
+        model = mech.pin_model
+        joint_of = np.empty(model.nv, dtype=int)
+        for j in range(1, model.njoints):
+            joint_of[model.joints[j].idx_v : model.joints[j].idx_v + model.joints[j].nv] = j
+        end = np.empty(self.body_cols.size, dtype=_I)
+        for b in range(len(bodies)):
+            for x in range(self.body_ptr[b], self.body_ptr[b + 1]):
+                same = [y for y in range(x, self.body_ptr[b + 1]) if joint_of[self.body_cols[y]] == joint_of[self.body_cols[x]]]
+                end[x] = same[-1]
+        self.body_end = end
         self.body_of = np.ascontiguousarray(sc.body_of, dtype=_I)
         self.drift_args = tuple(np.ascontiguousarray(a, dtype=_I) for a in (sc.dtgt_a, sc.dsrc_a, sc.dtgt_b, sc.dsrc_b))
         self.u = np.ascontiguousarray(sd.u, dtype=_I)
@@ -123,12 +139,15 @@ def states_block(mech: Mechanism, plan: StatesPlan, q: FloatArray, du: FloatArra
         inv = np.ascontiguousarray(loop_blocks.dense_inverse(rows[:, :, :nw]))
     kern.velocity_maps(rows, inv, plan.u, plan.w, plan.cu_ptr, plan.cu_rows, du, G, cond, dq)
     loop_blocks.check_condition(cond, max_cond, "the loop-closure Jacobian of the dependent joints", offset)
-    dJ = np.empty((n, 6, nv))
-    tv = pin.computeJointJacobiansTimeVariation
-    for i, (qi, vi) in enumerate(zip(q, dq)):
-        dJ[i] = tv(model, data, qi, vi)
-    kern.drift_accelerations(J, dJ, dq, ps, plan.body_ptr, plan.body_cols, plan.body_of, *plan.drift_args, plan.n_dims,
-                             rows, inv, plan.u, plan.w, plan.cu_ptr, plan.cu_rows, ddu, ddq)
+    if DJ_FROM_J:
+        dJ = J[:1]  # not read
+    else:
+        dJ = np.empty((n, 6, nv))
+        tv = pin.computeJointJacobiansTimeVariation
+        for i, (qi, vi) in enumerate(zip(q, dq)):
+            dJ[i] = tv(model, data, qi, vi)
+    kern.drift_accelerations(J, dJ, DJ_FROM_J, dq, ps, plan.body_ptr, plan.body_cols, plan.body_end, plan.body_of,
+                             *plan.drift_args, plan.n_dims, rows, inv, plan.u, plan.w, plan.cu_ptr, plan.cu_rows, ddu, ddq)
 
 
 def _runs(t: np.ndarray, w: np.ndarray) -> list[tuple[int, int, int]]:
