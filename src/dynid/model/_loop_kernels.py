@@ -43,35 +43,40 @@ def closure_rows(J, flat, slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b,
     point of each moving side; ``cols`` (S, width) its support columns; targets (flat row x column)
     and sources ((d S + k) width + t) of sides a and b. Out: ``rows`` (n, n_rows * n_v), ``ps``
     (n, S, 3) the moving sides' points."""
-    n = J.shape[0]
     S, width = cols.shape
     vals = np.empty(n_dims * S * width)
-    for i in range(n):
-        for k in range(S):
-            e = moving_ref[k]
-            s = slot[e]
-            if s < 0:
-                for a in range(3):
-                    ps[i, k, a] = r[e, a]
-            else:
-                f = flat[i, s]
-                for a in range(3):  # R[a, b] = f[3 b + a]
-                    ps[i, k, a] = f[9 + a] + (f[a] * r[e, 0] + f[3 + a] * r[e, 1] + f[6 + a] * r[e, 2])
-            px, py, pz = ps[i, k, 0], ps[i, k, 1], ps[i, k, 2]
-            for t in range(width):
-                c = cols[k, t]
-                mx, my, mz = J[i, 3, c], J[i, 4, c], J[i, 5, c]
-                vals[(0 * S + k) * width + t] = J[i, 0, c] - (py * mz - pz * my)
-                vals[(1 * S + k) * width + t] = J[i, 1, c] - (pz * mx - px * mz)
-                vals[(2 * S + k) * width + t] = J[i, 2, c] - (px * my - py * mx)
-                for d in range(3, n_dims):
-                    vals[(d * S + k) * width + t] = J[i, d, c]
-        out = rows[i]
-        out[:] = 0.0
-        for x in range(tgt_a.size):
-            out[tgt_a[x]] = -vals[src_a[x]]
-        for x in range(tgt_b.size):
-            out[tgt_b[x]] += vals[src_b[x]]
+    for i in range(J.shape[0]):
+        _rows_one(J[i], flat[i], slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b, n_dims, vals, rows[i], ps[i])
+
+
+@njit(cache=True, error_model="numpy")
+def _rows_one(J, flat, slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b, n_dims, vals, out, ps):  # pragma: no cover
+    """:func:`closure_rows` of one sample (``vals``: scratch)."""
+    S, width = cols.shape
+    for k in range(S):
+        e = moving_ref[k]
+        s = slot[e]
+        if s < 0:
+            for a in range(3):
+                ps[k, a] = r[e, a]
+        else:
+            f = flat[s]
+            for a in range(3):  # R[a, b] = f[3 b + a]
+                ps[k, a] = f[9 + a] + (f[a] * r[e, 0] + f[3 + a] * r[e, 1] + f[6 + a] * r[e, 2])
+        px, py, pz = ps[k, 0], ps[k, 1], ps[k, 2]
+        for t in range(width):
+            c = cols[k, t]
+            mx, my, mz = J[3, c], J[4, c], J[5, c]
+            vals[(0 * S + k) * width + t] = J[0, c] - (py * mz - pz * my)
+            vals[(1 * S + k) * width + t] = J[1, c] - (pz * mx - px * mz)
+            vals[(2 * S + k) * width + t] = J[2, c] - (px * my - py * mx)
+            for d in range(3, n_dims):
+                vals[(d * S + k) * width + t] = J[d, c]
+    out[:] = 0.0
+    for x in range(tgt_a.size):
+        out[tgt_a[x]] = -vals[src_a[x]]
+    for x in range(tgt_b.size):
+        out[tgt_b[x]] += vals[src_b[x]]
 
 
 @njit(cache=True, error_model="numpy")
@@ -127,89 +132,95 @@ def leg_inverse(rows, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_p
     """:math:`J_{c,w}^{-1}` (n, n_w, n_c) by block elimination (``loop_blocks.LegPlan`` indices; legs
     of k <= 3 joints) where :math:`\\kappa_1(D_g)\\kappa_1(S)` <= ``max_pivot``; ``ok`` (n,) says
     where (elsewhere ``inv`` is left as it was: the caller inverts those samples densely)."""
-    n = rows.shape[0]
+    m, k = g_rows.shape
+    n_u = shared.size
+    scratch = _leg_scratch(m, k, n_u)
+    for i in range(rows.shape[0]):
+        ok[i] = _leg_one(rows[i], g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot, scratch, inv[i])
+
+
+@njit(cache=True, error_model="numpy")
+def _leg_scratch(m, k, n_u):  # pragma: no cover (compiled)
+    nc = m * k
+    return (np.empty((k, k)), np.empty((m, k, k)), np.empty((nc, n_u)), np.empty((n_u, n_u)), np.empty((n_u, n_u)),
+            np.empty((nc, n_u)), np.empty((nc + n_u, nc)))
+
+
+@njit(cache=True, error_model="numpy")
+def _leg_one(R, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot, scratch, out):  # pragma: no cover
+    """:func:`leg_inverse` of one sample: True where the pivots allow it (``out`` written)."""
+    D, Dinv, E, S, Sinv, ES, full = scratch
     m, k = g_rows.shape
     nc = m * k
     n_u = shared.size
-    D = np.empty((k, k))
-    Dinv = np.empty((m, k, k))
-    E = np.empty((nc, n_u))
-    S = np.empty((n_u, n_u))
-    Sinv = np.empty((n_u, n_u))
-    ES = np.empty((nc, n_u))
-    full = np.empty((nc + n_u, nc))
-    for i in range(n):
-        R = rows[i]
-        cD = 0.0
-        for g in range(m):
-            for a in range(k):
-                for b in range(k):
-                    D[a, b] = R[g_rows[g, a], local[g, b]]
-            Di = Dinv[g]
-            if k == 1:
-                det = D[0, 0]
-                Di[0, 0] = 1.0 / det
-            elif k == 2:
-                det = D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]
-                Di[0, 0], Di[0, 1], Di[1, 0], Di[1, 1] = D[1, 1] / det, -D[0, 1] / det, -D[1, 0] / det, D[0, 0] / det
-            else:  # adjugate over determinant, as loop_blocks._inv_small
-                a_, b_, c_ = D[0, 0], D[0, 1], D[0, 2]
-                e_, f_, g_ = D[1, 0], D[1, 1], D[1, 2]
-                h_, i_, j_ = D[2, 0], D[2, 1], D[2, 2]
-                A0, A1, A2 = f_ * j_ - g_ * i_, c_ * i_ - b_ * j_, b_ * g_ - c_ * f_
-                A3, A4, A5 = g_ * h_ - e_ * j_, a_ * j_ - c_ * h_, c_ * e_ - a_ * g_
-                A6, A7, A8 = e_ * i_ - f_ * h_, b_ * h_ - a_ * i_, a_ * f_ - b_ * e_
-                det = a_ * A0 + b_ * A3 + c_ * A6
-                Di[0, 0], Di[0, 1], Di[0, 2] = A0 / det, A1 / det, A2 / det
-                Di[1, 0], Di[1, 1], Di[1, 2] = A3 / det, A4 / det, A5 / det
-                Di[2, 0], Di[2, 1], Di[2, 2] = A6 / det, A7 / det, A8 / det
-            c = _norm1(D) * _norm1(Di)
-            if not np.isfinite(c):
-                c = np.inf
-            if c > cD:
-                cD = c
-            for a in range(k):
-                for cc in range(n_u):
-                    s = 0.0
-                    for b in range(k):
-                        s += Di[a, b] * R[g_rows[g, b], shared[cc]]
-                    E[g * k + a, cc] = s
-        for a in range(n_u):
-            for b in range(n_u):
-                S[a, b] = -E[flat_u[a], b]
-        nS = _norm1(S)
-        if not _inverse_gj(S, Sinv):
-            ok[i] = False
-            continue
-        cS = nS * _norm1(Sinv)
-        ok[i] = cD * cS <= max_pivot  # NaN fails
-        if not ok[i]:
-            continue
-        for a in range(nc):
-            for b in range(n_u):
-                s = 0.0
-                for x in range(n_u):
-                    s += E[a, x] * Sinv[x, b]
-                ES[a, b] = s
-        full[:, :] = 0.0
-        # F = C D^-1: row x is row u_pos[x] of leg u_group[x]'s D^-1, in that leg's columns
-        for x in range(n_u):
-            g, p = u_group[x], u_pos[x]
+    cD = 0.0
+    for g in range(m):
+        for a in range(k):
             for b in range(k):
-                fv = Dinv[g, p, b]
-                col = g * k + b
-                for a in range(nc):
-                    full[a, col] += ES[a, x] * fv
-                for a in range(n_u):
-                    full[nc + a, col] += -Sinv[a, x] * fv
-        for g in range(m):
-            for a in range(k):
+                D[a, b] = R[g_rows[g, a], local[g, b]]
+        Di = Dinv[g]
+        if k == 1:
+            det = D[0, 0]
+            Di[0, 0] = 1.0 / det
+        elif k == 2:
+            det = D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]
+            Di[0, 0], Di[0, 1], Di[1, 0], Di[1, 1] = D[1, 1] / det, -D[0, 1] / det, -D[1, 0] / det, D[0, 0] / det
+        else:  # adjugate over determinant, as loop_blocks._inv_small
+            a_, b_, c_ = D[0, 0], D[0, 1], D[0, 2]
+            e_, f_, g_ = D[1, 0], D[1, 1], D[1, 2]
+            h_, i_, j_ = D[2, 0], D[2, 1], D[2, 2]
+            A0, A1, A2 = f_ * j_ - g_ * i_, c_ * i_ - b_ * j_, b_ * g_ - c_ * f_
+            A3, A4, A5 = g_ * h_ - e_ * j_, a_ * j_ - c_ * h_, c_ * e_ - a_ * g_
+            A6, A7, A8 = e_ * i_ - f_ * h_, b_ * h_ - a_ * i_, a_ * f_ - b_ * e_
+            det = a_ * A0 + b_ * A3 + c_ * A6
+            Di[0, 0], Di[0, 1], Di[0, 2] = A0 / det, A1 / det, A2 / det
+            Di[1, 0], Di[1, 1], Di[1, 2] = A3 / det, A4 / det, A5 / det
+            Di[2, 0], Di[2, 1], Di[2, 2] = A6 / det, A7 / det, A8 / det
+        c = _norm1(D) * _norm1(Di)
+        if not np.isfinite(c):
+            c = np.inf
+        if c > cD:
+            cD = c
+        for a in range(k):
+            for cc in range(n_u):
+                s = 0.0
                 for b in range(k):
-                    full[g * k + a, g * k + b] += Dinv[g, a, b]
-        out = inv[i]
-        for p in range(w_pos.size):
-            for q in range(nc):
-                out[p, q] = full[w_pos[p], eq_pos[q]]
+                    s += Di[a, b] * R[g_rows[g, b], shared[cc]]
+                E[g * k + a, cc] = s
+    for a in range(n_u):
+        for b in range(n_u):
+            S[a, b] = -E[flat_u[a], b]
+    nS = _norm1(S)
+    if not _inverse_gj(S, Sinv):
+        return False
+    cS = nS * _norm1(Sinv)
+    if not (cD * cS <= max_pivot):  # NaN fails
+        return False
+    for a in range(nc):
+        for b in range(n_u):
+            s = 0.0
+            for x in range(n_u):
+                s += E[a, x] * Sinv[x, b]
+            ES[a, b] = s
+    full[:, :] = 0.0
+    # F = C D^-1: row x is row u_pos[x] of leg u_group[x]'s D^-1, in that leg's columns
+    for x in range(n_u):
+        g, p = u_group[x], u_pos[x]
+        for b in range(k):
+            fv = Dinv[g, p, b]
+            col = g * k + b
+            for a in range(nc):
+                full[a, col] += ES[a, x] * fv
+            for a in range(n_u):
+                full[nc + a, col] += -Sinv[a, x] * fv
+    for g in range(m):
+        for a in range(k):
+            for b in range(k):
+                full[g * k + a, g * k + b] += Dinv[g, a, b]
+    for p in range(w_pos.size):
+        for q in range(nc):
+            out[p, q] = full[w_pos[p], eq_pos[q]]
+    return True
 
 
 @njit(cache=True, error_model="numpy")
@@ -218,48 +229,55 @@ def velocity_maps(rows, inv, u, w, cu_ptr, cu_rows, du, G, cond, dq):  # pragma:
     inverse ``inv``), ``G`` (n, n_v, n_u) with :math:`G_u = I`, :math:`G_w = -J_{c,w}^{-1}J_{c,u}`
     (column j of :math:`J_{c,u}` on its structurally non-zero rows
     ``cu_rows[cu_ptr[j]:cu_ptr[j + 1]]`` only: the others are exact zeros), and ``dq`` = G du."""
-    n, nc, _ = rows.shape
+    for i in range(rows.shape[0]):
+        cond[i] = _maps_one(rows[i], inv[i], u, w, cu_ptr, cu_rows, du[i], G[i], dq[i])
+
+
+@njit(cache=True, error_model="numpy")
+def _maps_one(R, Ai, u, w, cu_ptr, cu_rows, du, Gi, dq):  # pragma: no cover (compiled)
+    """:func:`velocity_maps` of one sample; returns the condition number."""
+    nc = R.shape[0]
     nw = w.size
     n_u = u.size
-    for i in range(n):
-        R, Ai = rows[i], inv[i]
-        nA = 0.0
-        for b in range(nw):
-            s = 0.0
-            for a in range(nc):
-                s += abs(R[a, b])
-            if not (s <= nA):
-                nA = s
-        nI = 0.0
-        for b in range(nc):
-            s = 0.0
-            for a in range(nw):
-                s += abs(Ai[a, b])
-            if not (s <= nI):
-                nI = s
-        cond[i] = nA * nI
-        Gi = G[i]
-        Gi[:, :] = 0.0
+    nA = 0.0
+    for b in range(nw):
+        s = 0.0
+        for a in range(nc):
+            s += abs(R[a, b])
+        if not (s <= nA):
+            nA = s
+    nI = 0.0
+    for b in range(nc):
+        s = 0.0
+        for a in range(nw):
+            s += abs(Ai[a, b])
+        if not (s <= nI):
+            nI = s
+    cond = nA * nI
+    Gi[:, :] = 0.0
+    for j in range(n_u):
+        Gi[u[j], j] = 1.0
+    for p in range(nw):
         for j in range(n_u):
-            Gi[u[j], j] = 1.0
-        for p in range(nw):
-            for j in range(n_u):
-                s = 0.0
-                for x in range(cu_ptr[j], cu_ptr[j + 1]):
-                    a = cu_rows[x]
-                    s += Ai[p, a] * R[a, nw + j]
-                Gi[w[p], j] = -s
-        for a in range(Gi.shape[0]):
             s = 0.0
-            for j in range(n_u):
-                s += Gi[a, j] * du[i, j]
-            dq[i, a] = s
+            for x in range(cu_ptr[j], cu_ptr[j + 1]):
+                a = cu_rows[x]
+                s += Ai[p, a] * R[a, nw + j]
+            Gi[w[p], j] = -s
+    for a in range(Gi.shape[0]):
+        s = 0.0
+        for j in range(n_u):
+            s += Gi[a, j] * du[j]
+        dq[a] = s
+
+
+    return cond
 
 
 @njit(cache=True, error_model="numpy")
 def drift_accelerations(J, dJ, from_j, dq, ps, body_ptr, body_cols, body_end, body_of, dtgt_a, dsrc_a, dtgt_b, dsrc_b,
                         n_dims, rows, inv, u, w, cu_ptr, cu_rows, ddu, ddq):  # pragma: no cover (compiled)
-    """Per sample: each carrying body's spatial velocity :math:`V = J\dot q` and acceleration at
+    r"""Per sample: each carrying body's spatial velocity :math:`V = J\dot q` and acceleration at
     :math:`\ddot q = 0`, :math:`\dot J\dot q`, on its support columns
     (``body_cols[body_ptr[b]:body_ptr[b + 1]]``, in the chain's order); the classical acceleration
     of every moving side's point; the drift rows (-side a + side b); then
@@ -272,88 +290,126 @@ def drift_accelerations(J, dJ, from_j, dq, ps, body_ptr, body_cols, body_end, bo
     whose axis is fixed in its body), :math:`v_k` the velocity of joint k's body: the sum of
     :math:`J_m\dot q_m` over the supporting columns up to the last column of joint k
     (``body_end``: the position of that column); ``dJ`` is then not read."""
-    n = J.shape[0]
+    scratch = _drift_scratch(body_ptr.size - 1, body_cols.size, n_dims * body_of.size, rows.shape[1])
+    for i in range(J.shape[0]):
+        _drift_one(J[i], dJ[i] if not from_j else dJ[0], from_j, dq[i], ps[i], body_ptr, body_cols, body_end, body_of,
+                   dtgt_a, dsrc_a, dtgt_b, dsrc_b, n_dims, rows[i], inv[i], u, w, cu_ptr, cu_rows, ddu[i], ddq[i], scratch)
+
+
+@njit(cache=True, error_model="numpy")
+def states_fused(J, flat, slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b, n_dims,
+                 g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot,
+                 u, w, cu_ptr, cu_rows, body_ptr, body_cols, body_end, body_of, dtgt_a, dsrc_a, dtgt_b, dsrc_b,
+                 du, ddu, G, cond, dq, ddq, ok):  # pragma: no cover (compiled)
+    """:func:`closure_rows`, :func:`leg_inverse`, :func:`velocity_maps` and
+    :func:`drift_accelerations` (:math:`\\dot J` from :math:`J`) sample after sample, the rows and
+    the inverse of a sample in scratch arrays (in cache) instead of whole-block arrays (some 6 kB a
+    hexapod sample, 1.5 MB a block of 256: the four passes over them cost more than their
+    arithmetic under load). ``ok`` False: the pivots refused the block elimination; that sample's
+    outputs are not written (the caller takes the separate kernels and the dense inverse)."""
+    nv = J.shape[2]
+    nc = g_rows.size
+    S, width = cols.shape
+    vals = np.empty(n_dims * S * width)
+    R = np.empty((nc, nv))
+    Ai = np.empty((w.size, nc))
+    ps = np.empty((S, 3))
+    m, k = g_rows.shape
+    leg = _leg_scratch(m, k, shared.size)
+    drift = _drift_scratch(body_ptr.size - 1, body_cols.size, n_dims * body_of.size, nc)
+    Rf = R.reshape(nc * nv)
+    for i in range(J.shape[0]):
+        _rows_one(J[i], flat[i], slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b, n_dims, vals, Rf, ps)
+        ok[i] = _leg_one(R, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot, leg, Ai)
+        if not ok[i]:
+            continue
+        cond[i] = _maps_one(R, Ai, u, w, cu_ptr, cu_rows, du[i], G[i], dq[i])
+        _drift_one(J[i], J[i], True, dq[i], ps, body_ptr, body_cols, body_end, body_of, dtgt_a, dsrc_a, dtgt_b, dsrc_b,
+                   n_dims, R, Ai, u, w, cu_ptr, cu_rows, ddu[i], ddq[i], drift)
+
+
+@njit(cache=True, error_model="numpy")
+def _drift_scratch(nb, ncols, nvals, nc):  # pragma: no cover (compiled)
+    return np.empty((nb, 6)), np.empty((nb, 6)), np.empty((ncols, 6)), np.empty(6), np.empty(nvals), np.empty(nc), np.empty(nc)
+
+
+@njit(cache=True, error_model="numpy")
+def _drift_one(J, dJ, from_j, dq, ps, body_ptr, body_cols, body_end, body_of, dtgt_a, dsrc_a, dtgt_b, dsrc_b, n_dims,
+               R, Ai, u, w, cu_ptr, cu_rows, ddu, ddq, scratch):  # pragma: no cover (compiled)
+    """:func:`drift_accelerations` of one sample."""
+    V, A, cum, v, vals, drift, rhs = scratch
     nb = body_ptr.size - 1
     S = body_of.size
-    nc = rows.shape[1]
+    nc = R.shape[0]
     nw = w.size
     n_u = u.size
-    V = np.empty((nb, 6))
-    A = np.empty((nb, 6))
-    cum = np.empty((body_cols.size, 6))
-    v = np.empty(6)
-    vals = np.empty(n_dims * S)
-    drift = np.empty(nc)
-    rhs = np.empty(nc)
-    for i in range(n):
-        if from_j:
-            for b in range(nb):
-                v[:] = 0.0
+    if from_j:
+        for b in range(nb):
+            v[:] = 0.0
+            for x in range(body_ptr[b], body_ptr[b + 1]):
+                c = body_cols[x]
+                for d in range(6):
+                    v[d] += J[d, c] * dq[c]
+                    cum[x, d] = v[d]
+            for d in range(6):
+                V[b, d] = v[d]
+                A[b, d] = 0.0
+            for x in range(body_ptr[b], body_ptr[b + 1]):
+                c = body_cols[x]
+                e = body_end[x]
+                lx, ly, lz, ox, oy, oz = cum[e, 0], cum[e, 1], cum[e, 2], cum[e, 3], cum[e, 4], cum[e, 5]
+                jx, jy, jz, kx, ky, kz = J[0, c], J[1, c], J[2, c], J[3, c], J[4, c], J[5, c]
+                qd = dq[c]
+                # (l, o) x (j, k) = (o x j + l x k, o x k)
+                A[b, 0] += ((oy * jz - oz * jy) + (ly * kz - lz * ky)) * qd
+                A[b, 1] += ((oz * jx - ox * jz) + (lz * kx - lx * kz)) * qd
+                A[b, 2] += ((ox * jy - oy * jx) + (lx * ky - ly * kx)) * qd
+                A[b, 3] += (oy * kz - oz * ky) * qd
+                A[b, 4] += (oz * kx - ox * kz) * qd
+                A[b, 5] += (ox * ky - oy * kx) * qd
+    else:
+        for b in range(nb):
+            for d in range(6):
+                sv = 0.0
+                sa = 0.0
                 for x in range(body_ptr[b], body_ptr[b + 1]):
                     c = body_cols[x]
-                    for d in range(6):
-                        v[d] += J[i, d, c] * dq[i, c]
-                        cum[x, d] = v[d]
-                for d in range(6):
-                    V[b, d] = v[d]
-                    A[b, d] = 0.0
-                for x in range(body_ptr[b], body_ptr[b + 1]):
-                    c = body_cols[x]
-                    e = body_end[x]
-                    lx, ly, lz, ox, oy, oz = cum[e, 0], cum[e, 1], cum[e, 2], cum[e, 3], cum[e, 4], cum[e, 5]
-                    jx, jy, jz, kx, ky, kz = J[i, 0, c], J[i, 1, c], J[i, 2, c], J[i, 3, c], J[i, 4, c], J[i, 5, c]
-                    qd = dq[i, c]
-                    # (l, o) x (j, k) = (o x j + l x k, o x k)
-                    A[b, 0] += ((oy * jz - oz * jy) + (ly * kz - lz * ky)) * qd
-                    A[b, 1] += ((oz * jx - ox * jz) + (lz * kx - lx * kz)) * qd
-                    A[b, 2] += ((ox * jy - oy * jx) + (lx * ky - ly * kx)) * qd
-                    A[b, 3] += (oy * kz - oz * ky) * qd
-                    A[b, 4] += (oz * kx - ox * kz) * qd
-                    A[b, 5] += (ox * ky - oy * kx) * qd
-        else:
-            for b in range(nb):
-                for d in range(6):
-                    sv = 0.0
-                    sa = 0.0
-                    for x in range(body_ptr[b], body_ptr[b + 1]):
-                        c = body_cols[x]
-                        sv += J[i, d, c] * dq[i, c]
-                        sa += dJ[i, d, c] * dq[i, c]
-                    V[b, d] = sv
-                    A[b, d] = sa
-        for k in range(S):
-            b = body_of[k]
-            px, py, pz = ps[i, k, 0], ps[i, k, 1], ps[i, k, 2]
-            wx, wy, wz = V[b, 3], V[b, 4], V[b, 5]
-            vx = V[b, 0] + (wy * pz - wz * py)
-            vy = V[b, 1] + (wz * px - wx * pz)
-            vz = V[b, 2] + (wx * py - wy * px)
-            ax, ay, az = A[b, 3], A[b, 4], A[b, 5]
-            vals[0 * S + k] = A[b, 0] + (ay * pz - az * py) + (wy * vz - wz * vy)
-            vals[1 * S + k] = A[b, 1] + (az * px - ax * pz) + (wz * vx - wx * vz)
-            vals[2 * S + k] = A[b, 2] + (ax * py - ay * px) + (wx * vy - wy * vx)
-            for d in range(3, n_dims):
-                vals[d * S + k] = A[b, d]
-        drift[:] = 0.0
-        for x in range(dtgt_a.size):
-            drift[dtgt_a[x]] = -vals[dsrc_a[x]]
-        for x in range(dtgt_b.size):
-            drift[dtgt_b[x]] += vals[dsrc_b[x]]
-        R = rows[i]
-        rhs[:] = 0.0
-        for j in range(n_u):  # J_c,u ddu on its structurally non-zero entries (velocity_maps)
-            for x in range(cu_ptr[j], cu_ptr[j + 1]):
-                a = cu_rows[x]
-                rhs[a] += R[a, nw + j] * ddu[i, j]
+                    sv += J[d, c] * dq[c]
+                    sa += dJ[d, c] * dq[c]
+                V[b, d] = sv
+                A[b, d] = sa
+    for k in range(S):
+        b = body_of[k]
+        px, py, pz = ps[k, 0], ps[k, 1], ps[k, 2]
+        wx, wy, wz = V[b, 3], V[b, 4], V[b, 5]
+        vx = V[b, 0] + (wy * pz - wz * py)
+        vy = V[b, 1] + (wz * px - wx * pz)
+        vz = V[b, 2] + (wx * py - wy * px)
+        ax, ay, az = A[b, 3], A[b, 4], A[b, 5]
+        vals[0 * S + k] = A[b, 0] + (ay * pz - az * py) + (wy * vz - wz * vy)
+        vals[1 * S + k] = A[b, 1] + (az * px - ax * pz) + (wz * vx - wx * vz)
+        vals[2 * S + k] = A[b, 2] + (ax * py - ay * px) + (wx * vy - wy * vx)
+        for d in range(3, n_dims):
+            vals[d * S + k] = A[b, d]
+    drift[:] = 0.0
+    for x in range(dtgt_a.size):
+        drift[dtgt_a[x]] = -vals[dsrc_a[x]]
+    for x in range(dtgt_b.size):
+        drift[dtgt_b[x]] += vals[dsrc_b[x]]
+    rhs[:] = 0.0
+    for j in range(n_u):  # J_c,u ddu on its structurally non-zero entries (velocity_maps)
+        for x in range(cu_ptr[j], cu_ptr[j + 1]):
+            a = cu_rows[x]
+            rhs[a] += R[a, nw + j] * ddu[j]
+    for a in range(nc):
+        rhs[a] = -rhs[a] - drift[a]
+    for j in range(n_u):
+        ddq[u[j]] = ddu[j]
+    for p in range(nw):
+        s = 0.0
         for a in range(nc):
-            rhs[a] = -rhs[a] - drift[a]
-        for j in range(n_u):
-            ddq[i, u[j]] = ddu[i, j]
-        for p in range(nw):
-            s = 0.0
-            for a in range(nc):
-                s += inv[i, p, a] * rhs[a]
-            ddq[i, w[p]] = s
+            s += Ai[p, a] * rhs[a]
+        ddq[w[p]] = s
 
 
 @njit(cache=True, error_model="numpy")

@@ -37,7 +37,7 @@ __all__ = ["StatesPlan", "project_regressor", "projected_terms", "states_block",
 
 _I = np.int64
 DJ_FROM_J = True
-"""The drift's :math:`\dot J\dot q` from :math:`J` in the kernel (pinocchio's formula,
+"""The drift's :math:`\\dot J\\dot q` from :math:`J` in the kernel (pinocchio's formula,
 :func:`dynid.model._loop_kernels.drift_accelerations`) instead of pinocchio's
 ``computeJointJacobiansTimeVariation`` per sample (False): the same values to rounding, one
 pinocchio pass (about 2 us a hexapod sample) less (bench/README.md, "Compiled per-sample kernels")."""
@@ -118,32 +118,56 @@ def states_block(mech: Mechanism, plan: StatesPlan, q: FloatArray, du: FloatArra
     n, nv = q.shape
     J = np.empty((n, 6, nv))
     flat = np.empty((n, plan.k, 12))
-    view, jsel = loop_batch.placement_view(mech, data), plan.jsel
+    view = loop_batch.placement_view(mech, data)[plan.jsel]  # the side joints' rows: data's memory, read per sample
     cjj = pin.computeJointJacobians
     for i, qi in enumerate(q):
         J[i] = cjj(model, data, qi)
-        flat[i] = view[jsel]
+        flat[i] = view
+    if plan.leg is not None and DJ_FROM_J:  # all in one pass, sample after sample
+        ok = np.empty(n, dtype=np.bool_)
+        kern.states_fused(J, flat, plan.slot, plan.r, plan.moving_ref, plan.cols, *plan.rows_args, plan.n_dims,
+                          *plan.leg, loop_blocks.MAX_PIVOT_COND, plan.u, plan.w, plan.cu_ptr, plan.cu_rows,
+                          plan.body_ptr, plan.body_cols, plan.body_end, plan.body_of, *plan.drift_args,
+                          du, ddu, G, cond, dq, ddq, ok)
+        if not ok.all():  # pivots too ill-conditioned for block elimination: these samples densely
+            bad = np.flatnonzero(~ok)
+            out = [np.empty((bad.size, *x.shape[1:])) for x in (G, cond, dq, ddq)]
+            _separate(mech, plan, q[bad], J[bad], flat[bad], du[bad], ddu[bad], data, False, *out)
+            G[bad], cond[bad], dq[bad], ddq[bad] = out
+    else:
+        _separate(mech, plan, q, J, flat, du, ddu, data, plan.leg is not None, G, cond, dq, ddq)
+    loop_blocks.check_condition(cond, max_cond, "the loop-closure Jacobian of the dependent joints", offset)
+
+
+def _separate(mech: Mechanism, plan: StatesPlan, q: FloatArray, J: FloatArray, flat: FloatArray, du: FloatArray,
+              ddu: FloatArray, data: pin.Data, leg: bool, G: FloatArray, cond: FloatArray, dq: FloatArray,
+              ddq: FloatArray) -> None:
+    """The states by the separate kernels over the block (rows, inverse: by the leg plan where
+    ``leg`` and its pivots allow, else dense; maps; drift, :math:`\\dot J` from pinocchio unless
+    :data:`DJ_FROM_J`)."""
+    from dynid.model import _loop_kernels as kern
+
+    n, nv = q.shape
     nc = plan.n_rows
     rows = np.empty((n, nc, nv))
     ps = np.empty((n, plan.cols.shape[0], 3))
     kern.closure_rows(J, flat, plan.slot, plan.r, plan.moving_ref, plan.cols, *plan.rows_args, plan.n_dims,
                       rows.reshape(n, -1), ps)
     nw = plan.w.size
-    if plan.leg is not None:
+    if leg:
         inv = np.empty((n, nw, nc))
         ok = np.empty(n, dtype=np.bool_)
         kern.leg_inverse(rows, *plan.leg, loop_blocks.MAX_PIVOT_COND, inv, ok)
-        if not ok.all():  # pivots too ill-conditioned for block elimination: these samples densely
+        if not ok.all():
             inv[~ok] = loop_blocks.dense_inverse(rows[~ok][:, :, :nw])
     else:
         inv = np.ascontiguousarray(loop_blocks.dense_inverse(rows[:, :, :nw]))
     kern.velocity_maps(rows, inv, plan.u, plan.w, plan.cu_ptr, plan.cu_rows, du, G, cond, dq)
-    loop_blocks.check_condition(cond, max_cond, "the loop-closure Jacobian of the dependent joints", offset)
     if DJ_FROM_J:
         dJ = J[:1]  # not read
     else:
         dJ = np.empty((n, 6, nv))
-        tv = pin.computeJointJacobiansTimeVariation
+        tv, model = pin.computeJointJacobiansTimeVariation, mech.pin_model
         for i, (qi, vi) in enumerate(zip(q, dq)):
             dJ[i] = tv(model, data, qi, vi)
     kern.drift_accelerations(J, dJ, DJ_FROM_J, dq, ps, plan.body_ptr, plan.body_cols, plan.body_end, plan.body_of,
