@@ -179,11 +179,9 @@ def main(argv: list[str] | None = None) -> int:
 
         r["pinocchio computeJointTorqueRegressor"] = jtr_t = cpu(jtr_only)
         r["  its copy into the block"] = 0.0
-        G_st = st.G
 
-        def terms() -> None:
-            bases = [cl.term_basis(kind, st.dq, st.ddq, mech.coulomb_width) for kind, _ in mech.term_groups]
-            loop_compiled.projected_terms(mech, G_st, bases, out, mech.n_body_params)
+        def terms() -> None:  # the bases; their sums G^T F run in the projection's kernel call (the row below)
+            [cl.term_basis(kind, st.dq, st.ddq, mech.coulomb_width) for kind, _ in mech.term_groups]
 
         r["joint terms G^T F"] = terms_t = cpu(terms)
         r["regressor given the states, total"] = tot = cpu(lambda: cl.actuator_regressor(mech, st, data=data, out=out))

@@ -6,6 +6,8 @@ the numpy routes it replaces on small matrices (3 x 3 to 24 x 240), with preallo
 * :func:`closure_rows`: the side points :math:`p = t + R r` and the closure rows
   :math:`J_v - p\\times J_\\omega` (:math:`J_\\omega` for ``6d``) of all moving sides, scattered
   -side a + side b (``loop_blocks.scattered_rows`` and ``loop_kinematics._side_points``);
+* :func:`states_fused`: the four below sample after sample (a sample's rows and inverse stay in
+  cache), for mechanisms with legs;
 * :func:`leg_inverse`: :math:`J_{c,w}^{-1}` by block elimination of the leg structure
   (``loop_blocks.inverse``; Golub & Van Loan, *Matrix Computations*, 4th ed., §3.2.11: the Schur
   complement :math:`S = -C D^{-1} B`, closed-form 3 x 3 inverses, :math:`S^{-1}` by Gauss-Jordan
@@ -17,9 +19,8 @@ the numpy routes it replaces on small matrices (3 x 3 to 24 x 240), with preallo
   ``loop_blocks.scattered_drift``) and :math:`\\ddot q` (``_Maps.accelerations``);
 * :func:`project_sample`: :math:`G^T Y_{tree}` of one sample, chain segment by chain segment on
   the supporting rows (``closed_loop._chain_groups``), from the array pinocchio's
-  ``computeJointTorqueRegressor`` returns (no copy into a block);
-* :func:`projected_terms`: :math:`G^T F` of the unweighted joint terms without forming :math:`F`
-  (``closed_loop._projected_terms``).
+  ``computeJointTorqueRegressor`` returns (no copy into a block), and :math:`G^T F` of the
+  unweighted joint terms without forming :math:`F` (``closed_loop._projected_terms``).
 
 Compiled with ``error_model="numpy"``: a division by zero gives inf or NaN as numpy's does (a
 singular pivot fails the pivots' test or the condition number's), never an exception. The same
@@ -413,13 +414,16 @@ def _drift_one(J, dJ, from_j, dq, ps, body_ptr, body_cols, body_end, body_of, dt
 
 
 @njit(cache=True, error_model="numpy")
-def project_sample(Y, G, out, i, plan):  # pragma: no cover (compiled)
+def project_sample(Y, G, out, i, plan, basis, tplan, tweight):  # pragma: no cover (compiled)
     """``out[i, u, w0 + c] = sum_r G[i, r, u] Y[r, t0 + c]`` over each chain group's rows and each
     of its runs of consecutive columns (tree column ``t0``, output column ``w0``, ``L`` columns);
     ``Y`` (n_v, 10 n_joints) the tree regressor of sample ``i``. ``plan`` packs the groups (one
     argument: each costs the dispatch some 0.1 us): ``[n_groups, (n_rows, rows..., n_runs,
     (t0, w0, L)...)...]``. The rows outermost, the columns innermost (contiguous in ``Y`` and
-    ``out``: vectorized); the sum over the rows in their order."""
+    ``out``: vectorized); the sum over the rows in their order. Then the joint terms of the sample
+    (:func:`projected_terms`' sums, while its output row is in cache): ``tplan`` packs
+    ``[col0, n_terms, (kind, n_joints, joints...)...]``, ``tweight`` the incidence of each listed
+    joint, ``basis`` (kinds, n, n_v)."""
     n_u = G.shape[2]
     Gi, Oi = G[i], out[i]
     x = 1
@@ -441,20 +445,16 @@ def project_sample(Y, G, out, i, plan):  # pragma: no cover (compiled)
                     for c in range(L):
                         o[c] += gv * Yr[c]
         x += 1
-
-
-@njit(cache=True, error_model="numpy")
-def projected_terms(G, basis, kind_of, t_ptr, t_joint, t_weight, col0, out):  # pragma: no cover (compiled)
-    """``out[i, u, col0 + k] = sum_j G[i, j, u] basis[kind_of[k], i, j] I[j, k]`` over the joints of
-    term k (``t_joint[t_ptr[k]:t_ptr[k + 1]]``, incidence ``t_weight``)."""
-    n, _, n_u = G.shape
-    nt = kind_of.size
-    for i in range(n):
-        for k in range(nt):
-            kb = kind_of[k]
-            for uu in range(n_u):
-                s = 0.0
-                for x in range(t_ptr[k], t_ptr[k + 1]):
-                    j = t_joint[x]
-                    s += (G[i, j, uu] * basis[kb, i, j]) * t_weight[x]
-                out[i, uu, col0 + k] = s
+    col = tplan[0]
+    x, z = 2, 0
+    for k in range(tplan[1]):
+        kb, nj = tplan[x], tplan[x + 1]
+        x += 2
+        for uu in range(n_u):
+            s = 0.0
+            for y in range(nj):
+                j = tplan[x + y]
+                s += (Gi[j, uu] * basis[kb, i, j]) * tweight[z + y]
+            Oi[uu, col + k] = s
+        x += nj
+        z += nj

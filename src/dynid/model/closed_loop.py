@@ -252,9 +252,8 @@ def actuator_regressor(
         from dynid.model import loop_compiled
 
         target = W if T is None else np.empty((n, n_u, mech.n_standard_params))
-        loop_compiled.project_regressor(mech, groups, q, dq, ddq, G, target, data)
         bases = [term_basis(kind, dq, ddq, mech.coulomb_width) for kind, _ in mech.term_groups]
-        loop_compiled.projected_terms(mech, G, bases, target, nb)
+        loop_compiled.project_regressor(mech, groups, q, dq, ddq, G, bases, target, data)
         if T is not None:
             np.matmul(T, target, out=W)
         return ActuatorRegression(W=W, distribution=label, Ga=Ga, state=state)

@@ -33,7 +33,7 @@ from dynid.model.closures import JointCoordinates
 
 Mechanism = Any  # a dynid.model.mechanism.Mechanism (named, not imported: no import cycle)
 
-__all__ = ["StatesPlan", "project_regressor", "projected_terms", "states_block", "states_plan"]
+__all__ = ["StatesPlan", "project_regressor", "states_block", "states_plan"]
 
 _I = np.int64
 DJ_FROM_J = True
@@ -208,42 +208,39 @@ def _regressor_plan(mech: Mechanism, groups: list) -> np.ndarray:
 
 
 def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArray, ddq: FloatArray, G: FloatArray,
-                      out: FloatArray, data: pin.Data) -> None:
-    """``out[:, :, :n_body_params]`` = :math:`G^T Y_{tree}` (``out`` (n, n_u, >= n_body_params),
-    C-contiguous), pinocchio's tree regressor of each sample projected by the compiled kernel as
-    pinocchio returns it (no copy into a block)."""
+                      bases: list[FloatArray], out: FloatArray, data: pin.Data) -> None:
+    """``out[:, :, :n_body_params]`` = :math:`G^T Y_{tree}` (``out`` (n, n_u, n_params), C-contiguous),
+    pinocchio's tree regressor of each sample projected by the compiled kernel as pinocchio returns
+    it (no copy into a block), and ``out[:, :, n_body_params:]`` = :math:`G^T F` of the unweighted
+    joint terms (``bases``: the basis of each of ``mech.term_groups``, (n, n_v) each) in the same
+    call, sample by sample."""
     from dynid.model import _loop_kernels as kern
 
     plan = _regressor_plan(mech, groups)
+    tplan, tweight = _terms_plan(mech)
     G = np.ascontiguousarray(G)
+    basis = np.ascontiguousarray(np.stack(bases)) if bases else np.zeros((1, G.shape[0], G.shape[1]))
     model = mech.pin_model
     jtr = pin.computeJointTorqueRegressor
     proj = kern.project_sample
     for i, (qi, vi, ai) in enumerate(zip(q, dq, ddq)):
-        proj(jtr(model, data, qi, vi, ai), G, out, i, plan)
+        proj(jtr(model, data, qi, vi, ai), G, out, i, plan, basis, tplan, tweight)
 
 
-def projected_terms(mech: Mechanism, G: FloatArray, bases: list[FloatArray], out: FloatArray, col0: int) -> None:
-    """``out[:, :, col0:]`` = :math:`G^T F` of the unweighted joint terms (``bases``: the basis of
-    each of ``mech.term_groups``, (n, n_v) each)."""
-    from dynid.model import _loop_kernels as kern
-
+def _terms_plan(mech: Mechanism) -> tuple[np.ndarray, np.ndarray]:
+    """The joint terms packed for :func:`dynid.model._loop_kernels.project_sample` (cached on ``mech``):
+    ``[n_body_params, n_terms, (kind group, n_joints, joints...)...]`` and the incidence weights."""
     cached = mech.__dict__.get("_compiled_terms_plan")
     if cached is None:
         inc = mech.term_incidence
-        kind_of = np.empty(inc.shape[1], dtype=_I)
+        kind_of = np.empty(inc.shape[1], dtype=int)
         for g, (_, ks) in enumerate(mech.term_groups):
             kind_of[ks] = g
-        ptr, joint, weight = [0], [], []
+        packed, weight = [mech.n_body_params, inc.shape[1]], []
         for k in range(inc.shape[1]):
             j = np.flatnonzero(inc[:, k])
-            joint += j.tolist()
+            packed += [int(kind_of[k]), j.size, *j.tolist()]
             weight += inc[j, k].tolist()
-            ptr.append(len(joint))
-        cached = (kind_of, np.array(ptr, dtype=_I), np.array(joint, dtype=_I), np.array(weight, dtype=float))
+        cached = (np.array(packed, dtype=_I), np.array(weight, dtype=float))
         object.__setattr__(mech, "_compiled_terms_plan", cached)
-    if not cached[0].size:
-        return
-    G = np.ascontiguousarray(G)
-    basis = np.ascontiguousarray(np.stack(bases)) if bases else np.zeros((1, G.shape[0], G.shape[1]))
-    kern.projected_terms(G, basis, *cached, col0, out)
+    return cached
