@@ -129,7 +129,7 @@ def _norm1(A):  # pragma: no cover (compiled)
 
 
 @njit(cache=True, error_model="numpy")
-def leg_inverse(rows, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot, inv, ok):  # pragma: no cover
+def leg_inverse(rows, g_rows, local, shared, flat_u, u_group, u_pos, row_out, col_out, max_pivot, inv, ok):  # pragma: no cover
     """:math:`J_{c,w}^{-1}` (n, n_w, n_c) by block elimination (``loop_blocks.LegPlan`` indices; legs
     of k <= 3 joints) where :math:`\\kappa_1(D_g)\\kappa_1(S)` <= ``max_pivot``; ``ok`` (n,) says
     where (elsewhere ``inv`` is left as it was: the caller inverts those samples densely)."""
@@ -137,20 +137,19 @@ def leg_inverse(rows, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_p
     n_u = shared.size
     scratch = _leg_scratch(m, k, n_u)
     for i in range(rows.shape[0]):
-        ok[i] = _leg_one(rows[i], g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot, scratch, inv[i])
+        ok[i] = _leg_one(rows[i], g_rows, local, shared, flat_u, u_group, u_pos, row_out, col_out, max_pivot, scratch, inv[i])
 
 
 @njit(cache=True, error_model="numpy")
 def _leg_scratch(m, k, n_u):  # pragma: no cover (compiled)
     nc = m * k
-    return (np.empty((k, k)), np.empty((m, k, k)), np.empty((nc, n_u)), np.empty((n_u, n_u)), np.empty((n_u, n_u)),
-            np.empty((nc, n_u)), np.empty((nc + n_u, nc)))
+    return np.empty((k, k)), np.empty((m, k, k)), np.empty((nc, n_u)), np.empty((n_u, n_u)), np.empty((n_u, n_u)), np.empty((nc, n_u))
 
 
 @njit(cache=True, error_model="numpy")
-def _leg_one(R, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot, scratch, out):  # pragma: no cover
+def _leg_one(R, g_rows, local, shared, flat_u, u_group, u_pos, row_out, col_out, max_pivot, scratch, out):  # pragma: no cover
     """:func:`leg_inverse` of one sample: True where the pivots allow it (``out`` written)."""
-    D, Dinv, E, S, Sinv, ES, full = scratch
+    D, Dinv, E, S, Sinv, ES = scratch
     m, k = g_rows.shape
     nc = m * k
     n_u = shared.size
@@ -198,29 +197,36 @@ def _leg_one(R, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, ma
     if not (cD * cS <= max_pivot):  # NaN fails
         return False
     for a in range(nc):
+        if row_out[a] < 0:  # an independent joint's row: not among the outputs
+            continue
         for b in range(n_u):
             s = 0.0
             for x in range(n_u):
                 s += E[a, x] * Sinv[x, b]
             ES[a, b] = s
-    full[:, :] = 0.0
-    # F = C D^-1: row x is row u_pos[x] of leg u_group[x]'s D^-1, in that leg's columns
+    out[:, :] = 0.0
+    # F = C D^-1: row x is row u_pos[x] of leg u_group[x]'s D^-1, in that leg's columns; the
+    # entries written where they belong in the output (row_out, col_out: plan row and column ->
+    # output row and column, -1 where a row is not an output)
     for x in range(n_u):
         g, p = u_group[x], u_pos[x]
         for b in range(k):
             fv = Dinv[g, p, b]
-            col = g * k + b
+            qc = col_out[g * k + b]
             for a in range(nc):
-                full[a, col] += ES[a, x] * fv
+                pr = row_out[a]
+                if pr >= 0:
+                    out[pr, qc] += ES[a, x] * fv
             for a in range(n_u):
-                full[nc + a, col] += -Sinv[a, x] * fv
+                pr = row_out[nc + a]
+                if pr >= 0:
+                    out[pr, qc] += -Sinv[a, x] * fv
     for g in range(m):
         for a in range(k):
-            for b in range(k):
-                full[g * k + a, g * k + b] += Dinv[g, a, b]
-    for p in range(w_pos.size):
-        for q in range(nc):
-            out[p, q] = full[w_pos[p], eq_pos[q]]
+            pr = row_out[g * k + a]
+            if pr >= 0:
+                for b in range(k):
+                    out[pr, col_out[g * k + b]] += Dinv[g, a, b]
     return True
 
 
@@ -299,7 +305,7 @@ def drift_accelerations(J, dJ, from_j, dq, ps, body_ptr, body_cols, body_end, bo
 
 @njit(cache=True, error_model="numpy")
 def states_fused(J, flat, slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b, n_dims,
-                 g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot,
+                 g_rows, local, shared, flat_u, u_group, u_pos, row_out, col_out, max_pivot,
                  u, w, cu_ptr, cu_rows, body_ptr, body_cols, body_end, body_of, dtgt_a, dsrc_a, dtgt_b, dsrc_b,
                  du, ddu, G, cond, dq, ddq, ok):  # pragma: no cover (compiled)
     """:func:`closure_rows`, :func:`leg_inverse`, :func:`velocity_maps` and
@@ -321,7 +327,7 @@ def states_fused(J, flat, slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b,
     Rf = R.reshape(nc * nv)
     for i in range(J.shape[0]):
         _rows_one(J[i], flat[i], slot, r, moving_ref, cols, tgt_a, src_a, tgt_b, src_b, n_dims, vals, Rf, ps)
-        ok[i] = _leg_one(R, g_rows, local, shared, flat_u, u_group, u_pos, w_pos, eq_pos, max_pivot, leg, Ai)
+        ok[i] = _leg_one(R, g_rows, local, shared, flat_u, u_group, u_pos, row_out, col_out, max_pivot, leg, Ai)
         if not ok[i]:
             continue
         cond[i] = _maps_one(R, Ai, u, w, cu_ptr, cu_rows, du[i], G[i], dq[i])

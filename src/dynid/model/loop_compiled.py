@@ -88,8 +88,12 @@ class StatesPlan:
         plan = loop_blocks.leg_plan(mech)
         self.leg = None
         if plan is not None and plan.k <= 3:
+            row_out = np.full(plan.nc + plan.n_u, -1)
+            row_out[plan.w_pos] = np.arange(plan.w_pos.size)
+            col_out = np.empty(plan.nc, dtype=int)
+            col_out[plan.eq_pos] = np.arange(plan.nc)
             self.leg = tuple(np.ascontiguousarray(a, dtype=_I) for a in (
-                plan.rows, plan.local, plan.shared, plan.flat_u, plan.u_group, plan.u_pos, plan.w_pos, plan.eq_pos))
+                plan.rows, plan.local, plan.shared, plan.flat_u, plan.u_group, plan.u_pos, row_out, col_out))
 
 
 def states_plan(mech: Mechanism, data: pin.Data) -> StatesPlan | None:
