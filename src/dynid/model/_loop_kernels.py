@@ -447,6 +447,8 @@ def project_sample(Y, G, out, i, plan, basis, tplan, tweight):  # pragma: no cov
                 Yr = Y[r, t0 : t0 + L]
                 for uu in range(n_u):
                     gv = Gi[r, uu]
+                    if gv == 0.0:  # an independent joint's row of G: one 1, the rest exact zeros
+                        continue
                     o = Oi[uu, w0 : w0 + L]
                     for c in range(L):
                         o[c] += gv * Yr[c]
