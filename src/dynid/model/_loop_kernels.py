@@ -420,20 +420,23 @@ def _drift_one(J, dJ, from_j, dq, ps, body_ptr, body_cols, body_end, body_of, dt
 
 
 @njit(cache=True, error_model="numpy")
-def project_sample(Y, G, out, i, plan, basis, tplan, tweight):  # pragma: no cover (compiled)
+def project_sample(Y, G, out, i, plan, fdata):  # pragma: no cover (compiled)
     """``out[i, u, w0 + c] = sum_r G[i, r, u] Y[r, t0 + c]`` over each chain group's rows and each
     of its runs of consecutive columns (tree column ``t0``, output column ``w0``, ``L`` columns);
-    ``Y`` (n_v, 10 n_joints) the tree regressor of sample ``i``. ``plan`` packs the groups (one
-    argument: each costs the dispatch some 0.1 us): ``[n_groups, (n_rows, rows..., n_runs,
-    (t0, w0, L)...)...]``. The rows outermost, the columns innermost (contiguous in ``Y`` and
-    ``out``: vectorized); the sum over the rows in their order. Then the joint terms of the sample
-    (:func:`projected_terms`' sums, while its output row is in cache): ``tplan`` packs
-    ``[col0, n_terms, (kind, n_joints, joints...)...]``, ``tweight`` the incidence of each listed
-    joint, ``basis`` (kinds, n, n_v)."""
+    ``Y`` (n_v, 10 n_joints) the tree regressor of sample ``i``. The rows outermost, the columns
+    innermost (contiguous in ``Y`` and ``out``: vectorized); the sum over the rows in their order.
+    Then the joint terms of the sample (``closed_loop._projected_terms``' sums, while its output
+    row is in cache): ``out[i, u, col0 + k] = sum_j G[i, j, u] b_k[i, j] I[j, k]``.
+
+    Two arguments pack all the rest (each argument costs the call's dispatch some 0.1 us):
+    ``plan`` (integers) ``[t_at, n_groups, (n_rows, rows..., n_runs, (t0, w0, L)...)..., col0,
+    n_terms, n_weights, (kind, n_joints, joints...)...]`` (the terms' part from ``t_at``),
+    ``fdata`` (floats) the incidence of each listed joint (``n_weights``), then the bases
+    (kinds, n, n_v) of the terms' kinds, flattened."""
     n_u = G.shape[2]
     Gi, Oi = G[i], out[i]
-    x = 1
-    for _ in range(plan[0]):
+    x = 2
+    for _ in range(plan[1]):
         nr = plan[x]
         r_at = x + 1
         x = r_at + nr
@@ -453,16 +456,19 @@ def project_sample(Y, G, out, i, plan, basis, tplan, tweight):  # pragma: no cov
                     for c in range(L):
                         o[c] += gv * Yr[c]
         x += 1
-    col = tplan[0]
-    x, z = 2, 0
-    for k in range(tplan[1]):
-        kb, nj = tplan[x], tplan[x + 1]
+    t = plan[0]
+    col, nw_ = plan[t], plan[t + 2]
+    n, nv = G.shape[0], G.shape[1]
+    x, z = t + 3, 0
+    for k in range(plan[t + 1]):
+        kb, nj = plan[x], plan[x + 1]
         x += 2
+        b0 = nw_ + (kb * n + i) * nv
         for uu in range(n_u):
             s = 0.0
             for y in range(nj):
-                j = tplan[x + y]
-                s += (Gi[j, uu] * basis[kb, i, j]) * tweight[z + y]
+                j = plan[x + y]
+                s += (Gi[j, uu] * fdata[b0 + j]) * fdata[z + y]
             Oi[uu, col + k] = s
         x += nj
         z += nj

@@ -190,14 +190,14 @@ def _runs(t: np.ndarray, w: np.ndarray) -> list[tuple[int, int, int]]:
 
 
 def _regressor_plan(mech: Mechanism, groups: list) -> np.ndarray:
-    """The chain groups of ``closed_loop._chain_groups`` packed for
-    :func:`dynid.model._loop_kernels.project_sample` (cached on ``mech``)."""
+    """The chain groups of ``closed_loop._chain_groups`` and the joint terms (:func:`_terms_plan`)
+    packed for :func:`dynid.model._loop_kernels.project_sample` (cached on ``mech``)."""
     cached = mech.__dict__.get("_compiled_regressor_plan")
     if cached is not None and cached[0] is groups:
         return cached[1]
     nv, nt = mech.nv, 10 * (mech.pin_model.njoints - 1)
     nb = mech.n_body_params
-    packed = [len(groups)]
+    packed = [0, len(groups)]
     for rows, ycols, keep, wcols in groups:
         r = np.arange(nv)[rows]
         t = np.arange(nt)[ycols]
@@ -206,7 +206,9 @@ def _regressor_plan(mech: Mechanism, groups: list) -> np.ndarray:
         packed += [r.size, *r.tolist(), len(runs)]
         for run in runs:
             packed += list(run)
-    plan = np.array(packed, dtype=_I)
+    packed[0] = len(packed)  # the terms' part starts here
+    tplan, tweight = _terms_plan(mech)
+    plan = np.concatenate([np.array(packed, dtype=_I), tplan])
     object.__setattr__(mech, "_compiled_regressor_plan", (groups, plan))
     return plan
 
@@ -221,30 +223,36 @@ def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArr
     from dynid.model import _loop_kernels as kern
 
     plan = _regressor_plan(mech, groups)
-    tplan, tweight = _terms_plan(mech)
+    tweight = _terms_plan(mech)[1]
     G = np.ascontiguousarray(G)
-    basis = np.ascontiguousarray(np.stack(bases)) if bases else np.zeros((1, G.shape[0], G.shape[1]))
+    n, nv = G.shape[:2]
+    fdata = np.empty(tweight.size + len(bases) * n * nv)  # the weights, then the bases
+    fdata[: tweight.size] = tweight
+    for k, b in enumerate(bases):
+        fdata[tweight.size + k * n * nv : tweight.size + (k + 1) * n * nv] = b.reshape(-1)
     model = mech.pin_model
     jtr = pin.computeJointTorqueRegressor
     proj = kern.project_sample
     for i, (qi, vi, ai) in enumerate(zip(q, dq, ddq)):
-        proj(jtr(model, data, qi, vi, ai), G, out, i, plan, basis, tplan, tweight)
+        proj(jtr(model, data, qi, vi, ai), G, out, i, plan, fdata)
 
 
 def _terms_plan(mech: Mechanism) -> tuple[np.ndarray, np.ndarray]:
     """The joint terms packed for :func:`dynid.model._loop_kernels.project_sample` (cached on ``mech``):
-    ``[n_body_params, n_terms, (kind group, n_joints, joints...)...]`` and the incidence weights."""
+    ``[n_body_params, n_terms, n_weights, (kind group, n_joints, joints...)...]`` and the incidence
+    weights."""
     cached = mech.__dict__.get("_compiled_terms_plan")
     if cached is None:
         inc = mech.term_incidence
         kind_of = np.empty(inc.shape[1], dtype=int)
         for g, (_, ks) in enumerate(mech.term_groups):
             kind_of[ks] = g
-        packed, weight = [mech.n_body_params, inc.shape[1]], []
+        packed, weight = [mech.n_body_params, inc.shape[1], 0], []
         for k in range(inc.shape[1]):
             j = np.flatnonzero(inc[:, k])
             packed += [int(kind_of[k]), j.size, *j.tolist()]
             weight += inc[j, k].tolist()
+        packed[2] = len(weight)
         cached = (np.array(packed, dtype=_I), np.array(weight, dtype=float))
         object.__setattr__(mech, "_compiled_terms_plan", cached)
     return cached
