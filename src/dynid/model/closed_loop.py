@@ -58,6 +58,7 @@ __all__ = [
 ]
 
 _REGRESSOR_BLOCK = 64  # samples per block of tree regressors (actuator_regressor; 128 before, about 15 % slower on the hexapod)
+_COMPILED = True  # actuator_regressor through dynid.model.loop_compiled (False: the numpy route, the tests' reference)
 DISTRIBUTIONS = ("projected", "min_norm", "min_norm_local_friction")
 Distribution = Literal["projected", "min_norm", "min_norm_local_friction"]
 
@@ -245,6 +246,17 @@ def actuator_regressor(
     jtr = pin.computeJointTorqueRegressor
     groups = _chain_groups(mech)
     q, dq, ddq = state.q, state.dq, state.ddq
+    if _COMPILED and distribution != "min_norm_local_friction" and not any(t.weights for t in mech.terms):
+        # the compiled kernels (numba imported here, never for a serial arm): G^T Y sample by
+        # sample from the array pinocchio returns, G^T F without forming F
+        from dynid.model import loop_compiled
+
+        target = W if T is None else np.empty((n, n_u, mech.n_standard_params))
+        bases = [term_basis(kind, dq, ddq, mech.coulomb_width) for kind, _ in mech.term_groups]
+        loop_compiled.project_regressor(mech, groups, q, dq, ddq, G, bases, target, data)
+        if T is not None:
+            np.matmul(T, target, out=W)
+        return ActuatorRegression(W=W, distribution=label, Ga=Ga, state=state)
     block = _REGRESSOR_BLOCK
     Yb = np.empty((block, nv, 10 * (model.njoints - 1)))
     Pb = np.empty((block, n_u, nb))

@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 
 from dynid._typing import FloatArray
+from dynid.errors import ModelError
 from dynid.model.closure_geometry import _sides
 from dynid.model.closures import JointCoordinates
 
@@ -64,7 +65,7 @@ Mechanism = Any  # a dynid.model.mechanism.Mechanism (named, not imported: no im
 MAX_PIVOT_COND = 1e3
 """Largest :math:`\\kappa_1(D_g)\\,\\kappa_1(S)` for which the structured inverse is used (module docstring)."""
 
-__all__ = ["LegPlan", "SideScatter", "inverse", "leg_plan", "scattered_drift", "scattered_rows", "side_scatter"]
+__all__ = ["LegPlan", "SideScatter", "check_condition", "dense_inverse", "inverse", "leg_plan", "scattered_drift", "scattered_rows", "side_scatter"]
 
 
 class LegPlan:
@@ -356,3 +357,28 @@ def scattered_drift(sc: SideScatter, J: FloatArray, dJ: FloatArray, dq: FloatArr
 def _cross0(a: FloatArray, b: FloatArray) -> FloatArray:
     """Cross product along the first axis of (3, ...) arrays."""
     return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def dense_inverse(A: FloatArray) -> FloatArray:
+    """Batched LAPACK inverse; inf where a sample is singular."""
+    try:
+        return np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        Ainv = np.full_like(A, np.inf)
+        for i in range(A.shape[0]):
+            try:
+                Ainv[i] = np.linalg.inv(A[i])
+            except np.linalg.LinAlgError:
+                pass
+        return Ainv
+
+
+def check_condition(cond: FloatArray, max_cond: float, what: str, offset: int) -> None:
+    """A one-line :class:`~dynid.errors.ModelError` at the first sample whose condition number is
+    not finite or above ``max_cond`` (sample numbers from ``offset``)."""
+    bad = ~np.isfinite(cond) | (cond > max_cond)
+    if np.any(bad):
+        worst = int(np.flatnonzero(bad)[0])
+        raise ModelError(
+            f"sample {offset + worst}: singular configuration (condition number of {what} = {cond[worst]:.3g} > {max_cond:.3g})"
+        )

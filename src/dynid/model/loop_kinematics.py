@@ -188,27 +188,11 @@ def _invert(A: FloatArray, max_cond: float, what: str = "[J_c; J_u]", offset: in
         if not ok.all():  # pivots too ill-conditioned for block elimination: these samples densely
             Ainv[~ok] = _dense_inverse(A[~ok])
     cond = np.abs(A).sum(axis=1).max(axis=1) * np.abs(Ainv).sum(axis=1).max(axis=1)
-    bad = ~np.isfinite(cond) | (cond > max_cond)
-    if np.any(bad):
-        worst = int(np.flatnonzero(bad)[0])
-        raise ModelError(
-            f"sample {offset + worst}: singular configuration (condition number of {what} = {cond[worst]:.3g} > {max_cond:.3g})"
-        )
+    loop_blocks.check_condition(cond, max_cond, what, offset)
     return Ainv, cond
 
 
-def _dense_inverse(A: FloatArray) -> FloatArray:
-    """Batched LAPACK inverse; inf where a sample is singular."""
-    try:
-        return np.linalg.inv(A)
-    except np.linalg.LinAlgError:
-        Ainv = np.full_like(A, np.inf)
-        for i in range(A.shape[0]):
-            try:
-                Ainv[i] = np.linalg.inv(A[i])
-            except np.linalg.LinAlgError:
-                pass
-        return Ainv
+_dense_inverse = loop_blocks.dense_inverse  # its home before the compiled route (re-exported)
 
 
 class _Maps:
@@ -319,6 +303,9 @@ _BLOCK = 256
 POSITION_TOL = 1e-10  # Gauss-Newton tolerance of the position solve from actuator coordinates (dynid.tolerances)
 """Samples per block: the per-side Jacobians of a block (about 12 x 6 x 24 doubles per sample
 for the hexapod) stay in cache; whole-array temporaries would not (memory-bound)."""
+_COMPILED = True
+"""Joint-coordinate mechanisms take :mod:`dynid.model.loop_compiled` (numba kernels, the same values
+to rounding); False: the numpy route below (the reference of tests/test_closed_loop_structured.py)."""
 
 
 def states(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray, *, max_cond: float = 1e8,
@@ -336,8 +323,17 @@ def states(mech: Mechanism, q: FloatArray, du: FloatArray, ddu: FloatArray, *, m
         return KinematicState(q=q, dq=dq[None], ddq=ddq[None], G=G[None], cond=np.array([c]))
     dq, ddq = np.empty_like(q), np.empty_like(q)
     G, cond = np.empty((n, mech.nv, n_u)), np.empty(n)
+    compiled = None
+    if _COMPILED:  # the compiled kernels (numba imported here, never for a serial arm)
+        from dynid.model import loop_compiled
+
+        compiled = loop_compiled.states_plan(mech, data)
     for a in range(0, n, _BLOCK):
         b = min(a + _BLOCK, n)
+        if compiled is not None:
+            loop_compiled.states_block(mech, compiled, q[a:b], du[a:b], ddu[a:b], max_cond, a, data,
+                                       dq[a:b], ddq[a:b], G[a:b], cond[a:b])
+            continue
         rows, (J, p) = _velocity_rows(mech, q[a:b], data)
         maps = _Maps(mech, rows, max_cond, offset=a)
         dq[a:b] = np.einsum("nij,nj->ni", maps.G, du[a:b])
