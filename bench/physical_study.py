@@ -736,6 +736,9 @@ def moving_rows(case: _Case, fits: dict, bound: _Case, truth: ValidationMetrics,
                "truth": masked(truth.predicted), "noise": masked(clean),
                "kept_pct": (100 * kept.mean(axis=0)).tolist()}
         row["ratio"] = row["total"] / row["cad"]
+        if kind == "nonlinear":  # the warm-start grid's candidates the estimator skipped (a dFs column undetermined)
+            row["warm_start_refused"] = [(c["vs_relative"], c["delta"], c["status"])
+                                         for c in o.result.solver["warm_start"]["candidates"] if c["status"].startswith("refused")]
         if kind == "nonlinear" and not (quick and label in case.setup["quick_no_stribeck_floor"]):
             fl = floor_of(mvs)
             if isinstance(fl, str):
@@ -837,9 +840,11 @@ class _GridFromSecond:
     """Section B10's diagnostic of the refused 2 mm/s fit: the Stribeck estimator's warm-start grid of
     v_S without its smallest candidate (0.02 x the RMS speed). With ``min_velocity`` well above that
     v_S the candidate's dFs column, exp(-(|v| / v_S)^delta) on the kept rows, is numerically zero
-    (e.g. exp(-(2 / 0.38)^2) = 4e-13 on the training log's P3) and the warm start refuses the whole
+    (e.g. exp(-(2 / 0.38)^2) = 4e-13 on the training log's P3) and the warm start refused the whole
     fit; the other candidates nest that model (dFs = 0), so the grid without it loses nothing. A
-    patch of the bench only (``dynid.pipeline.stribeck.estimator``), restored on exit."""
+    patch of the bench only (``dynid.pipeline.stribeck.estimator``), restored on exit. Since the
+    warm-start fix (bench/README B10, "After the warm-start fix") the estimator skips such a
+    candidate itself, so this diagnostic gives the product's own fit."""
 
     def __enter__(self):
         self.orig = stribeck.estimator
