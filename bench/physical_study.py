@@ -149,6 +149,8 @@ RPS3 = {
     # smoother's derived settings), and with the Stribeck warm-start grid from its second v_S
     "kalman_sweep": (0.0002, 0.0003, 0.0005, 0.001, 0.002, 0.003, 0.005, 0.0075, 0.01),
     "grid_sweep": (0.002, 0.003, 0.005),
+    # the quick version does not fit these B8 rows (tuned diagnostics its test does not assert)
+    "quick_no_fit": ("Nonlinear (Opt.), min_velocity v_S/10, guard 0.05 s",),
     "quick_no_stribeck_floor": ("Nonlinear (Opt.), min_velocity derived (3 sigma_v)",  # nor these rows'
                                 "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_c)", "Nonlinear (Opt.), min_velocity v_S/10",
                                 "Nonlinear (Opt.), min_velocity a_rev / (2 pi f_K)",
@@ -156,7 +158,8 @@ RPS3 = {
                                 "Nonlinear (Opt.), min_velocity v_S-hat / 10 (post hoc)",
                                 "Nonlinear (Opt.), min_velocity 2 mm/s, grid from 0.05",
                                 "Nonlinear (Opt.), min_velocity v_S/10, guard 0.01 s",
-                                "Nonlinear (Opt.), min_velocity v_S/10, guard 0.02 s"),
+                                "Nonlinear (Opt.), min_velocity v_S/10, guard 0.02 s",
+                                "Nonlinear (Opt.), min_velocity v_S/10, guard auto"),
 }
 
 ROWS = (
@@ -565,6 +568,8 @@ def limits(case: _Case, run: dict, folder: Path, quick: bool = False) -> dict:
                                                            selected=_selected(o, case, on_proc))
     processed = o  # its held-out rows: the processed held-out states (min_velocity is for training only)
     for label, kind, tuned, processing in setup["guarded"]:
+        if quick and label in setup["quick_no_fit"]:
+            continue
         try:
             o = timed(label, lambda processing=processing, kind=kind: case.identify(lmi if kind == "linear" else nl,
                                                                                    processing))
