@@ -309,3 +309,48 @@ def test_a_joint_that_never_moves_or_moves_one_way_is_not_identifiable():
     with pytest.raises(IdentifiabilityError, match="'joint_3' moves only in the positive direction") as err:
         StribeckLS().fit(_small(one_way)[3])
     assert "dFs_joint_3" in err.value.names
+
+
+# ---------------------------------------------------------------------- warm-start candidates left undetermined
+def _above(frac):
+    """The noise-free problem of ``SUB`` with every joint's rows slower than ``frac`` x its RMS speed
+    left out (``processing.min_velocity``'s row selection)."""
+    sp = _small()[3]
+    return dataclasses.replace(sp, mask=np.abs(sp.velocity) >= frac * sp.rms_velocity)
+
+
+@pytest.mark.numerics
+def test_a_warm_start_candidate_with_an_undetermined_hump_is_skipped():
+    # bench/README B10: rows kept above 0.15 x the RMS speed; at the default grid's candidate
+    # (v_S, delta) = (0.02 x RMS, 2) the dFs column exp(-(|v|/v_S)^2) is at most exp(-7.5^2) = 4e-25 on
+    # them, against the Coulomb columns' entries of 1: 1e10 below the rank test's 1e-14 on any machine,
+    # so that candidate is refused for every dFs. At (0.02, 1) the column reaches exp(-7.5) = 5.5e-4 and
+    # at 0.05 x RMS exp(-3) = 0.05 (delta 1), 1.2e-4 (delta 2): far above it. The truth's humps
+    # (v_S = 0.05-0.12 rad/s, 0.07-0.18 x RMS) reach the kept rows, so the fit is determined.
+    sp = _above(0.15)
+    res = EST.fit(sp)
+    cands = res.solver["warm_start"]["candidates"]
+    refused = [(c["vs_relative"], c["delta"]) for c in cands if c["status"].startswith("refused")]
+    assert refused == [(0.02, 2.0)], cands
+    why = next(c["status"] for c in cands if c["status"].startswith("refused"))
+    assert "dFs_joint_1" in why and next(c for c in cands if c["delta"] == 2.0)["nll"] is None
+    assert len(cands) == len(EST.vs_grid) * len(EST.delta_grid) and res.solver["warm_start"]["refused_candidates"] == 1
+    assert (res.solver["warm_start"]["vs_relative"], res.solver["warm_start"]["delta"]) not in refused
+    assert any("1 of 8 grid candidates" in n for n in res.notes), res.notes
+    # noise-free data: the truth is the optimum and it is interior, so the fit recovers it to Gauss-Newton's
+    # quadratic convergence past xtol (as test_noise_free_data_are_recovered_exactly: 1e-13 relative
+    # measured here; 1e-6 leaves room for the conditioning of the rows kept)
+    assert res.solver["status"] == "converged" and res.solver["active_constraints"] == []
+    truth = _truth_phi()
+    np.testing.assert_allclose(res.params[P_BASE:], truth[P_BASE:], rtol=1e-6)
+    np.testing.assert_allclose(res.params[:P_BASE], truth[:P_BASE], rtol=1e-6, atol=1e-6 * np.abs(truth[:P_BASE]).max())
+
+
+def test_every_warm_start_candidate_undetermined_is_refused():
+    # on the same rows a grid of v_S <= 0.02 x RMS with delta >= 2 leaves every candidate's dFs column
+    # below exp(-7.5^2) = 4e-25 (above): every candidate refused, one error naming each dFs
+    est = StribeckLS(vs_grid=(0.01, 0.02), delta_grid=(2.0, 2.5))
+    with pytest.raises(IdentifiabilityError, match="every warm-start grid candidate") as err:
+        est.fit(_above(0.15))
+    _one_line(err)
+    assert err.value.names == _small()[3].stribeck_names("dFs")

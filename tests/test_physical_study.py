@@ -132,14 +132,15 @@ def test_parallel_twin(capsys):
     d = sel["WLS+LMI, min_velocity 2 v_S, guard auto"]
     assert d["truth"] < 1.1 * d["noise"], d
     assert acc["b_default_noise_ratio"] > 0.55 and acc["b_default_truth_ratio"] > 0.55, acc
-    # with that selection the Stribeck hump is out of the data: the Stribeck fit is refused
-    assert "dFs_" in lim["refused"]["Nonlinear (Opt.), min_velocity v_S/10, guard auto"]
-    # on the rows of every selection fixed in advance even the truth is above 0.5 x CAD (the noise,
-    # or with the guard alone the stops that no reversal marks), so (b) is not met either
-    assert acc["b_min_truth_ratio"] > 0.55 and not acc["b_nonlinear_ok"], acc
-    # (the best nonlinear row: 0.63-0.9 x CAD on the recorded draw, 0.96 x on another: only its
-    # distance from the target is asserted)
-    assert acc["b_best_nonlinear_ratio"] > 0.55 and acc["b_best_linear_ratio"] < 0.85, acc
+    # with that selection and the Stribeck fit (min_velocity v_S/10, guard auto) the fit runs since the
+    # warm-start fix (until then refused for dFs_P3); the quick version does not fit it (test time).
+    # With it, (b) is decided by the draw, so it is not asserted: its rows are the best nonlinear row,
+    # 0.58 x CAD in the full run (not met), 0.61 / 0.70 / 0.50 (met, at the noise: truth 0.48 x) / 0.80
+    # (another row) when the quick version fitted it on DYNID_TEST_SEED 0-3; on its rows the truth is
+    # 0.57 x in the full run but 0.41 x on seed 1, so "the truth above 0.55 x CAD on the rows of every
+    # selection fixed in advance" no longer holds either. What holds on every draw: every row at or
+    # above the noise (above) and the best linear row well below CAD
+    assert acc["b_best_linear_ratio"] < 0.85, acc
     # guard auto alone: the fit finds the hump (at least half the truth's on a leg: the recorded draw)
     # or, where the guard left too few slow rows (another draw), is refused for its dFs - never a
     # flat curve reported as a fit
@@ -186,22 +187,28 @@ def test_parallel_twin(capsys):
     assert nl["floor_linear"] > 0.7 * nl["cad"] and nl["truth"] > 0.7 * nl["cad"], nl
     assert nl.get("floor_stribeck", np.inf) > 0.7 * nl["cad"], nl
     # only in a narrow band of min_velocity (2 mm/s = 0.4 v_S here) do the Stribeck floor and the
-    # truth drop below half CAD; there the training log's Stribeck fit is refused (its hump term is
-    # not identifiable from the training log's fewer reversals)
+    # truth drop below half CAD
     e = sweep[0.002]
     assert e["floor_stribeck"] < 0.45 * e["cad"] and e["truth"] < 0.45 * e["cad"], e
-    # there the training log's Stribeck fit is refused for its hump term on the recorded draw (and in
-    # the full study); on another draw (DYNID_TEST_SEED=1) it ran: either way it is reported, never
-    # dropped, and being tuned on held-out results it is not part of the verdict above
+    # there the training log's Stribeck fit runs (until the warm-start fix it was refused for dFs_P3)
+    # and identifies a hump: its pooled RMS on those rows is below the linear floor's. A Stribeck fit
+    # with dFs = 0 is a model of the linear structure, and the linear floor is least squares on exactly
+    # those rows, so no such model gets below it in pooled RMS (exact; 1e-9 covers the QR solve, as
+    # above): being below it needs the hump. (0.44 x CAD in the full run, 0.47 on its draws 1, 2; quick
+    # 0.37-0.57 x on DYNID_TEST_SEED 0-3, trained on one period.) Tuned on held-out results: not part
+    # of the verdict above
     label = "Nonlinear (Opt.), min_velocity 2 mm/s"
-    if label in mov["refused"]:
-        assert "dFs_" in mov["refused"][label], mov["refused"]
-    else:
-        assert label in mov["rows"], sorted(mov["rows"])
+    assert label not in mov["refused"], mov["refused"]
+    r2 = mov["rows"][label]
+    assert r2["pooled"] < r2["floor_linear_pooled"] * (1 - 1e-9), r2
     # the product's derived min_velocity (dynid init: 3 sigma of the velocity noise, 1 um encoders)
-    # keeps every moving row but the chatter too: there CAD is better than the fits
+    # keeps every moving row but the chatter too: there CAD is better than the fits (1.19 x in the full
+    # run, 1.09-1.28 x on the quick DYNID_TEST_SEED 0-3; the truth itself 1.18-1.26 x: the chatter
+    # rows' processed states, not the fit, decide it). The claim is the threshold, 1.0: the lowest draw
+    # is 9 % above it, several times the RMSEs' few per cent of spread (the 1.1 once asserted failed
+    # on seed 3)
     d = mov["rows"]["Nonlinear (Opt.), min_velocity derived (3 sigma_v)"]
-    assert min(d["kept_pct"]) > 99 and d["ratio"] > 1.1, d
+    assert min(d["kept_pct"]) > 99 and d["ratio"] > 1.0, d
     # section B10 (bench/README "B10. The 3-RPS moving rows with Kalman-smoothed states"): the same
     # description with processing.derivatives = "kalman"
     k = lim["kalman"]
@@ -233,19 +240,19 @@ def test_parallel_twin(capsys):
     # the chatter (above), and B9's reversal rule at the smoother's cut-off, a_rev / (2 pi f_K), lies
     # below v_S/10 (the full run fits it: 0.52-0.76 x CAD over three draws)
     assert max(ks["reversal_min_velocity"]) < 0.0005, ks
-    # the training log's 2 mm/s Stribeck fit refused in B9 for a dFs (recorded draw): not for lack of
-    # rows in the hump's band (hundreds a leg), but because the estimator's warm-start grid starts at
+    # the training log's 2 mm/s Stribeck fit was refused in B9 for a dFs (recorded draw): not for lack
+    # of rows in the hump's band (hundreds a leg), but because the estimator's warm-start grid starts at
     # v_S = 0.02 x the RMS speed, where the dFs column exp(-(|v|/v_S)^2) is numerically zero on every
     # row above 2 mm/s for the legs it names (entries below 1e-9 against order 1 in the Coulomb
     # columns; the rank test drops a column below 1e-14 of the largest norm), while at the grid's
-    # second v_S the column is there (above 1e-3) on every leg. The full run fits it from that second
-    # v_S: below 0.5 x CAD on both paths
+    # second v_S the column is there (above 1e-3) on every leg. Since the warm-start fix the estimator
+    # skips such a candidate (recorded with its reason) and fits from the others (asserted above)
     assert min(k["hump_band_rows"]) > 100, k["hump_band_rows"]
     gc = k["grid_column"]
     assert min(gc[0.05]) > 1e-3, gc
-    label = "Nonlinear (Opt.), min_velocity 2 mm/s"
-    if label in mov["refused"]:
-        legs = [int(x) - 1 for x in re.findall(r"dFs_P(\d)", mov["refused"][label])]
-        assert legs and all(gc[0.02][j] < 1e-9 for j in legs), (mov["refused"][label], gc)
+    # (a skipped candidate is one at the grid's first v_S, for legs whose column is below 1e-9 there)
+    for vs_rel, _, why in r2["warm_start_refused"]:
+        legs = [int(x) - 1 for x in re.findall(r"dFs_P(\d)", why)]
+        assert vs_rel == 0.02 and legs and all(gc[0.02][j] < 1e-9 for j in legs), (why, gc)
     out = capsys.readouterr().out
     assert "B1." in out and "B4." in out and "B8." in out and "B9." in out and "B10." in out and "Linear (Opt.)" in out

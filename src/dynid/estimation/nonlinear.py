@@ -21,6 +21,8 @@ per body (pseudo-inertia; Wensing, Kim & Slotine 2017), the standard map's sign 
    grid of common candidates (:math:`v_S` fractions of each joint's RMS velocity, :math:`\\delta \\in
    \\{1, 2\\}`); kept: the best profile likelihood, :math:`\\sum_j n_j \\log \\mathrm{RSS}_j` (WLS) or
    :math:`N \\log \\sum_j \\mathrm{RSS}_j` (OLS) (the weighted RSS at each candidate's own ML variances).
+   A candidate whose :math:`\\Delta F` column is undetermined on the rows kept (its :math:`v_S` far below
+   every kept speed) is skipped and recorded as refused; the fit is refused only when every one is.
 2. **Joint refinement**: ``scipy.optimize.least_squares`` (trust-region reflective, bounds, LSMR,
    analytic Jacobian, residuals whitened by Gautier's :math:`1/\\sigma_j` of the warm start) over
    the log-Cholesky factor of each body (Rucker & Wensing, IEEE RA-L 2022, "Smooth parameterization
@@ -343,14 +345,35 @@ class StribeckLS:
         n_f, n, n_ch, rms = sp.n_friction, sp.n_samples, len(sp.channel_names), sp.rms_velocity
         # 1. warm start: the physically consistent SDP on a grid of (vs, delta)
         phys = PhysicalLS(weighting=self.weighting, constraints=self.constraints, solver=self.solver)
-        cands, best = [], None
+        # A candidate whose dFs column is numerically zero on the kept rows (v_S far below every kept
+        # speed, e.g. min_velocity 2 mm/s against 0.02 x an RMS speed of 19 mm/s: exp(-(2/0.38)^2) ~ 4e-13)
+        # is refused by the rank test for that dFs: it is skipped (its model, dFs = 0, is nested in the
+        # others) and the fit raises only when every candidate is refused. A refusal that names no dFs
+        # does not depend on the candidate (the rigid-body or friction columns): raised at once.
+        dfs_names = set(sp.stribeck_names("dFs"))
+        cands, best, refused = [], None, []
         for c in self.vs_grid:
             for d in self.delta_grid:
-                res = phys.fit(sp.augmented(c * rms, np.full(n_f, d)))
+                try:
+                    res = phys.fit(sp.augmented(c * rms, np.full(n_f, d)))
+                except IdentifiabilityError as exc:
+                    if not dfs_names.intersection(exc.names):
+                        raise
+                    refused.append(exc)
+                    cands.append({"vs_relative": float(c), "delta": float(d), "nll": None,
+                                  "status": "refused: " + str(exc).splitlines()[0]})
+                    continue
                 nll = _profile_nll(res.rss_per_channel, res.n_obs, pooled=self.weighting == "ols")
                 cands.append({"vs_relative": float(c), "delta": float(d), "nll": nll, "status": res.solver["status"]})
                 if best is None or nll < best[0]:
                     best = (nll, float(c), float(d), res)
+        if best is None:
+            bad = tuple(n for n in sp.stribeck_names("dFs") if any(n in e.names for e in refused))
+            raise IdentifiabilityError(
+                f"unidentifiable Stribeck terms: {', '.join(bad)}: every warm-start grid candidate (v_S = "
+                f"{list(self.vs_grid)} x the RMS speed, delta = {list(self.delta_grid)}) left it undetermined (its "
+                "column exp(-|v/v_S|^delta) is zero or dependent on the rows kept; are there rows in the Stribeck "
+                "speed band, above processing.min_velocity?)", bad)
         _, c0, d0, warm = best
         sigma = np.asarray(warm.noise_std, dtype=float) if self.weighting == "wls" else np.ones(n_ch)
         # 2. joint refinement over log-Cholesky factors, the other standard and the friction parameters
@@ -455,6 +478,10 @@ class StribeckLS:
                  if self.constraints.sign else "") + ", dFs = Fs - Fc >= 0); SDP warm start, log-Cholesky refinement, "
                  "SDP polish", "unweighted (OLS)" if self.weighting == "ols" else "weights 1/sigma_j^2 per channel, sigma_j "
                  + ("from the refinement's residuals" if self.reweight else "from the warm start's OLS residuals (Gautier)")]
+        skipped = [q for q in cands if q["status"].startswith("refused")]
+        if skipped:
+            notes.append(f"warm start: {len(skipped)} of {len(cands)} grid candidates (vs_relative, delta) skipped, "
+                         "their dFs undetermined: " + ", ".join(f"({q['vs_relative']:g}, {q['delta']:g})" for q in skipped))
         cov = None
         if active:
             notes.append("no covariance: the estimate lies on the boundary of the feasible set (active: "
@@ -489,7 +516,8 @@ class StribeckLS:
                                "vs": (c0 * sp.rms_velocity).tolist(), "names": list(warm.names),
                                "params": warm.params.tolist(), "rss": warm.rss_per_channel.tolist(),
                                "rss_weighted": float(np.sum(warm.rss_per_channel * sw**2)),
-                               "active_constraints": list(warm.solver["active_constraints"]), "candidates": cands},
+                               "active_constraints": list(warm.solver["active_constraints"]), "candidates": cands,
+                               "refused_candidates": len(skipped)},
                 "polish": {"status": pol.solver["status"], "unchanged": pol.solver.get("unchanged")},
                 "rss_weighted": rss_w, "margin": self.constraints.margin,
                 "standard_params": dict(zip(smap.standard_names, pi.tolist())),
