@@ -200,6 +200,11 @@ def test_didim_from_the_nominal_model_beats_it(twin):
     hist = r.solver["iterations"]
     assert 1 <= len(hist) <= 10 and r.solver["converged"]
     assert hist[-1]["max_change_in_std"] < 0.5 < hist[0]["max_change_in_std"]
+    # a contracting iteration is never relaxed (control_loop, oscillation_relaxation: only a step
+    # reversal with secant eigenvalue at or below -1 is): the plain DIDIM iterates, no note
+    assert not any("relaxation" in h for h in hist), hist
+    assert all(h["secant_eigenvalue"] > -1.0 for h in hist if "secant_eigenvalue" in h), hist
+    assert not any("oscillated" in n for n in r.notes)
     # the criterion DIDIM minimizes: the output error of the forces simulated with the iterate
     # (W(q_s(beta_k)) beta_k), recorded per iteration, lower at the converged iterate than at the
     # nominal model it started from (10 % from the truth: far outside the noise)

@@ -187,7 +187,7 @@ from dynid.dataset import Dataset
 from dynid.errors import ConfigError, DynidError, InputError
 from dynid.estimation import IdentificationResult, ProblemBuilder
 from dynid.estimation.instrumental import (InstrumentBuilder, determined_directions, fixed_point_covariance, iv_result,
-                                           iv_solve, reduce_instrumental)
+                                           iv_solve, oscillation_relaxation, reduce_instrumental)
 from dynid.estimation.problem import RegressionProblem, _qr_r
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System
@@ -548,6 +548,13 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         beta_prev, beta = beta_used, new
         if moved < icfg.tolerance:
             break
+        if len(inputs) >= 2:  # an oscillating step is relaxed (module docstring, oscillation_relaxation)
+            relaxed_beta, alpha, lam = oscillation_relaxation(inputs[-2], outputs[-2], beta_used, new, bse)
+            if np.isfinite(lam):
+                entry["secant_eigenvalue"] = lam
+            if alpha < 1.0:
+                entry["relaxation"] = alpha
+                beta = relaxed_beta
     progress(f"{method.upper()} iterations", icfg.max_iterations, icfg.max_iterations)
     assert result is not None
     converged = history[-1]["max_change_in_std"] < icfg.tolerance
@@ -582,6 +589,12 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         notes.append(f"{base.n_base - subspace[2].shape[1]} of {base.n_base} directions of the base parameters are not "
                      f"determined by the start's replayed regressor (singular value below {icfg.directions_rtol:g} of the "
                      "largest): held at the start's values; the standard errors are conditional on them")
+    relaxed = [(h["iteration"], h["relaxation"]) for h in history if "relaxation" in h]
+    if relaxed:  # oscillation_relaxation acted: say where
+        notes.append("the iteration oscillated (the step reversed along the previous move: negative secant eigenvalue); "
+                     "the next replay took the step's component along that move relaxed, after iteration "
+                     + ", ".join(f"{k} by {a:.2g}" for k, a in relaxed)
+                     + " (the fixed point, the reported estimate, is the method's own)")
     if not converged:
         notes.append(f"not converged in {icfg.max_iterations} iterations: the last step moved a parameter by "
                      f"{history[-1]['max_change_in_std']:.3g} standard deviations")
