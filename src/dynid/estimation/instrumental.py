@@ -315,7 +315,9 @@ def oscillation_relaxation(x_prev: FloatArray, fx_prev: FloatArray, x: FloatArra
     Rule: when, and only when, the step reversed along the move (:math:`\\lambda < 0`), the
     component of the step along :math:`\\hat d` is scaled by the secant (Aitken) factor
     :math:`\\alpha = 1 / (1 - \\lambda) \\in (0, 1)`, the root of the secant of :math:`G` along
-    ``d``; the rest of the step is taken as it is:
+    ``d`` (the secant method on one direction; for a full step it is Aitken's :math:`\\Delta^2`
+    extrapolation of that component, A. C. Aitken, Proc. R. Soc. Edinburgh 46, 1926); the rest of
+    the step is taken as it is:
 
     .. math::
 

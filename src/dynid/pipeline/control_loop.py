@@ -52,7 +52,14 @@ measurement noise:
   the fixed combinations, are 0.1 to 0.2 (RMS) along the ten strongest and 0.3 to 0.7 along the
   ten weakest (singular values 1e-3 to 1e-2 of the largest), where the replay's jitter passes
   through the smallest singular values; ``directions_rtol = 3e-3`` (26 directions) converges in
-  5 iterations, 1e-2 (18) in 2 (bench/README, closed-loop estimators, replay cost).
+  5 iterations, 1e-2 (18) in 2 (bench/README, closed-loop estimators, replay cost). That map is
+  not smooth there: finite differences of one IV iteration at a late iterate grow as the
+  difference step shrinks (spectral radius 4.3 at 0.5 sd, 15 at 0.05 sd; moves of 0.001 sd change
+  the next iterate by 0.3 sd), because the replay jumps with the estimate (the computed-torque
+  controller's Coulomb switch at the control instants among the causes) and the weakest kept
+  directions pass the jumps on (bench/README, "IV's oscillation on the hexapod benchmark,
+  diagnosed"); with the relaxation below IV converges there in 9 iterations, by the chance of a
+  small step rather than by contraction.
 * **DIDIM** (Gautier, Janot & Vandanjon, "A new closed-loop output error method for
   parameter identification of robot dynamics", IEEE TCST 21(2), 2013, Eqs. 14–20): the measured
   forces are regressed on the simulated regressor alone, :math:`y = W(q_s(\\beta_k))\\beta_{k+1}`
@@ -75,6 +82,15 @@ measurement noise:
   passive joint (``fv_qb2``, truth 0.0012, to 0 with its bound active) and leaves every true
   base parameter inside its 95 % interval (25 of 25, largest |z| 1.8, the truth's
   :math:`\\chi^2` 29 for p = 25).
+
+**Oscillating steps** (:func:`dynid.estimation.instrumental.oscillation_relaxation`): from the
+second iteration on, the secant of the step along the last move, in standard deviations,
+estimates the iteration's Jacobian there (:math:`\\lambda`); when, and only when, the step
+reversed along that move (:math:`\\lambda < 0`: a 2-cycle at -1), the next replay takes the
+step's component along the move scaled by :math:`1 / (1 - \\lambda)` (the secant root), the rest
+as it is. The fixed point is unchanged (the estimate is the method's), a monotonically contracting
+iteration is untouched, and ``solver["iterations"]`` records ``secant_eigenvalue`` and
+``relaxation``, the notes after which iterations it acted.
 
 Both iterate until no parameter moves by more than ``tolerance`` of its standard deviation, or
 ``max_iterations``; the history is in ``result.solver["iterations"]`` (for DIDIM with the output
