@@ -290,9 +290,20 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
                           f"processed log {t[0]:g}-{t[-1]:g} s (the experiment's duration must cover the log)")
     interp = lambda x: np.column_stack([np.interp(t, ts, x[:, k]) for k in range(x.shape[1])])  # noqa: E731
     joint_q = None
-    if getattr(outcome, "motion", None) is not None:
-        qj = np.asarray(outcome.motion.q, dtype=float)
+    motion = getattr(outcome, "motion", None)
+    if motion is not None:
+        qj = np.asarray(motion.q, dtype=float)
         joint_q = interp(qj) if np.all(np.isfinite(qj)) else None
+    if process is None and joint_q is not None:
+        # DIDIM: the log's instants are the control instants (to 1e-9 s): the replay's own samples, its
+        # joint positions on the closures (projected to 1e-12 at every period), which the rows take
+        # as they are (KnownJointPositions: the compiled velocity map, no position check)
+        idx = np.rint((t - ts[0]) / (ts[1] - ts[0])).astype(int) if ts.size > 1 else np.zeros(t.size, dtype=int)
+        idx = np.clip(idx, 0, ts.size - 1)
+        if np.all(np.abs(ts[idx] - t) <= 1e-9) and np.all(np.isfinite(qj[idx])):
+            from dynid.model.system import KnownJointPositions
+
+            return q[idx], dq[idx], ddq[idx], KnownJointPositions(qj[idx])
     return interp(q), interp(dq), interp(ddq), joint_q
 
 
