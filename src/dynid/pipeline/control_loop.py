@@ -156,7 +156,13 @@ at them), and the simulated rows go through exactly the processing of the measur
 start the loop-closure position solve from the simulation's own joint positions, which already
 satisfy it (residual below the solve's 1e-10 tolerance at the control instants: no Gauss–Newton
 iteration; the rows then differ from those solved from the actuator positions at that level: the
-DIDIM estimate on the hexapod twin by 1e-9 of its standard deviations). IV's instrument rows
+DIDIM estimate on the hexapod twin by 1e-9 of its standard deviations). Where the log's instants
+are the control instants and the mechanism's independent joints are its actuated ones (the hexapod),
+DIDIM's rows take those positions as they are (:class:`~dynid.model.system.KnownJointPositions`:
+no residual and Jacobian per sample to accept them) and the compiled
+:func:`~dynid.model.loop_kinematics.states` for the velocity map, velocities and accelerations: the
+same rows to rounding, 28 % less time per replay's rows (bench/README, issue 37 item 3, fourth
+pass). IV's instrument rows
 start there too: its replayed actuator positions are low-passed, so the solve still iterates,
 but from within the filter's deviation of the solution instead of from the previous sample (one
 Gauss–Newton step fewer; the same positions, tests/test_control_loop.py).
