@@ -36,6 +36,7 @@ Mechanism = Any  # a dynid.model.mechanism.Mechanism (named, not imported: no im
 __all__ = ["StatesPlan", "project_regressor", "states_block", "states_plan"]
 
 _I = np.int64
+_BLOCK = 256  # samples per block of Jacobians and placements (tree_project)
 DJ_FROM_J = True
 """The drift's :math:`\\dot J\\dot q` from :math:`J` in the kernel (pinocchio's formula,
 :func:`dynid.model._loop_kernels.drift_accelerations`) instead of pinocchio's
@@ -215,11 +216,16 @@ def _regressor_plan(mech: Mechanism, groups: list) -> np.ndarray:
 
 def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArray, ddq: FloatArray, G: FloatArray,
                       bases: list[FloatArray], out: FloatArray, data: pin.Data) -> None:
-    """``out[:, :, :n_body_params]`` = :math:`G^T Y_{tree}` (``out`` (n, n_u, n_params), C-contiguous),
-    pinocchio's tree regressor of each sample projected by the compiled kernel as pinocchio returns
-    it (no copy into a block), and ``out[:, :, n_body_params:]`` = :math:`G^T F` of the unweighted
-    joint terms (``bases``: the basis of each of ``mech.term_groups``, (n, n_v) each) in the same
-    call, sample by sample."""
+    """``out[:, :, :n_body_params]`` = :math:`G^T Y_{tree}` (``out`` (n, n_u, n_params), C-contiguous)
+    and ``out[:, :, n_body_params:]`` = :math:`G^T F` of the unweighted joint terms (``bases``: the
+    basis of each of ``mech.term_groups``, (n, n_v) each) in the same kernel call, sample by sample.
+
+    :math:`G^T Y_{tree}`: where :func:`tree_plan` applies and :data:`TREE_FROM_J` is on, from
+    pinocchio's ``computeJointJacobians`` per sample (the Jacobians and all placements, in blocks of
+    ``_BLOCK``) by :func:`dynid.model._loop_kernels.tree_project` (the bodies' velocities,
+    accelerations and regressors along the tree); otherwise pinocchio's tree regressor of each
+    sample (``computeJointTorqueRegressor``) projected as pinocchio returns it
+    (:func:`dynid.model._loop_kernels.project_sample`, chain segment by chain segment)."""
     from dynid.model import _loop_kernels as kern
 
     plan = _regressor_plan(mech, groups)
@@ -231,10 +237,58 @@ def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArr
     for k, b in enumerate(bases):
         fdata[tweight.size + k * n * nv : tweight.size + (k + 1) * n * nv] = b.reshape(-1)
     model = mech.pin_model
+    tree = tree_plan(mech, data) if TREE_FROM_J else None
+    if tree is not None:
+        dq, ddq = np.ascontiguousarray(dq), np.ascontiguousarray(ddq)
+        view = loop_batch.placement_view(mech, data)
+        m = min(_BLOCK, n)
+        J, P = np.empty((m, 6, nv)), np.empty((m, view.shape[0], 12))
+        cjj = pin.computeJointJacobians
+        for a in range(0, n, m):
+            b = min(a + m, n)
+            for s, qi in enumerate(q[a:b]):
+                J[s] = cjj(model, data, qi)
+                P[s] = view
+            kern.tree_project(J[: b - a], P[: b - a], a, G, dq, ddq, *tree, out, plan, fdata)
+        return
     jtr = pin.computeJointTorqueRegressor
     proj = kern.project_sample
     for i, (qi, vi, ai) in enumerate(zip(q, dq, ddq)):
         proj(jtr(model, data, qi, vi, ai), G, out, i, plan, fdata)
+
+
+TREE_FROM_J = True
+"""The projected tree regressor from the kinematics of ``computeJointJacobians``
+(:func:`dynid.model._loop_kernels.tree_project`) instead of pinocchio's
+``computeJointTorqueRegressor`` per sample (False): the same values to rounding, a quarter of
+the pinocchio time (bench/README.md, "Issue 37, item 1: the tree regressor from the Jacobians")."""
+
+_CONSTANT_SUBSPACE = {f"JointModel{a}{x}" for a in ("R", "P", "RUB") for x in "XYZ"} | {
+    "JointModelRevoluteUnaligned", "JointModelPrismaticUnaligned", "JointModelRevoluteUnboundedUnaligned"}
+"""Joints of one velocity coordinate whose motion subspace is constant in the joint frame (no bias
+acceleration): :func:`dynid.model._loop_kernels.tree_project`'s recursion holds for them."""
+
+
+def tree_plan(mech: Mechanism, data: pin.Data) -> tuple | None:
+    """``(parent, col, slot, gravity)`` of :func:`dynid.model._loop_kernels.tree_project` (the
+    integer arrays cached on ``mech``), or None where it does not apply: a joint outside
+    :data:`_CONSTANT_SUBSPACE`, or the placements not readable through
+    :func:`dynid.model.loop_batch.placement_view`."""
+    if loop_batch.placement_view(mech, data) is None:
+        return None
+    cached = mech.__dict__.get("_compiled_tree_plan", False)
+    if cached is False:
+        model = mech.pin_model
+        cached = None
+        if all(jm.shortname() in _CONSTANT_SUBSPACE and jm.nv == 1 for jm in model.joints[1:]):
+            slot = np.full(model.njoints, -1, dtype=_I)
+            slot[list(mech.bodies)] = np.arange(len(mech.bodies))
+            col = np.array([0] + [jm.idx_v for jm in model.joints[1:]], dtype=_I)
+            cached = (np.array(model.parents, dtype=_I), col, slot)
+        object.__setattr__(mech, "_compiled_tree_plan", cached)
+    if cached is None:
+        return None
+    return (*cached, np.array(mech.pin_model.gravity.vector, dtype=float))
 
 
 def _terms_plan(mech: Mechanism) -> tuple[np.ndarray, np.ndarray]:
