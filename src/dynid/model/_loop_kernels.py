@@ -17,9 +17,9 @@ the numpy routes it replaces on small matrices (3 x 3 to 24 x 240), with preallo
 * :func:`drift_accelerations`: the drift :math:`\\dot J_c\\dot q` (the classical acceleration of
   every side point, Featherstone, *Rigid Body Dynamics Algorithms*, §2.11;
   ``loop_blocks.scattered_drift``) and :math:`\\ddot q` (``_Maps.accelerations``);
-* :func:`tree_project`: :math:`G^T Y_{tree}` of a block of samples from the Jacobians and
-  placements, the bodies' velocities, accelerations and regressors along the tree (no tree
-  regressor of pinocchio), and the joint terms;
+* :func:`tree_project`: :math:`G^T Y_{tree}` of a block of samples from the joints' placements,
+  pinocchio's regressor recursion in the joints' frames with the body Jacobians per unit
+  :math:`\dot u` beside it (no tree regressor formed), and the joint terms;
 * :func:`project_sample`: :math:`G^T Y_{tree}` of one sample, chain segment by chain segment on
   the supporting rows (``closed_loop._chain_groups``), from the array pinocchio's
   ``computeJointTorqueRegressor`` returns (no copy into a block), and :math:`G^T F` of the
@@ -485,120 +485,112 @@ def _terms_one(Gi, Oi, i, n, plan, fdata):  # pragma: no cover (compiled)
 
 
 @njit(cache=True, error_model="numpy")
-def tree_project(J, P, start, G, dq, ddq, parent, col, slot, gravity, out, plan, fdata):  # pragma: no cover (compiled)
-    """:math:`G^T Y_{tree}` of samples ``start .. start + len(J)`` from the states' kinematics,
-    without pinocchio's tree regressor, and the joint terms (:func:`_terms_one`).
+def _to_child(R, t, m, out):  # pragma: no cover (compiled)
+    """The motion vector ``m`` (linear, angular; in the parent's frame) in the frame of a child placed
+    at ``(R, t)`` in it (``R`` as (9,) column-major): pinocchio's ``SE3.actInv``,
+    :math:`(R^T(v + \omega\times t), R^T\omega)`."""
+    vx, vy, vz, ox, oy, oz = m[0], m[1], m[2], m[3], m[4], m[5]
+    ex, ey, ez = vx + (oy * t[2] - oz * t[1]), vy + (oz * t[0] - ox * t[2]), vz + (ox * t[1] - oy * t[0])
+    out[0] = R[0] * ex + R[1] * ey + R[2] * ez
+    out[1] = R[3] * ex + R[4] * ey + R[5] * ez
+    out[2] = R[6] * ex + R[7] * ey + R[8] * ez
+    out[3] = R[0] * ox + R[1] * oy + R[2] * oz
+    out[4] = R[3] * ox + R[4] * oy + R[5] * oz
+    out[5] = R[6] * ox + R[7] * oy + R[8] * oz
 
-    ``J`` (m, 6, n_v) world Jacobians and ``P`` (m, n_joints, 12) all joints' placements (column-major
-    rotation, translation) of those samples (pinocchio's ``computeJointJacobians``); ``G``, ``dq``,
-    ``ddq``, ``out`` of all samples; per joint (pinocchio's order, parents first) its ``parent``,
-    its velocity column ``col`` (1-DoF joints whose motion subspace is constant in the joint frame:
-    revolute and prismatic) and ``slot``, its block of 10 output columns (-1: no body parameters);
-    ``gravity`` (6,) pinocchio's ``model.gravity``.
 
-    Per joint ``j``, along the tree (world frame, spatial vectors at the origin, linear first as in
-    pinocchio's ``J``): the body's velocity :math:`v_j = v_{\\lambda(j)} + J_j\\dot q_j` and its
-    acceleration with gravity :math:`a_j = a_{\\lambda(j)} + J_j\\ddot q_j + v_j\\times J_j\\dot q_j`
-    from :math:`a_0 = -g` (Featherstone, *Rigid Body Dynamics Algorithms*, Eqs. 5.7-5.8, the
-    motion subspace constant in the body frame; pinocchio's ``computeJointTorqueRegressor`` runs
-    the same recursion in the joints' frames), and :math:`B_j = \\sum_{k \\preceq j} J_k G_k`
-    (6 x n_u: the body's velocity per unit :math:`\\dot u`). The joint torques of the body's
-    parameters are :math:`J_k^T X_j^* Y_j` for every supporting joint ``k`` (the tree regressor's
-    columns of body ``j``), so :math:`G^T Y_{tree}` on those columns is
-    :math:`(X_j^{-1} B_j)^T Y_j`, with :math:`Y_j` the body regressor in the joint frame
-    (pinocchio's ``bodyRegressor``, parameters ``[m, mc, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` about the
-    joint origin; Atkeson, An & Hollerbach 1986, Eq. 10):
-    :math:`f = I a + v\\times^* I v` gives, with :math:`\\alpha = a_l + \\omega\\times v_l`,
-    :math:`f_{lin} = m\\alpha + ([\\dot\\omega]_\\times + [\\omega]_\\times^2) c_m` and
-    :math:`f_{ang} = c_m\\times\\alpha + I\\dot\\omega + \\omega\\times I\\omega` (:math:`c_m = mc`)."""
-    m = J.shape[0]
+@njit(cache=True, error_model="numpy")
+def tree_project(L, start, G, dq, ddq, parent, col, axis, slot, gravity, out, plan, fdata):  # pragma: no cover (compiled)
+    """:math:`G^T Y_{tree}` of samples ``start .. start + len(L)`` without forming the tree regressor,
+    and the joint terms (:func:`_terms_one`).
+
+    ``L`` (m, n_joints, 12): each joint's placement in its parent's frame (``data.liMi`` after a
+    kinematics pass of pinocchio: column-major rotation, translation) for those samples; ``G``,
+    ``dq``, ``ddq``, ``out`` of all samples; per joint (pinocchio's order, parents first) its
+    ``parent``, its velocity column ``col``, ``axis`` (its motion subspace :math:`S = e_{axis}`:
+    0-2 prismatic along x, y, z, 3-5 revolute about x, y, z; constant in the joint frame) and
+    ``slot``, its block of 10 output columns (-1: no body parameters); ``gravity`` (6,)
+    pinocchio's ``model.gravity``.
+
+    The recursion of pinocchio's ``computeJointTorqueRegressor`` (its forward pass, in the joints'
+    frames; Featherstone, *Rigid Body Dynamics Algorithms*, Eqs. 5.7-5.8): from
+    :math:`a_0 = -g`, :math:`v_j = {}^jX_{\lambda} v_{\lambda} + S_j\dot q_j` and
+    :math:`a_j = {}^jX_{\lambda} a_{\lambda} + S_j\ddot q_j + v_j\times S_j\dot q_j`; beside them
+    :math:`B_j = {}^jX_{\lambda} B_{\lambda} + S_j G_j` (6 x n_u, :math:`B_0 = 0`: the body's
+    velocity per unit :math:`\dot u`, in its frame). The tree regressor's columns of body ``j`` are
+    :math:`S_k^T\,{}^kX_j^* Y_j` on every supporting joint ``k`` (its backward pass), with
+    :math:`Y_j` the body regressor (pinocchio's ``bodyRegressor``, parameters
+    ``[m, mc, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` about the joint origin): so
+    :math:`\sum_k G_k^T S_k^T\,{}^kX_j^* Y_j = B_j^T Y_j` (:math:`({}^kX_j^*)^T = {}^jX_k`).
+    :math:`f = I a + v\times^* I v` gives, with :math:`\alpha = a_{lin} + \omega\times v_{lin}`,
+    :math:`f_{lin} = m\alpha + ([\dot\omega]_\times + [\omega]_\times^2)\,mc` and
+    :math:`f_{ang} = mc\times\alpha + I\dot\omega + \omega\times I\omega`. Exact zeros of the tree
+    regressor (a joint's own axis, joints at one point) stay exact zeros: :math:`S` is a unit
+    vector and a zero translation transforms without rounding."""
+    m = L.shape[0]
     nj = parent.size
     n_u = G.shape[2]
     n = G.shape[0]
     V = np.zeros((nj, 6))
     A = np.zeros((nj, 6))
-    B = np.zeros((nj, 6, n_u))
+    B = np.zeros((nj, n_u, 6))
     Y = np.zeros((6, 10))
-    bl = np.empty(6)
     for d in range(6):
         A[0, d] = -gravity[d]
     for s in range(m):
         i = start + s
-        Ji, Gi, Oi, Pi = J[s], G[i], out[i], P[s]
+        Gi, Oi, Li = G[i], out[i], L[s]
         for j in range(1, nj):
-            p = parent[j]
-            c = col[j]
-            qd, qa = dq[i, c], ddq[i, c]
-            for d in range(6):
-                V[j, d] = V[p, d] + Ji[d, c] * qd
-            lx, ly, lz, ox, oy, oz = V[j, 0], V[j, 1], V[j, 2], V[j, 3], V[j, 4], V[j, 5]
-            jx, jy, jz, kx, ky, kz = Ji[0, c] * qd, Ji[1, c] * qd, Ji[2, c] * qd, Ji[3, c] * qd, Ji[4, c] * qd, Ji[5, c] * qd
-            # (l, o) x (j, k) = (o x j + l x k, o x k)
-            A[j, 0] = A[p, 0] + Ji[0, c] * qa + ((oy * jz - oz * jy) + (ly * kz - lz * ky))
-            A[j, 1] = A[p, 1] + Ji[1, c] * qa + ((oz * jx - ox * jz) + (lz * kx - lx * kz))
-            A[j, 2] = A[p, 2] + Ji[2, c] * qa + ((ox * jy - oy * jx) + (lx * ky - ly * kx))
-            A[j, 3] = A[p, 3] + Ji[3, c] * qa + (oy * kz - oz * ky)
-            A[j, 4] = A[p, 4] + Ji[4, c] * qa + (oz * kx - ox * kz)
-            A[j, 5] = A[p, 5] + Ji[5, c] * qa + (ox * ky - oy * kx)
-            for d in range(6):
-                jd = Ji[d, c]
-                for uu in range(n_u):
-                    B[j, d, uu] = B[p, d, uu] + jd * Gi[c, uu]
+            p, c, e = parent[j], col[j], axis[j]
+            R, t = Li[j, 0:9], Li[j, 9:12]
+            qd = dq[i, c]
+            _to_child(R, t, V[p], V[j])
+            V[j, e] += qd
+            _to_child(R, t, A[p], A[j])
+            A[j, e] += ddq[i, c]
+            # + v_j x (S qd): (l, o) x (sl, so) = (o x sl + l x so, o x so), S qd = qd e_axis
+            if e < 3:  # prismatic: (o x sl, 0)
+                A[j, (e + 1) % 3] += V[j, 3 + (e + 2) % 3] * qd
+                A[j, (e + 2) % 3] -= V[j, 3 + (e + 1) % 3] * qd
+            else:  # revolute: (l x so, o x so)
+                f = e - 3
+                A[j, (f + 1) % 3] += V[j, (f + 2) % 3] * qd
+                A[j, (f + 2) % 3] -= V[j, (f + 1) % 3] * qd
+                A[j, 3 + (f + 1) % 3] += V[j, 3 + (f + 2) % 3] * qd
+                A[j, 3 + (f + 2) % 3] -= V[j, 3 + (f + 1) % 3] * qd
+            for uu in range(n_u):
+                _to_child(R, t, B[p, uu], B[j, uu])
+                B[j, uu, e] += Gi[c, uu]
             w0 = slot[j]
             if w0 < 0:
                 continue
             w0 *= 10
-            # the joint frame: R[r, k] = Pi[j, 3 k + r], t = Pi[j, 9:12]
-            r00, r10, r20, r01, r11, r21, r02, r12, r22 = (Pi[j, 0], Pi[j, 1], Pi[j, 2], Pi[j, 3], Pi[j, 4],
-                                                           Pi[j, 5], Pi[j, 6], Pi[j, 7], Pi[j, 8])
-            tx, ty, tz = Pi[j, 9], Pi[j, 10], Pi[j, 11]
-            # local velocity and acceleration: ang R^T o, lin R^T (l + o x t)
-            ex, ey, ez = lx + (oy * tz - oz * ty), ly + (oz * tx - ox * tz), lz + (ox * ty - oy * tx)
-            vx, vy, vz = r00 * ex + r10 * ey + r20 * ez, r01 * ex + r11 * ey + r21 * ez, r02 * ex + r12 * ey + r22 * ez
-            wx, wy, wz = r00 * ox + r10 * oy + r20 * oz, r01 * ox + r11 * oy + r21 * oz, r02 * ox + r12 * oy + r22 * oz
-            bx, by, bz = A[j, 3], A[j, 4], A[j, 5]
-            ex, ey, ez = A[j, 0] + (by * tz - bz * ty), A[j, 1] + (bz * tx - bx * tz), A[j, 2] + (bx * ty - by * tx)
-            ax, ay, az = r00 * ex + r10 * ey + r20 * ez, r01 * ex + r11 * ey + r21 * ez, r02 * ex + r12 * ey + r22 * ez
-            dx, dy, dz = r00 * bx + r10 * by + r20 * bz, r01 * bx + r11 * by + r21 * bz, r02 * bx + r12 * by + r22 * bz
-            # the body regressor (6 x 10, joint frame)
+            vx, vy, vz, wx, wy, wz = V[j, 0], V[j, 1], V[j, 2], V[j, 3], V[j, 4], V[j, 5]
+            ax, ay, az, dx, dy, dz = A[j, 0], A[j, 1], A[j, 2], A[j, 3], A[j, 4], A[j, 5]
+            # the body regressor (6 x 10, joint frame); mass: (alpha, 0)
             alx, aly, alz = ax + (wy * vz - wz * vy), ay + (wz * vx - wx * vz), az + (wx * vy - wy * vx)
             Y[0, 0], Y[1, 0], Y[2, 0] = alx, aly, alz
-            # [dw]x + [w]x^2 (f_lin of mc) and c_m x alpha = -[alpha]x c_m (f_ang of mc)
+            # mc: [dw]x + [w]x^2 (linear) and mc x alpha = -[alpha]x mc (angular)
             Y[0, 1], Y[0, 2], Y[0, 3] = -(wy * wy + wz * wz), wx * wy - dz, wx * wz + dy
             Y[1, 1], Y[1, 2], Y[1, 3] = wx * wy + dz, -(wx * wx + wz * wz), wy * wz - dx
             Y[2, 1], Y[2, 2], Y[2, 3] = wx * wz - dy, wy * wz + dx, -(wx * wx + wy * wy)
             Y[3, 1], Y[3, 2], Y[3, 3] = 0.0, alz, -aly
             Y[4, 1], Y[4, 2], Y[4, 3] = -alz, 0.0, alx
             Y[5, 1], Y[5, 2], Y[5, 3] = aly, -alx, 0.0
-            # I dw + w x (I w), I = [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]: per entry L(dw) + w x L(w)
-            # xx: L(x) = (x0, 0, 0)
-            Y[3, 4], Y[4, 4], Y[5, 4] = dx, wz * wx, -wy * wx
-            # xy: (x1, x0, 0)
-            Y[3, 5], Y[4, 5], Y[5, 5] = dy - wz * wx, dx + wz * wy, wx * wx - wy * wy
-            # yy: (0, x1, 0)
-            Y[3, 6], Y[4, 6], Y[5, 6] = -wz * wy, dy, wx * wy
-            # xz: (x2, 0, x0)
-            Y[3, 7], Y[4, 7], Y[5, 7] = dz + wy * wx, wz * wz - wx * wx, dx - wy * wz
-            # yz: (0, x2, x1)
-            Y[3, 8], Y[4, 8], Y[5, 8] = wy * wy - wz * wz, dz - wx * wy, dy + wx * wz
-            # zz: (0, 0, x2)
-            Y[3, 9], Y[4, 9], Y[5, 9] = wy * wz, -wx * wz, dz
+            # inertia: I dw + w x (I w), I = [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]], per entry L(dw) + w x L(w)
+            Y[3, 4], Y[4, 4], Y[5, 4] = dx, wz * wx, -wy * wx  # xx: L(x) = (x0, 0, 0)
+            Y[3, 5], Y[4, 5], Y[5, 5] = dy - wz * wx, dx + wz * wy, wx * wx - wy * wy  # xy: (x1, x0, 0)
+            Y[3, 6], Y[4, 6], Y[5, 6] = -wz * wy, dy, wx * wy  # yy: (0, x1, 0)
+            Y[3, 7], Y[4, 7], Y[5, 7] = dz + wy * wx, wz * wz - wx * wx, dx - wy * wz  # xz: (x2, 0, x0)
+            Y[3, 8], Y[4, 8], Y[5, 8] = wy * wy - wz * wz, dz - wx * wy, dy + wx * wz  # yz: (0, x2, x1)
+            Y[3, 9], Y[4, 9], Y[5, 9] = wy * wz, -wx * wz, dz  # zz: (0, 0, x2)
             for uu in range(n_u):
-                # B_j's column in the joint frame: ang R^T o, lin R^T (l + o x t)
-                lx_, ly_, lz_ = B[j, 0, uu], B[j, 1, uu], B[j, 2, uu]
-                ox_, oy_, oz_ = B[j, 3, uu], B[j, 4, uu], B[j, 5, uu]
-                ex, ey, ez = lx_ + (oy_ * tz - oz_ * ty), ly_ + (oz_ * tx - ox_ * tz), lz_ + (ox_ * ty - oy_ * tx)
-                bl[0] = r00 * ex + r10 * ey + r20 * ez
-                bl[1] = r01 * ex + r11 * ey + r21 * ez
-                bl[2] = r02 * ex + r12 * ey + r22 * ez
-                bl[3] = r00 * ox_ + r10 * oy_ + r20 * oz_
-                bl[4] = r01 * ox_ + r11 * oy_ + r21 * oz_
-                bl[5] = r02 * ox_ + r12 * oy_ + r22 * oz_
+                b = B[j, uu]
                 o = Oi[uu, w0 : w0 + 10]
-                o[0] = bl[0] * Y[0, 0] + bl[1] * Y[1, 0] + bl[2] * Y[2, 0]
+                o[0] = b[0] * Y[0, 0] + b[1] * Y[1, 0] + b[2] * Y[2, 0]
                 for k in range(1, 4):
-                    o[k] = (bl[0] * Y[0, k] + bl[1] * Y[1, k] + bl[2] * Y[2, k]
-                            + bl[3] * Y[3, k] + bl[4] * Y[4, k] + bl[5] * Y[5, k])
+                    o[k] = (b[0] * Y[0, k] + b[1] * Y[1, k] + b[2] * Y[2, k]
+                            + b[3] * Y[3, k] + b[4] * Y[4, k] + b[5] * Y[5, k])
                 for k in range(4, 10):
-                    o[k] = bl[3] * Y[3, k] + bl[4] * Y[4, k] + bl[5] * Y[5, k]
+                    o[k] = b[3] * Y[3, k] + b[4] * Y[4, k] + b[5] * Y[5, k]
         _terms_one(Gi, Oi, i, n, plan, fdata)

@@ -240,16 +240,16 @@ def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArr
     tree = tree_plan(mech, data) if TREE_FROM_J else None
     if tree is not None:
         dq, ddq = np.ascontiguousarray(dq), np.ascontiguousarray(ddq)
-        view = loop_batch.placement_view(mech, data)
+        view = loop_batch.parent_placement_view(mech, data)
         m = min(_BLOCK, n)
-        J, P = np.empty((m, 6, nv)), np.empty((m, view.shape[0], 12))
-        cjj = pin.computeJointJacobians
+        L = np.empty((m, view.shape[0], 12))
+        fk = pin.forwardKinematics
         for a in range(0, n, m):
             b = min(a + m, n)
             for s, qi in enumerate(q[a:b]):
-                J[s] = cjj(model, data, qi)
-                P[s] = view
-            kern.tree_project(J[: b - a], P[: b - a], a, G, dq, ddq, *tree, out, plan, fdata)
+                fk(model, data, qi)
+                L[s] = view
+            kern.tree_project(L[: b - a], a, G, dq, ddq, *tree, out, plan, fdata)
         return
     jtr = pin.computeJointTorqueRegressor
     proj = kern.project_sample
@@ -258,35 +258,35 @@ def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArr
 
 
 TREE_FROM_J = True
-"""The projected tree regressor from the kinematics of ``computeJointJacobians``
-(:func:`dynid.model._loop_kernels.tree_project`) instead of pinocchio's
-``computeJointTorqueRegressor`` per sample (False): the same values to rounding, a quarter of
-the pinocchio time (bench/README.md, "Issue 37, item 1: the tree regressor from the Jacobians")."""
+"""The projected tree regressor by :func:`dynid.model._loop_kernels.tree_project` (pinocchio's
+regressor recursion on the placements of ``forwardKinematics``, projected body by body without
+forming the tree regressor) instead of pinocchio's ``computeJointTorqueRegressor`` per sample and
+:func:`dynid.model._loop_kernels.project_sample` (False): the same values to rounding, the same
+exact zeros (bench/README.md, "The tree regressor without pinocchio's tree regressor")."""
 
-_CONSTANT_SUBSPACE = {f"JointModel{a}{x}" for a in ("R", "P", "RUB") for x in "XYZ"} | {
-    "JointModelRevoluteUnaligned", "JointModelPrismaticUnaligned", "JointModelRevoluteUnboundedUnaligned"}
-"""Joints of one velocity coordinate whose motion subspace is constant in the joint frame (no bias
-acceleration): :func:`dynid.model._loop_kernels.tree_project`'s recursion holds for them."""
+_AXIS = {f"JointModel{kind}{x}": k + off for kind, off in (("P", 0), ("R", 3), ("RUB", 3)) for k, x in enumerate("XYZ")}
+"""Joints of one velocity coordinate whose motion subspace is a unit vector constant in the joint
+frame (no bias acceleration), and that vector's index: what
+:func:`dynid.model._loop_kernels.tree_project`'s recursion handles."""
 
 
 def tree_plan(mech: Mechanism, data: pin.Data) -> tuple | None:
-    """``(parent, col, slot, gravity)`` of :func:`dynid.model._loop_kernels.tree_project` (the
+    """``(parent, col, axis, slot, gravity)`` of :func:`dynid.model._loop_kernels.tree_project` (the
     integer arrays cached on ``mech``), or None where it does not apply: a joint outside
-    :data:`_CONSTANT_SUBSPACE`, or the placements not readable through
-    :func:`dynid.model.loop_batch.placement_view`."""
-    if loop_batch.placement_view(mech, data) is None:
-        return None
+    :data:`_AXIS`, or the placements not readable through
+    :func:`dynid.model.loop_batch.parent_placement_view`."""
     cached = mech.__dict__.get("_compiled_tree_plan", False)
     if cached is False:
         model = mech.pin_model
         cached = None
-        if all(jm.shortname() in _CONSTANT_SUBSPACE and jm.nv == 1 for jm in model.joints[1:]):
+        if all(jm.shortname() in _AXIS for jm in model.joints[1:]):
             slot = np.full(model.njoints, -1, dtype=_I)
             slot[list(mech.bodies)] = np.arange(len(mech.bodies))
             col = np.array([0] + [jm.idx_v for jm in model.joints[1:]], dtype=_I)
-            cached = (np.array(model.parents, dtype=_I), col, slot)
+            axis = np.array([0] + [_AXIS[jm.shortname()] for jm in model.joints[1:]], dtype=_I)
+            cached = (np.array(model.parents, dtype=_I), col, axis, slot)
         object.__setattr__(mech, "_compiled_tree_plan", cached)
-    if cached is None:
+    if cached is None or loop_batch.parent_placement_view(mech, data) is None:
         return None
     return (*cached, np.array(mech.pin_model.gravity.vector, dtype=float))
 
