@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         r["  its copy into the block"] = copy_t = cpu(jtr_copy) - jtr_t
         r["joint terms G^T F"] = terms_t = cpu(lambda: cl._projected_terms(mech, st.G, st.dq, st.ddq))
         r["regressor given the states, total"] = tot = cpu(lambda: cl.actuator_regressor(mech, st, data=data, out=out))
-        r["  projection G^T Y (compiled: the tree kernel), the rest"] = tot - jtr_t - copy_t - terms_t
+        r["  projection G^T Y (compiled: tree kernel), the rest"] = tot - jtr_t - copy_t - terms_t
         r["states + regressor"] = r["states, total (mech.states)"] + tot
         r["serial 6R regressor (one sample)"] = cpu(lambda: regressor(robot, sq, sdq, sddq, data=sdata, out=sbuf))
         r["  pinocchio computeJointTorqueRegressor of the 6R"] = cpu(
@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
 
         r["joint terms G^T F"] = terms_t = cpu(terms)
         r["regressor given the states, total"] = tot = cpu(lambda: cl.actuator_regressor(mech, st, data=data, out=out))
-        r["  projection G^T Y (compiled: the tree kernel), the rest"] = tot - jtr_t - terms_t
+        r["  projection G^T Y (compiled: tree kernel), the rest"] = tot - jtr_t - terms_t
         r["states + regressor"] = r["states, total (mech.states)"] + tot
         r["serial 6R regressor (one sample)"] = cpu(lambda: regressor(robot, sq, sdq, sddq, data=sdata, out=sbuf))
         r["  pinocchio computeJointTorqueRegressor of the 6R"] = cpu(

@@ -19,7 +19,7 @@ the numpy routes it replaces on small matrices (3 x 3 to 24 x 240), with preallo
   ``loop_blocks.scattered_drift``) and :math:`\\ddot q` (``_Maps.accelerations``);
 * :func:`tree_project`: :math:`G^T Y_{tree}` of a block of samples from the joints' placements,
   pinocchio's regressor recursion in the joints' frames with the body Jacobians per unit
-  :math:`\dot u` beside it (no tree regressor formed), and the joint terms;
+  :math:`\\dot u` beside it (no tree regressor formed), and the joint terms;
 * :func:`project_sample`: :math:`G^T Y_{tree}` of one sample, chain segment by chain segment on
   the supporting rows (``closed_loop._chain_groups``), from the array pinocchio's
   ``computeJointTorqueRegressor`` returns (no copy into a block), and :math:`G^T F` of the
@@ -488,7 +488,7 @@ def _terms_one(Gi, Oi, i, n, plan, fdata):  # pragma: no cover (compiled)
 def _to_child(R, t, m, out):  # pragma: no cover (compiled)
     """The motion vector ``m`` (linear, angular; in the parent's frame) in the frame of a child placed
     at ``(R, t)`` in it (``R`` as (9,) column-major): pinocchio's ``SE3.actInv``,
-    :math:`(R^T(v + \omega\times t), R^T\omega)`."""
+    :math:`(R^T(v + \\omega\\times t), R^T\\omega)`."""
     vx, vy, vz, ox, oy, oz = m[0], m[1], m[2], m[3], m[4], m[5]
     ex, ey, ez = vx + (oy * t[2] - oz * t[1]), vy + (oz * t[0] - ox * t[2]), vz + (ox * t[1] - oy * t[0])
     out[0] = R[0] * ex + R[1] * ey + R[2] * ez
@@ -514,17 +514,17 @@ def tree_project(L, start, G, dq, ddq, parent, col, axis, slot, gravity, out, pl
 
     The recursion of pinocchio's ``computeJointTorqueRegressor`` (its forward pass, in the joints'
     frames; Featherstone, *Rigid Body Dynamics Algorithms*, Eqs. 5.7-5.8): from
-    :math:`a_0 = -g`, :math:`v_j = {}^jX_{\lambda} v_{\lambda} + S_j\dot q_j` and
-    :math:`a_j = {}^jX_{\lambda} a_{\lambda} + S_j\ddot q_j + v_j\times S_j\dot q_j`; beside them
-    :math:`B_j = {}^jX_{\lambda} B_{\lambda} + S_j G_j` (6 x n_u, :math:`B_0 = 0`: the body's
-    velocity per unit :math:`\dot u`, in its frame). The tree regressor's columns of body ``j`` are
-    :math:`S_k^T\,{}^kX_j^* Y_j` on every supporting joint ``k`` (its backward pass), with
+    :math:`a_0 = -g`, :math:`v_j = {}^jX_{\\lambda} v_{\\lambda} + S_j\\dot q_j` and
+    :math:`a_j = {}^jX_{\\lambda} a_{\\lambda} + S_j\\ddot q_j + v_j\\times S_j\\dot q_j`; beside them
+    :math:`B_j = {}^jX_{\\lambda} B_{\\lambda} + S_j G_j` (6 x n_u, :math:`B_0 = 0`: the body's
+    velocity per unit :math:`\\dot u`, in its frame). The tree regressor's columns of body ``j`` are
+    :math:`S_k^T\\,{}^kX_j^* Y_j` on every supporting joint ``k`` (its backward pass), with
     :math:`Y_j` the body regressor (pinocchio's ``bodyRegressor``, parameters
     ``[m, mc, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` about the joint origin): so
-    :math:`\sum_k G_k^T S_k^T\,{}^kX_j^* Y_j = B_j^T Y_j` (:math:`({}^kX_j^*)^T = {}^jX_k`).
-    :math:`f = I a + v\times^* I v` gives, with :math:`\alpha = a_{lin} + \omega\times v_{lin}`,
-    :math:`f_{lin} = m\alpha + ([\dot\omega]_\times + [\omega]_\times^2)\,mc` and
-    :math:`f_{ang} = mc\times\alpha + I\dot\omega + \omega\times I\omega`. Exact zeros of the tree
+    :math:`\\sum_k G_k^T S_k^T\\,{}^kX_j^* Y_j = B_j^T Y_j` (:math:`({}^kX_j^*)^T = {}^jX_k`).
+    :math:`f = I a + v\\times^* I v` gives, with :math:`\\alpha = a_{lin} + \\omega\\times v_{lin}`,
+    :math:`f_{lin} = m\\alpha + ([\\dot\\omega]_\\times + [\\omega]_\\times^2)\\,mc` and
+    :math:`f_{ang} = mc\\times\\alpha + I\\dot\\omega + \\omega\\times I\\omega`. Exact zeros of the tree
     regressor (a joint's own axis, joints at one point) stay exact zeros: :math:`S` is a unit
     vector and a zero translation transforms without rounding."""
     m = L.shape[0]

@@ -1,8 +1,11 @@
 """The compiled route of the closed-chain states and regressor (issue 37, item 1, third pass).
 
-Per sample only pinocchio is called from Python (``computeJointJacobians`` and the placements'
-copy, ``computeJointJacobiansTimeVariation``, ``computeJointTorqueRegressor``, whose returned
-array goes to the projection kernel as it is); everything between them runs in the numba kernels
+Per sample only pinocchio is called from Python (states: ``computeJointJacobians`` and the
+placements' copy; regressor: ``forwardKinematics`` and the copy of the joints' placements in their
+parents' frames, from which :func:`dynid.model._loop_kernels.tree_project` runs pinocchio's
+regressor recursion and projects it body by body without forming the tree regressor;
+``computeJointJacobiansTimeVariation`` and ``computeJointTorqueRegressor`` only with
+:data:`DJ_FROM_J` or :data:`TREE_FROM_J` off); everything between them runs in the numba kernels
 of :mod:`dynid.model._loop_kernels`, one loop over the samples of a block each. The numpy routes
 (:func:`dynid.model.loop_kinematics.states` with ``loop_kinematics._COMPILED`` off,
 :func:`dynid.model.closed_loop.actuator_regressor` with ``closed_loop._COMPILED`` off) stay as the
@@ -262,7 +265,8 @@ TREE_FROM_J = True
 regressor recursion on the placements of ``forwardKinematics``, projected body by body without
 forming the tree regressor) instead of pinocchio's ``computeJointTorqueRegressor`` per sample and
 :func:`dynid.model._loop_kernels.project_sample` (False): the same values to rounding, the same
-exact zeros (bench/README.md, "The tree regressor without pinocchio's tree regressor")."""
+exact zeros (bench/README.md, "Item 1, fourth pass: the tree regressor without pinocchio's tree
+regressor")."""
 
 _AXIS = {f"JointModel{kind}{x}": k + off for kind, off in (("P", 0), ("R", 3), ("RUB", 3)) for k, x in enumerate("XYZ")}
 """Joints of one velocity coordinate whose motion subspace is a unit vector constant in the joint
