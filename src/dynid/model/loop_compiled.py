@@ -244,7 +244,7 @@ def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArr
     if tree is not None:
         dq, ddq = np.ascontiguousarray(dq), np.ascontiguousarray(ddq)
         view = loop_batch.parent_placement_view(mech, data)
-        m = min(_BLOCK, n)
+        m = max(1, min(_BLOCK, n))  # no sample: no block, the loop below does nothing
         L = np.empty((m, view.shape[0], 12))
         fk = pin.forwardKinematics
         for a in range(0, n, m):
