@@ -8,7 +8,10 @@
   base once each (it computed the chosen one a third time).
 * Streamed parallel decimation skips the regressor columns that are exactly zero: its output is
   that of filtering every column, bit for bit, and equals whole-signal filtering.
-* A serial-arm identify never imports numba (a dependency for the closed-chain kernels only).
+* A serial-arm identify never imports numba (a dependency for the closed-chain kernels only), and
+  with plots never matplotlib.pyplot: its two figures are drawn on a ``Figure`` with its own Agg
+  canvas (:func:`dynid.report.plots._agg_figure`), whose pixels equal those of the same figure made
+  through pyplot, as they were before.
 """
 
 from __future__ import annotations
@@ -174,8 +177,10 @@ def test_streamed_decimation_skips_zero_columns_bit_for_bit(zero_from):
     np.testing.assert_allclose(got, whole, rtol=0, atol=1e-9 * np.ptp(x))
 
 
-def test_serial_identify_does_not_import_numba(tmp_path):
-    """The shipped serial example's log through ``dynid identify`` in a fresh interpreter."""
+@pytest.mark.parametrize("plots", [False, True])
+def test_serial_identify_does_not_import_numba(tmp_path, plots):
+    """The shipped serial example's log through ``dynid identify`` in a fresh interpreter: no numba,
+    and with plots (both figures written) no matplotlib.pyplot."""
     (tmp_path / "identify.toml").write_text(f"""[robot]
 model = "{(ARM / 'arm3.urdf').as_posix()}"
 extras = ["Ia", "fv", "fc"]
@@ -192,14 +197,56 @@ lowpass = {{ cutoff_hz = 10.0, order = 4, filter_effort = false }}
 [identification]
 method = "ols"
 [output]
-plots = false
+plots = {'true' if plots else 'false'}
 """)
     code = ("import sys, json\nfrom dynid.cli import main\n"
             f"rc = main(['identify', {str(tmp_path / 'identify.toml')!r}, '--out', {str(tmp_path / 'out')!r}, '-q'])\n"
-            "print(json.dumps({'rc': rc, 'numba': sorted(m for m in sys.modules if m.split('.')[0] == 'numba')}))")
+            "print(json.dumps({'rc': rc, 'numba': sorted(m for m in sys.modules if m.split('.')[0] == 'numba'), "
+            "'pyplot': 'matplotlib.pyplot' in sys.modules, 'agg': 'matplotlib.backends.backend_agg' in sys.modules}))")
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"), DYNID_PLOT_WORKER="0")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     res = json.loads(proc.stdout.strip().splitlines()[-1])
     assert res["rc"] == 0 and (tmp_path / "out" / "result.json").exists()
     assert res["numba"] == [], f"a serial-arm identify imported {res['numba']}"
+    if plots:  # the figures were drawn (by Agg), without pyplot
+        assert res["agg"] and not res["pyplot"]
+        assert (tmp_path / "out" / "validation.png").exists() and (tmp_path / "out" / "processing.png").exists()
+
+
+def test_agg_figure_draws_what_pyplot_drew(tmp_path, monkeypatch):
+    """plot_validation on its pyplot-free figure against the same function with the figure made by
+    ``pyplot.figure`` (the route before): the decoded PNGs are equal pixel for pixel. Both render the
+    same artists with the same rcParams through the same Agg renderer in this process, so equality is
+    exact on any machine (only the PNG's zlib level differs, and PNG is lossless)."""
+    pytest.importorskip("matplotlib")
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+    from PIL import Image
+    from types import SimpleNamespace
+
+    import dynid.report.plots as plots
+
+    rng = np.random.default_rng(seed(39))
+    n, c = 3000, 3
+    t = np.arange(n) / 500.0
+    meas = np.cumsum(rng.standard_normal((n, c)), axis=0)
+    pred = meas + 0.3 * rng.standard_normal((n, c))
+    err = meas - pred
+    rmse = np.sqrt(np.mean(err**2, axis=0))
+    metrics = SimpleNamespace(measured=meas, predicted=pred, t=t, channel_names=[f"j{k}" for k in range(c)], rmse=rmse,
+                              rel_rmse_pct=100 * rmse / np.sqrt(np.mean(meas**2, axis=0)), label="held-out")
+    plots.plot_validation(metrics, tmp_path / "agg.png")
+    made = []
+
+    def via_pyplot(**kwargs):
+        made.append(plt.figure(**kwargs))
+        return made[-1]
+
+    monkeypatch.setattr(plots, "_agg_figure", via_pyplot)
+    plots.plot_validation(metrics, tmp_path / "pyplot.png")
+    plt.close(made[0])
+    a, b = (np.asarray(Image.open(tmp_path / f"{k}.png")) for k in ("agg", "pyplot"))
+    assert a.shape == b.shape and np.array_equal(a, b)
