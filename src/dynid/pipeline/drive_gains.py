@@ -39,7 +39,9 @@ def estimate_drive_gains(system: System, base: BaseParameters, train: Dataset, f
 
     .. math:: \tau^{nom}_j = \sum_m C_{mj} k_m i_m - f_{v,j}\,\dot q_j - f_{c,j}\,\mathrm{sign}(\dot q_j) - c_j,
 
-    with :math:`\tau^{nom} = W\beta_{nom}` the description's rigid-body torques, :math:`C` the
+    with :math:`\tau^{nom} = W\beta_{nom}` the description's rigid-body torques (for a serial arm
+    by pinocchio's recursive Newton-Euler on the nominal model, which equals the regressor's product
+    to rounding at a third of its cost; a mechanism filters the base regressor's product), :math:`C` the
     coupling matrix (identity without couplings), and viscous, Coulomb friction and an offset
     per actuator as nuisance terms where the description has no friction for that joint (a
     description rarely has the friction the currents carry; where it has, its torques include it).
