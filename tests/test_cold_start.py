@@ -12,6 +12,8 @@
   with plots never matplotlib.pyplot: its two figures are drawn on a ``Figure`` with its own Agg
   canvas (:func:`dynid.report.plots._agg_figure`), whose pixels equal those of the same figure made
   through pyplot, as they were before.
+* The drive-gain pass of a serial arm takes the nominal torques from RNEA instead of computing the
+  regressor a second time over the training rows: the same decimated torques to rounding.
 """
 
 from __future__ import annotations
