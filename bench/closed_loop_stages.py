@@ -17,7 +17,10 @@ Method
   it is (:mod:`dynid.model.loop_compiled`: numba kernels between the pinocchio calls; the drift's
   :math:`\dot J\dot q` from :math:`J`, no time-variation pass; stages timed by calling its kernels
   on the same inputs: the separate kernels where the library fuses them, so the stage rows sum to
-  slightly more than the fused total).
+  slightly more than the fused total). With ``loop_compiled.TREE_FROM_J`` (the default) the
+  compiled regressor calls pinocchio's ``forwardKinematics`` per sample (its row) instead of the
+  tree regressor, and the kernel's row holds the recursion, the body regressors, the projection
+  and the joint terms' sums.
 * Stages (us per sample): the three pinocchio passes (each with the copy of its result, the
   tree regressor's copy apart), the numpy work between them, totals; the serial 6R regressor of
   ``closed_loop_throughput.py`` and pinocchio's regressor call of the 6R alone as the yardstick.
@@ -128,10 +131,11 @@ def main(argv: list[str] | None = None) -> int:
                 Y[i % m] = pin.computeJointTorqueRegressor(model, data, st.q[i], st.dq[i], st.ddq[i])
 
         r["pinocchio computeJointTorqueRegressor"] = jtr_t = cpu(jtr_only)
+        r["pinocchio forwardKinematics (+ liMi copy)"] = 0.0
         r["  its copy into the block"] = copy_t = cpu(jtr_copy) - jtr_t
         r["joint terms G^T F"] = terms_t = cpu(lambda: cl._projected_terms(mech, st.G, st.dq, st.ddq))
         r["regressor given the states, total"] = tot = cpu(lambda: cl.actuator_regressor(mech, st, data=data, out=out))
-        r["  projection G^T Y by chain segments, the rest"] = tot - jtr_t - copy_t - terms_t
+        r["  projection G^T Y (compiled: tree kernel), the rest"] = tot - jtr_t - copy_t - terms_t
         r["states + regressor"] = r["states, total (mech.states)"] + tot
         r["serial 6R regressor (one sample)"] = cpu(lambda: regressor(robot, sq, sdq, sddq, data=sdata, out=sbuf))
         r["  pinocchio computeJointTorqueRegressor of the 6R"] = cpu(
@@ -173,11 +177,24 @@ def main(argv: list[str] | None = None) -> int:
             plan.n_dims, rows, inv, plan.u, plan.w, plan.cu_ptr, plan.cu_rows, ddu, ddq))
         r["states, total (mech.states)"] = cpu(lambda: mech.states(q, du, ddu))
 
-        def jtr_only() -> None:
-            for i in range(n):
-                pin.computeJointTorqueRegressor(model, data, st.q[i], st.dq[i], st.ddq[i])
+        if loop_compiled.TREE_FROM_J:  # the tree kernel's pass: forwardKinematics and the parents' placements
+            lview = loop_batch.parent_placement_view(mech, data)
+            L = np.empty((n, lview.shape[0], 12))
 
-        r["pinocchio computeJointTorqueRegressor"] = jtr_t = cpu(jtr_only)
+            def fk() -> None:
+                for i in range(n):
+                    pin.forwardKinematics(model, data, st.q[i])
+                    L[i] = lview
+
+            r["pinocchio computeJointTorqueRegressor"] = 0.0
+            r["pinocchio forwardKinematics (+ liMi copy)"] = jtr_t = cpu(fk)
+        else:
+            def jtr_only() -> None:
+                for i in range(n):
+                    pin.computeJointTorqueRegressor(model, data, st.q[i], st.dq[i], st.ddq[i])
+
+            r["pinocchio computeJointTorqueRegressor"] = jtr_t = cpu(jtr_only)
+            r["pinocchio forwardKinematics (+ liMi copy)"] = 0.0
         r["  its copy into the block"] = 0.0
 
         def terms() -> None:  # the bases; their sums G^T F run in the projection's kernel call (the row below)
@@ -185,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
 
         r["joint terms G^T F"] = terms_t = cpu(terms)
         r["regressor given the states, total"] = tot = cpu(lambda: cl.actuator_regressor(mech, st, data=data, out=out))
-        r["  projection G^T Y by chain segments, the rest"] = tot - jtr_t - terms_t
+        r["  projection G^T Y (compiled: tree kernel), the rest"] = tot - jtr_t - terms_t
         r["states + regressor"] = r["states, total (mech.states)"] + tot
         r["serial 6R regressor (one sample)"] = cpu(lambda: regressor(robot, sq, sdq, sddq, data=sdata, out=sbuf))
         r["  pinocchio computeJointTorqueRegressor of the 6R"] = cpu(
@@ -217,10 +234,11 @@ def main(argv: list[str] | None = None) -> int:
         tot = statistics.median(r["states + regressor"] / r["serial 6R regressor (one sample)"] for r in res[label])
         print(f"\n{label}: states + regressor = {tot:.2f} serial 6R samples (median of the rounds' ratios)", end="")
     floor = statistics.median(r["hexapod's three pinocchio passes alone"] for r in res["structured"])
-    jtr = statistics.median(r["pinocchio computeJointTorqueRegressor"] + r["pinocchio computeJointJacobians (+ copy)"]
-                            for r in res["compiled"])
+    jtr = statistics.median(r["pinocchio computeJointTorqueRegressor"] + r["pinocchio forwardKinematics (+ liMi copy)"]
+                            + r["pinocchio computeJointJacobians (+ copy)"] for r in res["compiled"])
+    second = "forwardKinematics, liMi's copy" if loop_compiled.TREE_FROM_J else "tree regressor"
     print(f"\nfloor: the hexapod's three pinocchio passes alone = {floor:.2f} us = {floor / ser:.2f} serial 6R samples;"
-          f" the compiled route's two (Jacobians with the copies, regressor) = {jtr:.2f} us = {jtr / ser:.2f}")
+          f" the compiled route's two (Jacobians with the copies; {second}) = {jtr:.2f} us = {jtr / ser:.2f}")
     return 0
 
 

@@ -32,6 +32,18 @@ Method
   process's ``VmHWM`` is the run's whole peak (the plot worker, which ``dynid identify`` starts when
   a CPU is idle, is a second process whose memory this wrapper would not see; on this shared
   machine the load rule kept it off anyway).
+* dynid runs from bytecode, as an installed dynid does (``pip install`` compiles every module;
+  FIGAROH's venv holds its ``.pyc`` files): before the rounds (not timed) ``python -m compileall``
+  writes the bytecode of the imported dynid package beside its sources (``__pycache__``, what any
+  Python run writes unless told not to; ignored by git). Without it, a checkout run with
+  ``PYTHONDONTWRITEBYTECODE=1`` (this project's machines) compiled dynid's ~80 modules from source in
+  every run, 0.13-0.15 s that were counted as imports (bench/README.md, "Cold start, fourth pass").
+  ``--no-bytecode`` leaves dynid's bytecode as found (on a checkout without ``__pycache__``, that way). (Not ``PYTHONPYCACHEPREFIX``: it moves every module's cache,
+  numpy's, scipy's and matplotlib's too, which then compile from source in every run.)
+* ``--floor`` adds, in every round, ``bench/_cold_floor.py`` with and without plots: a fresh
+  interpreter that only imports what a run needs, reads the two logs and calls pinocchio's regressor
+  once per training and held-out sample (its docstring); its paired ratio to FIGAROH is the lower
+  bound of dynid's ratio on this numerical core.
 * Rounds alternate the order: even rounds run dynid, FIGAROH (plots on), then FIGAROH, dynid (plots
   off); odd rounds the reverse. ``--repeats`` rounds (5). Reported: per tool the median wall and
   peak memory, and the medians of the PAIRED ratios dynid/FIGAROH of each round, for wall with plots,
@@ -39,7 +51,8 @@ Method
 * PASS when the median paired wall ratio is <= 0.5 with plots and <= 0.4 without, and the median
   paired memory ratio (with plots) <= 0.4; exit 1 on FAIL or when a run fails.
 
-Run: ``.venv/bin/python bench/vs_figaroh.py`` (``--repeats 1`` for a smoke run; ``--figaroh-venv PATH``).
+Run: ``.venv/bin/python bench/vs_figaroh.py`` (``--repeats 1`` for a smoke run; ``--figaroh-venv PATH``; ``--floor``;
+``--no-bytecode``).
 """
 
 from __future__ import annotations
@@ -58,6 +71,7 @@ from _util import median, print_machine, table, tx40_data
 
 REPO = Path(__file__).resolve().parents[1]
 DRIVER = Path(__file__).resolve().with_name("_figaroh_tx40.py")
+FLOOR = Path(__file__).resolve().with_name("_cold_floor.py")
 DEFAULT_VENV = Path("~/.cache/dynid-bench/figaroh-1.0.2").expanduser()
 TX40_FILES = ("pos_read_data.csv", "curr_data.csv", "tx40_mdh_modified.urdf", "figaroh_TX40_config.yaml")
 TRAIN = (0, 24750)
@@ -181,6 +195,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="folder with the TX40 files (default $DYNID_SHARED_DATA/tx40 or ../shared/data/tx40)")
     ap.add_argument("--blas-threads", type=int, default=1, help="BLAS/OpenMP threads in both tools (default 1)")
     ap.add_argument("--workdir", type=Path, default=None, help="keep configs and outputs here (default: a temp dir)")
+    ap.add_argument("--no-bytecode", action="store_true",
+                    help="do not compile dynid's bytecode before the rounds: the runs use what __pycache__ holds "
+                         "(with PYTHONDONTWRITEBYTECODE=1 and none there, every run compiles dynid from source)")
+    ap.add_argument("--floor", action="store_true",
+                    help="also run bench/_cold_floor.py in every round: imports, reading the log and one regressor "
+                         "call per sample, nothing else (the lower bound of a run)")
     args = ap.parse_args(argv)
     if args.repeats < 1:
         fail(f"--repeats must be at least 1, got {args.repeats}")
@@ -210,6 +230,14 @@ def main(argv: list[str] | None = None) -> int:
         env[var] = str(args.blas_threads)
     fig_env = {k: v for k, v in env.items() if k != "PYTHONPATH"}  # FIGAROH sees only its own environment
     env["DYNID_PLOT_WORKER"] = "0"  # one process: its VmHWM is the whole run's peak (module docstring)
+    if not args.no_bytecode:  # as an installed dynid runs: from bytecode compiled once (module docstring)
+        pkg = subprocess.run([sys.executable, "-c", "import dynid, os; print(os.path.dirname(dynid.__file__))"],
+                             capture_output=True, text=True, env=env).stdout.strip()
+        comp = subprocess.run([sys.executable, "-m", "compileall", "-q", pkg], capture_output=True, text=True, env=env)
+        if not pkg or comp.returncode != 0:
+            fail(f"cannot compile dynid's bytecode beside its sources in {pkg or '(dynid not found)'}: "
+                 f"{(comp.stdout + comp.stderr).strip()[-300:]} (--no-bytecode runs from source)")
+    print(f"dynid runs from {'source (no bytecode compiled before)' if args.no_bytecode else 'bytecode compiled before the rounds (compileall)'}")
     prep = work / "figaroh_prep"
     prep.mkdir(exist_ok=True)
     proc = subprocess.run([fig_py, str(DRIVER), "prepare", str(data), str(prep)], capture_output=True, text=True,
@@ -227,7 +255,10 @@ def main(argv: list[str] | None = None) -> int:
         out = work / tag
         shutil.rmtree(out, ignore_errors=True)
         out.mkdir()
-        if tool == "dynid":
+        if tool == "floor":
+            res = run_measured(sys.executable, [str(FLOOR), str(data)] + (["--plots"] if plots else []), env, work, tag)
+            res |= {"parts": json.loads(res["stdout"].strip().splitlines()[-1])}
+        elif tool == "dynid":
             res = run_measured(sys.executable, ["-m", "dynid.cli", "identify", str(cfgs[plots]), "--out", str(out), "-q"],
                                env, work, tag)
             doc = json.loads((out / "result.json").read_text())
@@ -255,6 +286,9 @@ def main(argv: list[str] | None = None) -> int:
         res[second, True] = run(second, True, r)
         res[second, False] = run(second, False, r)
         res[first, False] = run(first, False, r)
+        if args.floor:  # after the round's four runs, plots on then off
+            res["floor", True] = run("floor", True, r)
+            res["floor", False] = run("floor", False, r)
         rounds.append(res)
     load_after = os.getloadavg()
     print(f"load average after: {load_after[0]:.2f} {load_after[1]:.2f} {load_after[2]:.2f}")
@@ -262,8 +296,8 @@ def main(argv: list[str] | None = None) -> int:
     def med(tool, plots, key):
         return median([rd[tool, plots][key] for rd in rounds])
 
-    def paired(plots, key):
-        return median([rd["dynid", plots][key] / rd["figaroh", plots][key] for rd in rounds])
+    def paired(plots, key, tool="dynid"):
+        return median([rd[tool, plots][key] / rd["figaroh", plots][key] for rd in rounds])
 
     ratios = {"wall_on": paired(True, "wall_s"), "wall_off": paired(False, "wall_s"),
               "mem_on": paired(True, "peak_mb"), "mem_off": paired(False, "peak_mb")}
@@ -277,8 +311,22 @@ def main(argv: list[str] | None = None) -> int:
         ["peak memory, plots off [MB]", f"{med('dynid', False, 'peak_mb'):.0f}",
          f"{med('figaroh', False, 'peak_mb'):.0f}", f"{ratios['mem_off']:.2f}x", "-", "-"],
     ]
+    if args.floor:
+        for plots in (True, False):
+            rows.append([f"floor, plots {'on' if plots else 'off'} [s]", f"{med('floor', plots, 'wall_s'):.2f}",
+                         f"{med('figaroh', plots, 'wall_s'):.2f}", f"{paired(plots, 'wall_s', 'floor'):.2f}x", "-",
+                         "bound"])
     print(f"\nTX40, {args.repeats} rounds (medians; ratio = median over rounds of dynid/FIGAROH in the same round)")
     print(table(["", "dynid", "FIGAROH 1.0.2", "paired ratio", "target", "check"], rows))
+
+    if args.floor:
+        print("floor (bench/_cold_floor.py, its own timers; the rest of its wall is the interpreter's start and exit):")
+        for r, rd in enumerate(rounds):
+            for plots in (True, False):
+                pt = rd["floor", plots]["parts"]
+                print(f"  round {r + 1} plots {'on ' if plots else 'off'}: wall {rd['floor', plots]['wall_s']:.2f} s = "
+                      f"imports {pt['import_s']:.2f} + reading the logs {pt['read_s']:.2f} + {pt['samples']} regressor "
+                      f"calls {pt['regressor_s']:.2f} + the rest; FIGAROH {rd['figaroh', plots]['wall_s']:.2f} s")
 
     d, f = rounds[0]["dynid", True], rounds[0]["figaroh", True]
     print(f"\nheld-out torque RMSE per joint [N*m], trained on rows {TRAIN[0]}-{TRAIN[1]}, scored on rows "

@@ -202,6 +202,35 @@ def test_compiled_drift_equals_pinocchios_time_variation(monkeypatch):
         assert _rel(from_j.ddq, pin_dj.ddq) <= 2 * mech.nv * EPS * float(pin_dj.cond.max())
 
 
+@pytest.mark.parametrize("name", ["hexapod", "rps3", "shang2dof"])
+def test_tree_kernel_equals_pinocchios_tree_regressor(name, monkeypatch):
+    """The compiled regressor's G^T Y_tree by the kernel on the joints' placements
+    (loop_compiled.TREE_FROM_J, the default) against pinocchio's computeJointTorqueRegressor per
+    sample projected by project_sample (TREE_FROM_J off), on the same states (same G). The same
+    recursion (pinocchio's, in the joints' frames) and the same products in another order: each
+    entry is a sum over the supporting joints (at most n_v) of G times tree-regressor entries,
+    each of those built by at most n_v transforms of a few terms, so the two differ by at most
+    about 4 n_v eps |G|^T |Y_tree| (first-order rounding bound on the magnitudes summed, not on
+    the result: cancellations make |W| smaller, never the bound). The exact zero columns (a
+    body's parameters no actuator feels) stay exactly zero: base-parameter ranks rely on them.
+    shang2dof: point coordinates, redundant (T applied after the kernel)."""
+    mech = build_mechanism(name)
+    st = random_consistent_states(mech, 60, np.random.default_rng(9))
+    dist = "projected" if mech.redundant else None
+    assert loop_compiled.tree_plan(mech, mech.pin_model.createData()) is not None  # the kernel applies
+    W = actuator_regressor(mech, st, distribution=dist).W
+    monkeypatch.setattr(loop_compiled, "TREE_FROM_J", False)
+    W_pin = actuator_regressor(mech, st, distribution=dist).W
+    nb = mech.n_body_params
+    Y = tree_regressor(mech, st.q, st.dq, st.ddq)[:, :, :nb]  # [Y_tree F], Y_tree on the bodies' columns
+    # |G|^T |Y_tree| ("projected": W = G^T [Y F], no T)
+    scale = float(np.matmul(np.abs(st.G).transpose(0, 2, 1), np.abs(Y)).max())
+    assert np.abs(W[:, :, :nb] - W_pin[:, :, :nb]).max() <= 4 * mech.nv * EPS * scale
+    assert np.array_equal(W[:, :, nb:], W_pin[:, :, nb:])  # the joint terms: the same code
+    zero = np.all(W_pin[:, :, :nb] == 0, axis=(0, 1))
+    assert zero.any() and np.array_equal(np.all(W[:, :, :nb] == 0, axis=(0, 1)), zero)
+
+
 @pytest.mark.parametrize("distribution", ["projected", "min_norm"])
 def test_compiled_regressor_redundant_actuation(distribution, numpy_route):
     """shang2dof (redundant actuation, point coordinates: numpy states): the compiled projection

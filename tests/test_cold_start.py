@@ -8,7 +8,12 @@
   base once each (it computed the chosen one a third time).
 * Streamed parallel decimation skips the regressor columns that are exactly zero: its output is
   that of filtering every column, bit for bit, and equals whole-signal filtering.
-* A serial-arm identify never imports numba (a dependency for the closed-chain kernels only).
+* A serial-arm identify never imports numba (a dependency for the closed-chain kernels only), and
+  with plots never matplotlib.pyplot: its two figures are drawn on a ``Figure`` with its own Agg
+  canvas (:func:`dynid.report.plots._agg_figure`), whose pixels equal those of the same figure made
+  through pyplot, as they were before.
+* The drive-gain pass of a serial arm takes the nominal torques from RNEA instead of computing the
+  regressor a second time over the training rows: the same decimated torques to rounding.
 """
 
 from __future__ import annotations
@@ -174,8 +179,10 @@ def test_streamed_decimation_skips_zero_columns_bit_for_bit(zero_from):
     np.testing.assert_allclose(got, whole, rtol=0, atol=1e-9 * np.ptp(x))
 
 
-def test_serial_identify_does_not_import_numba(tmp_path):
-    """The shipped serial example's log through ``dynid identify`` in a fresh interpreter."""
+@pytest.mark.parametrize("plots", [False, True])
+def test_serial_identify_does_not_import_numba(tmp_path, plots):
+    """The shipped serial example's log through ``dynid identify`` in a fresh interpreter: no numba,
+    and with plots (both figures written) no matplotlib.pyplot."""
     (tmp_path / "identify.toml").write_text(f"""[robot]
 model = "{(ARM / 'arm3.urdf').as_posix()}"
 extras = ["Ia", "fv", "fc"]
@@ -192,14 +199,106 @@ lowpass = {{ cutoff_hz = 10.0, order = 4, filter_effort = false }}
 [identification]
 method = "ols"
 [output]
-plots = false
+plots = {'true' if plots else 'false'}
 """)
     code = ("import sys, json\nfrom dynid.cli import main\n"
             f"rc = main(['identify', {str(tmp_path / 'identify.toml')!r}, '--out', {str(tmp_path / 'out')!r}, '-q'])\n"
-            "print(json.dumps({'rc': rc, 'numba': sorted(m for m in sys.modules if m.split('.')[0] == 'numba')}))")
+            "print(json.dumps({'rc': rc, 'numba': sorted(m for m in sys.modules if m.split('.')[0] == 'numba'), "
+            "'pyplot': 'matplotlib.pyplot' in sys.modules, 'agg': 'matplotlib.backends.backend_agg' in sys.modules}))")
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"), DYNID_PLOT_WORKER="0")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     res = json.loads(proc.stdout.strip().splitlines()[-1])
     assert res["rc"] == 0 and (tmp_path / "out" / "result.json").exists()
     assert res["numba"] == [], f"a serial-arm identify imported {res['numba']}"
+    if plots:  # the figures were drawn (by Agg), without pyplot
+        assert res["agg"] and not res["pyplot"]
+        assert (tmp_path / "out" / "validation.png").exists() and (tmp_path / "out" / "processing.png").exists()
+
+
+def test_agg_figure_draws_what_pyplot_drew(tmp_path, monkeypatch):
+    """plot_validation on its pyplot-free figure against the same function with the figure made by
+    ``pyplot.figure`` (the route before): the decoded PNGs are equal pixel for pixel. Both render the
+    same artists with the same rcParams through the same Agg renderer in this process, so equality is
+    exact on any machine (only the PNG's zlib level differs, and PNG is lossless)."""
+    pytest.importorskip("matplotlib")
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+    from PIL import Image
+    from types import SimpleNamespace
+
+    import dynid.report.plots as plots
+
+    rng = np.random.default_rng(seed(39))
+    n, c = 3000, 3
+    t = np.arange(n) / 500.0
+    meas = np.cumsum(rng.standard_normal((n, c)), axis=0)
+    pred = meas + 0.3 * rng.standard_normal((n, c))
+    err = meas - pred
+    rmse = np.sqrt(np.mean(err**2, axis=0))
+    metrics = SimpleNamespace(measured=meas, predicted=pred, t=t, channel_names=[f"j{k}" for k in range(c)], rmse=rmse,
+                              rel_rmse_pct=100 * rmse / np.sqrt(np.mean(meas**2, axis=0)), label="held-out")
+    plots.plot_validation(metrics, tmp_path / "agg.png")
+    made = []
+
+    def via_pyplot(**kwargs):
+        made.append(plt.figure(**kwargs))
+        return made[-1]
+
+    monkeypatch.setattr(plots, "_agg_figure", via_pyplot)
+    plots.plot_validation(metrics, tmp_path / "pyplot.png")
+    plt.close(made[0])
+    a, b = (np.asarray(Image.open(tmp_path / f"{k}.png")) for k in ("agg", "pyplot"))
+    assert a.shape == b.shape and np.array_equal(a, b)
+
+
+def test_drive_gain_torques_by_rnea_equal_the_regressor_route():
+    """The drive-gain pass's nominal torques by pinocchio's RNEA (``_chunks(torques=...)``,
+    :func:`dynid.pipeline.drive_gains.estimate_drive_gains` on a serial arm) against the base regressor
+    times the nominal base parameters (``project=``, what it filtered before), both parallel-decimated:
+    a 6R arm with the TX40's coupled wrist, rotor inertia, viscous and smooth Coulomb friction and
+    offsets, every joint extra non-zero (the coupled motor's own are 0 in the description). The measured efforts and velocities are the same bits; the
+    torques agree to rounding."""
+    from dynid.model.serial_dynamics import inverse_dynamics
+    from dynid.model.transmission import Transmission
+    from dynid.pipeline.rows import _chunks
+    from dynid.dataset import Dataset
+
+    C = np.diag([32.0, 32.0, 45.0, -48.0, 45.0, 32.0])
+    C[5, 4] = 32.0  # motor 6 turns with joints 5 and 6 (examples/tx40/identify.toml)
+    extras = {"Ia": [0.3, 0.3, 0.1, 0.03, 0.03, 0.02], "fv": [2.0, 2.0, 1.0, 0.5, 0.5, 0.3],
+              "fc": [1.5, 1.5, 1.0, 0.4, 0.4, 0.2], "offset": [0.1, -0.2, 0.05, 0.03, 0.02, -0.01]}
+    robot = load_robot("builtin:generic6r", extras=("Ia", "fv", "fc", "offset"), nominal_extras=extras,
+                       transmission=Transmission(matrix=C, drive_gains=np.ones(6), position_offset=np.zeros(6)))
+    system = as_system(robot).with_coulomb_width([0.05] * 6)
+    base = system.base_parameters()
+    nom = system.nominal_parameters()
+    nb = robot.layout.n_body_params
+    assert robot.layout.coupled_motors and np.count_nonzero(nom[nb:nb + 24]) == 24
+    rng = np.random.default_rng(seed(40))
+    n, fs = 3000, 1000.0
+    t = np.arange(n) / fs
+    w = 2 * np.pi * np.array([0.2, 0.5, 0.9])
+    amp, ph = rng.uniform(0.2, 0.6, (6, 3)), rng.uniform(0, 2 * np.pi, (6, 3))
+    arg = w * t[:, None, None] + ph
+    q = np.sum(amp * np.sin(arg), axis=2)
+    dq = np.sum(amp * w * np.cos(arg), axis=2)
+    ddq = -np.sum(amp * w**2 * np.sin(arg), axis=2)
+    ds = Dataset(t=t, q=q, tau=rng.standard_normal((n, 6)), dq=dq, ddq=ddq)
+
+    def run(**way):
+        cs = list(_chunks(system, base, ds, None, parallel_decimate=10, chunk_size=700, **way))
+        return [np.concatenate([getattr(c, f) for c in cs]) for f in ("W", "y", "dq")]
+
+    W_rnea, y_rnea, dq_rnea = run(torques=lambda q, dq, ddq: inverse_dynamics(system.model, nom, q, dq, ddq))
+    W_reg, y_reg, dq_reg = run(project=base.from_standard(nom)[:, None])
+    assert W_rnea.shape == W_reg.shape == (n // 10, 6, 1)
+    assert np.array_equal(y_rnea, y_reg) and np.array_equal(dq_rnea, dq_reg)
+    # per sample, RNEA and the regressor's product agree to a few ulp of the torques (float64, 6e-16
+    # relative measured on the TX40); the base projection W_std pi = W_b beta holds to rounding times
+    # the base map's conditioning, and the decimation filter is linear with a gain of order one:
+    # 1e-9 of the largest torque leaves a factor 1e6 for that conditioning
+    scale = np.abs(W_reg).max()
+    assert scale > 1.0 and np.max(np.abs(W_rnea - W_reg)) <= 1e-9 * scale

@@ -17,6 +17,9 @@ the numpy routes it replaces on small matrices (3 x 3 to 24 x 240), with preallo
 * :func:`drift_accelerations`: the drift :math:`\\dot J_c\\dot q` (the classical acceleration of
   every side point, Featherstone, *Rigid Body Dynamics Algorithms*, §2.11;
   ``loop_blocks.scattered_drift``) and :math:`\\ddot q` (``_Maps.accelerations``);
+* :func:`tree_project`: :math:`G^T Y_{tree}` of a block of samples from the joints' placements,
+  pinocchio's regressor recursion in the joints' frames with the body Jacobians per unit
+  :math:`\\dot u` beside it (no tree regressor formed), and the joint terms;
 * :func:`project_sample`: :math:`G^T Y_{tree}` of one sample, chain segment by chain segment on
   the supporting rows (``closed_loop._chain_groups``), from the array pinocchio's
   ``computeJointTorqueRegressor`` returns (no copy into a block), and :math:`G^T F` of the
@@ -456,9 +459,16 @@ def project_sample(Y, G, out, i, plan, fdata):  # pragma: no cover (compiled)
                     for c in range(L):
                         o[c] += gv * Yr[c]
         x += 1
+    _terms_one(Gi, Oi, i, G.shape[0], plan, fdata)
+
+
+@njit(cache=True, error_model="numpy")
+def _terms_one(Gi, Oi, i, n, plan, fdata):  # pragma: no cover (compiled)
+    """The joint terms' part of :func:`project_sample` for sample ``i`` of ``n``:
+    ``Oi[u, col0 + k] = sum_j Gi[j, u] b_k[i, j] I[j, k]``."""
+    n_u, nv = Gi.shape[1], Gi.shape[0]
     t = plan[0]
     col, nw_ = plan[t], plan[t + 2]
-    n, nv = G.shape[0], G.shape[1]
     x, z = t + 3, 0
     for k in range(plan[t + 1]):
         kb, nj = plan[x], plan[x + 1]
@@ -472,3 +482,115 @@ def project_sample(Y, G, out, i, plan, fdata):  # pragma: no cover (compiled)
             Oi[uu, col + k] = s
         x += nj
         z += nj
+
+
+@njit(cache=True, error_model="numpy")
+def _to_child(R, t, m, out):  # pragma: no cover (compiled)
+    """The motion vector ``m`` (linear, angular; in the parent's frame) in the frame of a child placed
+    at ``(R, t)`` in it (``R`` as (9,) column-major): pinocchio's ``SE3.actInv``,
+    :math:`(R^T(v + \\omega\\times t), R^T\\omega)`."""
+    vx, vy, vz, ox, oy, oz = m[0], m[1], m[2], m[3], m[4], m[5]
+    ex, ey, ez = vx + (oy * t[2] - oz * t[1]), vy + (oz * t[0] - ox * t[2]), vz + (ox * t[1] - oy * t[0])
+    out[0] = R[0] * ex + R[1] * ey + R[2] * ez
+    out[1] = R[3] * ex + R[4] * ey + R[5] * ez
+    out[2] = R[6] * ex + R[7] * ey + R[8] * ez
+    out[3] = R[0] * ox + R[1] * oy + R[2] * oz
+    out[4] = R[3] * ox + R[4] * oy + R[5] * oz
+    out[5] = R[6] * ox + R[7] * oy + R[8] * oz
+
+
+@njit(cache=True, error_model="numpy")
+def tree_project(L, start, G, dq, ddq, parent, col, axis, slot, gravity, out, plan, fdata):  # pragma: no cover (compiled)
+    """:math:`G^T Y_{tree}` of samples ``start .. start + len(L)`` without forming the tree regressor,
+    and the joint terms (:func:`_terms_one`).
+
+    ``L`` (m, n_joints, 12): each joint's placement in its parent's frame (``data.liMi`` after a
+    kinematics pass of pinocchio: column-major rotation, translation) for those samples; ``G``,
+    ``dq``, ``ddq``, ``out`` of all samples; per joint (pinocchio's order, parents first) its
+    ``parent``, its velocity column ``col``, ``axis`` (its motion subspace :math:`S = e_{axis}`:
+    0-2 prismatic along x, y, z, 3-5 revolute about x, y, z; constant in the joint frame) and
+    ``slot``, its block of 10 output columns (-1: no body parameters); ``gravity`` (6,)
+    pinocchio's ``model.gravity``.
+
+    The recursion of pinocchio's ``computeJointTorqueRegressor`` (its forward pass, in the joints'
+    frames; Featherstone, *Rigid Body Dynamics Algorithms*, Eqs. 5.7-5.8): from
+    :math:`a_0 = -g`, :math:`v_j = {}^jX_{\\lambda} v_{\\lambda} + S_j\\dot q_j` and
+    :math:`a_j = {}^jX_{\\lambda} a_{\\lambda} + S_j\\ddot q_j + v_j\\times S_j\\dot q_j`; beside them
+    :math:`B_j = {}^jX_{\\lambda} B_{\\lambda} + S_j G_j` (6 x n_u, :math:`B_0 = 0`: the body's
+    velocity per unit :math:`\\dot u`, in its frame). The tree regressor's columns of body ``j`` are
+    :math:`S_k^T\\,{}^kX_j^* Y_j` on every supporting joint ``k`` (its backward pass), with
+    :math:`Y_j` the body regressor (pinocchio's ``bodyRegressor``, parameters
+    ``[m, mc, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` about the joint origin): so
+    :math:`\\sum_k G_k^T S_k^T\\,{}^kX_j^* Y_j = B_j^T Y_j` (:math:`({}^kX_j^*)^T = {}^jX_k`).
+    :math:`f = I a + v\\times^* I v` gives, with :math:`\\alpha = a_{lin} + \\omega\\times v_{lin}`,
+    :math:`f_{lin} = m\\alpha + ([\\dot\\omega]_\\times + [\\omega]_\\times^2)\\,mc` and
+    :math:`f_{ang} = mc\\times\\alpha + I\\dot\\omega + \\omega\\times I\\omega`. Exact zeros of the tree
+    regressor (a joint's own axis, joints at one point) stay exact zeros: :math:`S` is a unit
+    vector and a zero translation transforms without rounding."""
+    m = L.shape[0]
+    nj = parent.size
+    n_u = G.shape[2]
+    n = G.shape[0]
+    V = np.zeros((nj, 6))
+    A = np.zeros((nj, 6))
+    B = np.zeros((nj, n_u, 6))
+    Y = np.zeros((6, 10))
+    for d in range(6):
+        A[0, d] = -gravity[d]
+    for s in range(m):
+        i = start + s
+        Gi, Oi, Li = G[i], out[i], L[s]
+        for j in range(1, nj):
+            p, c, e = parent[j], col[j], axis[j]
+            R, t = Li[j, 0:9], Li[j, 9:12]
+            qd = dq[i, c]
+            _to_child(R, t, V[p], V[j])
+            V[j, e] += qd
+            _to_child(R, t, A[p], A[j])
+            A[j, e] += ddq[i, c]
+            # + v_j x (S qd): (l, o) x (sl, so) = (o x sl + l x so, o x so), S qd = qd e_axis
+            if e < 3:  # prismatic: (o x sl, 0)
+                A[j, (e + 1) % 3] += V[j, 3 + (e + 2) % 3] * qd
+                A[j, (e + 2) % 3] -= V[j, 3 + (e + 1) % 3] * qd
+            else:  # revolute: (l x so, o x so)
+                f = e - 3
+                A[j, (f + 1) % 3] += V[j, (f + 2) % 3] * qd
+                A[j, (f + 2) % 3] -= V[j, (f + 1) % 3] * qd
+                A[j, 3 + (f + 1) % 3] += V[j, 3 + (f + 2) % 3] * qd
+                A[j, 3 + (f + 2) % 3] -= V[j, 3 + (f + 1) % 3] * qd
+            for uu in range(n_u):
+                _to_child(R, t, B[p, uu], B[j, uu])
+                B[j, uu, e] += Gi[c, uu]
+            w0 = slot[j]
+            if w0 < 0:
+                continue
+            w0 *= 10
+            vx, vy, vz, wx, wy, wz = V[j, 0], V[j, 1], V[j, 2], V[j, 3], V[j, 4], V[j, 5]
+            ax, ay, az, dx, dy, dz = A[j, 0], A[j, 1], A[j, 2], A[j, 3], A[j, 4], A[j, 5]
+            # the body regressor (6 x 10, joint frame); mass: (alpha, 0)
+            alx, aly, alz = ax + (wy * vz - wz * vy), ay + (wz * vx - wx * vz), az + (wx * vy - wy * vx)
+            Y[0, 0], Y[1, 0], Y[2, 0] = alx, aly, alz
+            # mc: [dw]x + [w]x^2 (linear) and mc x alpha = -[alpha]x mc (angular)
+            Y[0, 1], Y[0, 2], Y[0, 3] = -(wy * wy + wz * wz), wx * wy - dz, wx * wz + dy
+            Y[1, 1], Y[1, 2], Y[1, 3] = wx * wy + dz, -(wx * wx + wz * wz), wy * wz - dx
+            Y[2, 1], Y[2, 2], Y[2, 3] = wx * wz - dy, wy * wz + dx, -(wx * wx + wy * wy)
+            Y[3, 1], Y[3, 2], Y[3, 3] = 0.0, alz, -aly
+            Y[4, 1], Y[4, 2], Y[4, 3] = -alz, 0.0, alx
+            Y[5, 1], Y[5, 2], Y[5, 3] = aly, -alx, 0.0
+            # inertia: I dw + w x (I w), I = [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]], per entry L(dw) + w x L(w)
+            Y[3, 4], Y[4, 4], Y[5, 4] = dx, wz * wx, -wy * wx  # xx: L(x) = (x0, 0, 0)
+            Y[3, 5], Y[4, 5], Y[5, 5] = dy - wz * wx, dx + wz * wy, wx * wx - wy * wy  # xy: (x1, x0, 0)
+            Y[3, 6], Y[4, 6], Y[5, 6] = -wz * wy, dy, wx * wy  # yy: (0, x1, 0)
+            Y[3, 7], Y[4, 7], Y[5, 7] = dz + wy * wx, wz * wz - wx * wx, dx - wy * wz  # xz: (x2, 0, x0)
+            Y[3, 8], Y[4, 8], Y[5, 8] = wy * wy - wz * wz, dz - wx * wy, dy + wx * wz  # yz: (0, x2, x1)
+            Y[3, 9], Y[4, 9], Y[5, 9] = wy * wz, -wx * wz, dz  # zz: (0, 0, x2)
+            for uu in range(n_u):
+                b = B[j, uu]
+                o = Oi[uu, w0 : w0 + 10]
+                o[0] = b[0] * Y[0, 0] + b[1] * Y[1, 0] + b[2] * Y[2, 0]
+                for k in range(1, 4):
+                    o[k] = (b[0] * Y[0, k] + b[1] * Y[1, k] + b[2] * Y[2, k]
+                            + b[3] * Y[3, k] + b[4] * Y[4, k] + b[5] * Y[5, k])
+                for k in range(4, 10):
+                    o[k] = b[3] * Y[3, k] + b[4] * Y[4, k] + b[5] * Y[5, k]
+        _terms_one(Gi, Oi, i, n, plan, fdata)

@@ -68,7 +68,7 @@ from dynid.errors import ModelError
 # a dynid.model.mechanism.Mechanism, named, not imported (no import cycle through loop_kinematics)
 Mechanism = Any
 
-__all__ = ["continuation", "placement_view", "solve_from_starts"]
+__all__ = ["continuation", "parent_placement_view", "placement_view", "solve_from_starts"]
 
 STRIDE = 64  # samples between anchors (at most; halved after a failed segment)
 _WINDOW = 32  # anchors per window
@@ -87,13 +87,13 @@ class _Layout:
     its first, second and last placements lie at that stride (some 10 us)."""
 
     @staticmethod
-    def view(mech: Mechanism, data: pin.Data) -> FloatArray | None:
-        oMi = data.oMi
+    def view(mech: Mechanism, data: pin.Data, attr: str = "oMi") -> FloatArray | None:
+        oMi = getattr(data, attr)  # or liMi: the same vector of SE3
         nj = len(oMi)
         joints = list(range(nj))
         if nj < 2:
             return None
-        known = mech.__dict__.get("_oMi_stride")
+        known = mech.__dict__.get(f"_{attr}_stride")
         if known is not None:
             try:
                 r0, t0 = oMi[0].rotation, oMi[0].translation
@@ -126,7 +126,7 @@ class _Layout:
                 if not (np.array_equal(got[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1), want[:, :3, :3])
                         and np.array_equal(got[:, 9:], want[:, :3, 3])):
                     return None
-            object.__setattr__(mech, "_oMi_stride", stride)
+            object.__setattr__(mech, f"_{attr}_stride", stride)
             return flat
         except (AttributeError, ValueError, TypeError, IndexError, RuntimeError):  # pragma: no cover - another binding
             return None
@@ -270,6 +270,16 @@ def placement_view(mech: Mechanism, data: pin.Data) -> FloatArray | None:
     if view is False:
         view = _Layout.view(mech, data)
         data.__dict__["_oMi_view"] = view
+    return view
+
+
+def parent_placement_view(mech: Mechanism, data: pin.Data) -> FloatArray | None:
+    """:func:`placement_view` of ``data.liMi``, each joint's placement in its parent's frame (filled
+    by every kinematics pass: pinocchio's ``jointPlacements[i] * M_i(q)``)."""
+    view = data.__dict__.get("_liMi_view", False)
+    if view is False:
+        view = _Layout.view(mech, data, "liMi")
+        data.__dict__["_liMi_view"] = view
     return view
 
 

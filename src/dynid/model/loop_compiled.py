@@ -1,8 +1,11 @@
 """The compiled route of the closed-chain states and regressor (issue 37, item 1, third pass).
 
-Per sample only pinocchio is called from Python (``computeJointJacobians`` and the placements'
-copy, ``computeJointJacobiansTimeVariation``, ``computeJointTorqueRegressor``, whose returned
-array goes to the projection kernel as it is); everything between them runs in the numba kernels
+Per sample only pinocchio is called from Python (states: ``computeJointJacobians`` and the
+placements' copy; regressor: ``forwardKinematics`` and the copy of the joints' placements in their
+parents' frames, from which :func:`dynid.model._loop_kernels.tree_project` runs pinocchio's
+regressor recursion and projects it body by body without forming the tree regressor;
+``computeJointJacobiansTimeVariation`` and ``computeJointTorqueRegressor`` only with
+:data:`DJ_FROM_J` or :data:`TREE_FROM_J` off); everything between them runs in the numba kernels
 of :mod:`dynid.model._loop_kernels`, one loop over the samples of a block each. The numpy routes
 (:func:`dynid.model.loop_kinematics.states` with ``loop_kinematics._COMPILED`` off,
 :func:`dynid.model.closed_loop.actuator_regressor` with ``closed_loop._COMPILED`` off) stay as the
@@ -36,6 +39,7 @@ Mechanism = Any  # a dynid.model.mechanism.Mechanism (named, not imported: no im
 __all__ = ["StatesPlan", "project_regressor", "states_block", "states_plan"]
 
 _I = np.int64
+_BLOCK = 256  # samples per block of Jacobians and placements (tree_project)
 DJ_FROM_J = True
 """The drift's :math:`\\dot J\\dot q` from :math:`J` in the kernel (pinocchio's formula,
 :func:`dynid.model._loop_kernels.drift_accelerations`) instead of pinocchio's
@@ -215,11 +219,16 @@ def _regressor_plan(mech: Mechanism, groups: list) -> np.ndarray:
 
 def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArray, ddq: FloatArray, G: FloatArray,
                       bases: list[FloatArray], out: FloatArray, data: pin.Data) -> None:
-    """``out[:, :, :n_body_params]`` = :math:`G^T Y_{tree}` (``out`` (n, n_u, n_params), C-contiguous),
-    pinocchio's tree regressor of each sample projected by the compiled kernel as pinocchio returns
-    it (no copy into a block), and ``out[:, :, n_body_params:]`` = :math:`G^T F` of the unweighted
-    joint terms (``bases``: the basis of each of ``mech.term_groups``, (n, n_v) each) in the same
-    call, sample by sample."""
+    """``out[:, :, :n_body_params]`` = :math:`G^T Y_{tree}` (``out`` (n, n_u, n_params), C-contiguous)
+    and ``out[:, :, n_body_params:]`` = :math:`G^T F` of the unweighted joint terms (``bases``: the
+    basis of each of ``mech.term_groups``, (n, n_v) each) in the same kernel call, sample by sample.
+
+    :math:`G^T Y_{tree}`: where :func:`tree_plan` applies and :data:`TREE_FROM_J` is on, from
+    pinocchio's ``computeJointJacobians`` per sample (the Jacobians and all placements, in blocks of
+    ``_BLOCK``) by :func:`dynid.model._loop_kernels.tree_project` (the bodies' velocities,
+    accelerations and regressors along the tree); otherwise pinocchio's tree regressor of each
+    sample (``computeJointTorqueRegressor``) projected as pinocchio returns it
+    (:func:`dynid.model._loop_kernels.project_sample`, chain segment by chain segment)."""
     from dynid.model import _loop_kernels as kern
 
     plan = _regressor_plan(mech, groups)
@@ -231,10 +240,59 @@ def project_regressor(mech: Mechanism, groups: list, q: FloatArray, dq: FloatArr
     for k, b in enumerate(bases):
         fdata[tweight.size + k * n * nv : tweight.size + (k + 1) * n * nv] = b.reshape(-1)
     model = mech.pin_model
+    tree = tree_plan(mech, data) if TREE_FROM_J else None
+    if tree is not None:
+        dq, ddq = np.ascontiguousarray(dq), np.ascontiguousarray(ddq)
+        view = loop_batch.parent_placement_view(mech, data)
+        m = max(1, min(_BLOCK, n))  # no sample: no block, the loop below does nothing
+        L = np.empty((m, view.shape[0], 12))
+        fk = pin.forwardKinematics
+        for a in range(0, n, m):
+            b = min(a + m, n)
+            for s, qi in enumerate(q[a:b]):
+                fk(model, data, qi)
+                L[s] = view
+            kern.tree_project(L[: b - a], a, G, dq, ddq, *tree, out, plan, fdata)
+        return
     jtr = pin.computeJointTorqueRegressor
     proj = kern.project_sample
     for i, (qi, vi, ai) in enumerate(zip(q, dq, ddq)):
         proj(jtr(model, data, qi, vi, ai), G, out, i, plan, fdata)
+
+
+TREE_FROM_J = True
+"""The projected tree regressor by :func:`dynid.model._loop_kernels.tree_project` (pinocchio's
+regressor recursion on the placements of ``forwardKinematics``, projected body by body without
+forming the tree regressor) instead of pinocchio's ``computeJointTorqueRegressor`` per sample and
+:func:`dynid.model._loop_kernels.project_sample` (False): the same values to rounding, the same
+exact zeros (bench/README.md, "Item 1, fourth pass: the tree regressor without pinocchio's tree
+regressor")."""
+
+_AXIS = {f"JointModel{kind}{x}": k + off for kind, off in (("P", 0), ("R", 3), ("RUB", 3)) for k, x in enumerate("XYZ")}
+"""Joints of one velocity coordinate whose motion subspace is a unit vector constant in the joint
+frame (no bias acceleration), and that vector's index: what
+:func:`dynid.model._loop_kernels.tree_project`'s recursion handles."""
+
+
+def tree_plan(mech: Mechanism, data: pin.Data) -> tuple | None:
+    """``(parent, col, axis, slot, gravity)`` of :func:`dynid.model._loop_kernels.tree_project` (the
+    integer arrays cached on ``mech``), or None where it does not apply: a joint outside
+    :data:`_AXIS`, or the placements not readable through
+    :func:`dynid.model.loop_batch.parent_placement_view`."""
+    cached = mech.__dict__.get("_compiled_tree_plan", False)
+    if cached is False:
+        model = mech.pin_model
+        cached = None
+        if all(jm.shortname() in _AXIS for jm in model.joints[1:]):
+            slot = np.full(model.njoints, -1, dtype=_I)
+            slot[list(mech.bodies)] = np.arange(len(mech.bodies))
+            col = np.array([0] + [jm.idx_v for jm in model.joints[1:]], dtype=_I)
+            axis = np.array([0] + [_AXIS[jm.shortname()] for jm in model.joints[1:]], dtype=_I)
+            cached = (np.array(model.parents, dtype=_I), col, axis, slot)
+        object.__setattr__(mech, "_compiled_tree_plan", cached)
+    if cached is None or loop_batch.parent_placement_view(mech, data) is None:
+        return None
+    return (*cached, np.array(mech.pin_model.gravity.vector, dtype=float))
 
 
 def _terms_plan(mech: Mechanism) -> tuple[np.ndarray, np.ndarray]:

@@ -11,6 +11,7 @@ from dynid._typing import FloatArray
 from dynid.dataset import Dataset
 from dynid.errors import ConfigError, InputError
 from dynid.model.base_parameters import BaseParameters
+from dynid.model.serial_dynamics import inverse_dynamics
 from dynid.model.system import System
 from dynid.pipeline.rows import _chunks
 
@@ -38,7 +39,9 @@ def estimate_drive_gains(system: System, base: BaseParameters, train: Dataset, f
 
     .. math:: \tau^{nom}_j = \sum_m C_{mj} k_m i_m - f_{v,j}\,\dot q_j - f_{c,j}\,\mathrm{sign}(\dot q_j) - c_j,
 
-    with :math:`\tau^{nom} = W\beta_{nom}` the description's rigid-body torques, :math:`C` the
+    with :math:`\tau^{nom} = W\beta_{nom}` the description's rigid-body torques (for a serial arm
+    by pinocchio's recursive Newton-Euler on the nominal model, which equals the regressor's product
+    to rounding at a third of its cost; a mechanism filters the base regressor's product), :math:`C` the
     coupling matrix (identity without couplings), and viscous, Coulomb friction and an offset
     per actuator as nuisance terms where the description has no friction for that joint (a
     description rarely has the friction the currents carry; where it has, its torques include it).
@@ -54,10 +57,17 @@ def estimate_drive_gains(system: System, base: BaseParameters, train: Dataset, f
     tr = system.transmission
     n = system.n_actuators
     C = np.eye(n) if tr is None else np.asarray(tr.matrix, dtype=float)
-    nominal = base.from_standard(system.nominal_parameters())
     ys, ts, vs = [], [], []
+    if system.kind == "serial":
+        # a serial arm's nominal torques by pinocchio's RNEA (about a third of the regressor's cost,
+        # equal to W beta_nom to rounding: Featherstone's recursion and the regressor of Atkeson et al.
+        # are the same dynamics; serial_dynamics.inverse_dynamics), not through the regressor
+        model, std_nominal = system.model, system.nominal_parameters()
+        way: dict[str, Any] = {"torques": lambda q, dq, ddq: inverse_dynamics(model, std_nominal, q, dq, ddq)}
+    else:  # a mechanism: the base regressor times the nominal base parameters, only that column filtered
+        way = {"project": base.from_standard(system.nominal_parameters())[:, None]}
     for c in _chunks(system, base, train, force_model, parallel_decimate=parallel_decimate, chunk_size=chunk_size,
-                     task="drive gains", project=nominal[:, None]):  # only the nominal torques are filtered
+                     task="drive gains", **way):
         ys.append(c.y)
         ts.append(c.W[..., 0])
         vs.append(c.dq)

@@ -16,7 +16,7 @@ from dynid.dataset import Dataset
 from dynid.errors import ConfigError, IdentifiabilityError, InputError
 from dynid.estimation import ProblemBuilder, RegressionProblem
 from dynid.model.base_parameters import BaseParameters
-from dynid.model.system import System, as_system
+from dynid.model.system import Rows, System, as_system
 from dynid.pipeline.data import preprocess, reversal_keep, velocity_mask
 from dynid.signals import decimation_filter
 
@@ -49,7 +49,8 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
             periodic=None, reversal_guard: float | None = None,
             min_velocity: tuple[float, ...] | None = None, keep: np.ndarray | None = None,
             joint_q: FloatArray | None = None, project: FloatArray | None = None,
-            tap: Callable[[int, int, FloatArray, Any], None] | None = None) -> Iterator[Chunk]:
+            tap: Callable[[int, int, FloatArray, Any], None] | None = None,
+            torques: Callable[[FloatArray, FloatArray, FloatArray], FloatArray] | None = None) -> Iterator[Chunk]:
     """Yield the rows of ``ds`` chunk by chunk, at full rate or parallel-decimated.
 
     Parallel decimation (Gautier 1997; FIGAROH's TX40 pipeline): each column of the base
@@ -77,6 +78,13 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     is linear, so this is the filtered regressor times ``project`` to rounding, at the cost of
     filtering ``m`` columns per channel instead of ``r``.
 
+    ``torques(q, dq, ddq)`` (n, n_ch): a serial arm only (its rows are the joint torques, ``y`` the
+    measured efforts as given): the chunks carry these torques (n, n_ch, 1) in place of the
+    regressor, which is not computed. The drive gains need the nominal torques ``W beta_nom`` alone,
+    and pinocchio's RNEA gives them at about a third of the regressor's cost
+    (:func:`~dynid.model.serial_dynamics.inverse_dynamics`; equal to rounding, bench/README.md "Cold
+    start, fourth pass").
+
     ``tap(a, b, W, rows)``: parallel decimation only, called with every full-rate block (input rows
     ``a:b``, its base regressor ``W`` and the :class:`~dynid.model.system.Rows`) before it is
     filtered: what a caller needs at the full rate of the same rows, without computing them again
@@ -93,6 +101,8 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
         return
     if ds.dq is None or ds.ddq is None:
         raise InputError("the dataset has no velocities/accelerations; preprocess it first")
+    if torques is not None and (system.kind != "serial" or project is not None or tap is not None):
+        raise ValueError("torques: a serial arm's chunks only, without project or tap")
     n = ds.n_samples
     size = max(1, int(chunk_size) if system.max_chunk is None else min(int(chunk_size), system.max_chunk))
     rows = system.rows(force_model)
@@ -104,8 +114,11 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
         size = min(size, max(512, CHUNK_BYTES // (8 * n_ch * (base.n_standard + base.n_base))))  # bounded memory
         for a in range(0, n, size):
             b = min(a + size, n)
-            r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
-            Wb = base.regressor(r.W)
+            if torques is not None:
+                r, Wb = _torque_rows(torques, ds, a, b)
+            else:
+                r = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
+                Wb = base.regressor(r.W)
             yield Chunk(Wb if project is None else Wb @ project, r.y, ds.dq[a:b], r.inconsistency, r.joint_dq,
                         None if guard is None else guard[a:b], r.Ga, None if r.Ga is None else ds.tau[a:b])
             progress(task, b, n)
@@ -115,7 +128,15 @@ def _chunks(system: System, base: BaseParameters, ds: Dataset, force_model: str 
     if n <= 2 * k:
         raise InputError(f"{n} samples are too few to decimate by {k}")
     yield from _parallel_chunks(system, base, ds, force_model, k, sos, margin, size, rows, guard, joint_q,
-                                progress, task, project, tap)
+                                progress, task, project, tap, torques)
+
+
+def _torque_rows(torques: Callable[[FloatArray, FloatArray, FloatArray], FloatArray], ds: Dataset, a: int,
+                 b: int) -> tuple[Rows, FloatArray]:
+    """A serial arm's rows ``a:b`` with ``torques`` in place of the regressor (``_chunks``' ``torques``):
+    the measured efforts as they are (what ``_SerialRows`` gives) and the torques as one column a channel."""
+    r = Rows(W=None, y=np.asarray(ds.tau[a:b], dtype=float), inconsistency=np.zeros(b - a))
+    return r, np.asarray(torques(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b]), dtype=float)[:, :, None]
 
 
 CHUNK_BYTES = 8 * 2**20
@@ -127,7 +148,8 @@ def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_mo
                      sos: FloatArray, margin: int, size: int, rows, guard: np.ndarray | None,
                      joint_q: FloatArray | None, progress: Progress, task: str,
                      project: FloatArray | None = None,
-                     tap: Callable[[int, int, FloatArray, Any], None] | None = None) -> Iterator[Chunk]:
+                     tap: Callable[[int, int, FloatArray, Any], None] | None = None,
+                     torques: Callable[[FloatArray, FloatArray, FloatArray], FloatArray] | None = None) -> Iterator[Chunk]:
     """The parallel-decimated chunks of :func:`_chunks`, streamed (:class:`~dynid.signals.streamed.StreamedDecimation`):
     the base-regressor rows, outputs and velocities are computed in blocks of about
     :data:`CHUNK_BYTES`, packed side by side as the columns of one signal, low-passed and decimated
@@ -141,7 +163,7 @@ def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_mo
     n = ds.n_samples
     n_ch, r, n_std = len(system.channel_names(force_model)), base.n_base, base.n_standard
     block = min(size, max(4 * k, CHUNK_BYTES // (8 * n_ch * (n_std + r))))
-    m = r if project is None else project.shape[1]  # columns per channel that are filtered
+    m = 1 if torques is not None else r if project is None else project.shape[1]  # columns per channel that are filtered
     block = max(block, min(n, 3 * (2 * sos.shape[0] + 1) + 1))  # the first block holds the odd extension
     packed = None  # (start, stop) of each field in the packed columns
     stream = None
@@ -158,8 +180,11 @@ def _parallel_chunks(system: System, base: BaseParameters, ds: Dataset, force_mo
 
     for a in range(0, n, block):
         b = min(a + block, n)
-        rr = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
-        Wb = base.regressor(rr.W)
+        if torques is not None:
+            rr, Wb = _torque_rows(torques, ds, a, b)
+        else:
+            rr = rows(ds.q[a:b], ds.dq[a:b], ds.ddq[a:b], ds.tau[a:b], a, **({} if joint_q is None else {"joint_q": joint_q[a:b]}))
+            Wb = base.regressor(rr.W)
         if tap is not None:
             tap(a, b, Wb, rr)
         fields = {"W": Wb if project is None else Wb @ project, "y": rr.y, "dq": ds.dq[a:b], "joint_dq": rr.joint_dq,

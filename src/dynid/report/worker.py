@@ -42,7 +42,7 @@ from dynid.errors import DynidError
 __all__ = ["InProcessJobs", "WorkerJobs", "report_jobs"]
 
 # imported by the worker while it waits for its first jobs, in the order the jobs come
-_WARMUP = ("matplotlib.pyplot", "dynid.report.plots")
+_WARMUP = ("matplotlib.figure", "matplotlib.backends.backend_agg", "dynid.report.plots")
 
 
 def _resolve(func: str) -> Any:
