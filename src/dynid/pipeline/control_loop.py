@@ -281,7 +281,9 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
     (DIDIM) they solve it already at the control instants (no Gauss–Newton step); processed (IV)
     the solve starts from them instead of from the previous sample: the filtered actuator
     positions lie within the filter's small deviation of the simulated ones, so it takes one
-    Gauss–Newton step fewer and converges to the same assembly."""
+    Gauss–Newton step fewer and converges to the same assembly. Unprocessed, with the log's
+    instants the control instants (to 1e-9 s), the samples are the replay's own (no interpolation)
+    and the joint positions come as :class:`~dynid.model.system.KnownJointPositions`."""
     from dynid.pipeline.simulate import actuator_states, run_simulation
 
     # standard: the model's full layout; band: the regularized Coulomb law of the replay (module docstring)
