@@ -191,3 +191,30 @@ def test_a_diverging_compiled_replay_fails_as_the_python_loop(tmp_path):
                                            substeps=2, exact_projection=False)
         messages.append(str(err.value))
     assert messages[0] == messages[1]
+
+
+def test_didim_rows_from_the_replays_own_joint_positions(replays):
+    """DIDIM's rows of a replay (dynid.pipeline.control_loop): the replay's joint positions, on the
+    closures to the projection's tolerance, taken as they are (KnownJointPositions) and the compiled
+    velocity map, velocities and accelerations (loop_kinematics.states) give the rows that the
+    position check and the numpy route of actuator_states give from the same positions as starting
+    points, to rounding: the same closure equations, solved through the dependent joints' 18 x 18
+    block (backward-stable LU: relative error at most a few n * cond * eps; n = 24 joints)."""
+    from dynid.model.loading import load_model
+    from dynid.model.system import KnownJointPositions, as_system
+
+    replay = replays[4]
+    system = as_system(load_model("builtin:hexapod"))
+    act = list(system.model.actuated)
+    q, dq, ddq = replay.q[:, act], replay.dq[:, act], replay.ddq[:, act]
+    tau = replay.tau_a
+    old = system.rows(None)(q, dq, ddq, tau, 0, joint_q=replay.q)
+    new = system.rows(None)(q, dq, ddq, tau, 0, joint_q=KnownJointPositions(replay.q))
+    cond = float(np.max(system.model.states(replay.q, dq, ddq).cond))
+    bound = 4 * 24 * cond * np.finfo(float).eps * np.max(np.abs(old.W))
+    assert np.max(np.abs(new.W - old.W)) <= bound, (np.max(np.abs(new.W - old.W)), bound)
+    np.testing.assert_array_equal(new.y, old.y)
+    np.testing.assert_array_equal(new.inconsistency, np.zeros(q.shape[0]))
+    # positions not on the actuator samples given: the rows solve them again (the position check)
+    shifted = system.rows(None)(q + 1e-6, dq, ddq, tau, 0, joint_q=KnownJointPositions(replay.q))
+    assert np.all(shifted.inconsistency < 1e-9) and not np.allclose(shifted.W, old.W, rtol=0, atol=bound)

@@ -200,6 +200,15 @@ def test_didim_from_the_nominal_model_beats_it(twin):
     hist = r.solver["iterations"]
     assert 1 <= len(hist) <= 10 and r.solver["converged"]
     assert hist[-1]["max_change_in_std"] < 0.5 < hist[0]["max_change_in_std"]
+    # a step that reversed along the previous move (negative secant eigenvalue) and only such a step
+    # had its component along that move relaxed by 1 / (1 - lambda) (oscillation_relaxation), and
+    # the result's notes say after which iterations
+    for h in hist:
+        lam = h.get("secant_eigenvalue")
+        assert ("relaxation" in h) == (lam is not None and lam < 0.0), h
+        if "relaxation" in h:
+            assert h["relaxation"] == pytest.approx(1.0 / (1.0 - lam), rel=1e-12)
+    assert any("oscillated" in n for n in r.notes) == any("relaxation" in h for h in hist)
     # the criterion DIDIM minimizes: the output error of the forces simulated with the iterate
     # (W(q_s(beta_k)) beta_k), recorded per iteration, lower at the converged iterate than at the
     # nominal model it started from (10 % from the truth: far outside the noise)

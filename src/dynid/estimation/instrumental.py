@@ -39,7 +39,7 @@ from dynid.estimation.results import IdentificationResult
 from dynid.stats import condition_number
 
 __all__ = ["InstrumentBuilder", "InstrumentalProblem", "determined_directions", "fixed_point_covariance", "iv_result", "iv_solve",
-           "iv_solve_truncated", "reduce_instrumental"]
+           "iv_solve_truncated", "oscillation_relaxation", "reduce_instrumental"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -294,3 +294,56 @@ def fixed_point_covariance(inputs: FloatArray, outputs: FloatArray, cov: FloatAr
     Cs = C / np.outer(s, s)
     out = (A @ Cs @ A.T) * np.outer(s, s)
     return 0.5 * (out + out.T), eig
+
+
+
+def oscillation_relaxation(x_prev: FloatArray, fx_prev: FloatArray, x: FloatArray, fx: FloatArray,
+                           scale: FloatArray) -> tuple[FloatArray, float, float]:
+    """The next iterate of a fixed-point iteration, relaxed along its last move when the step
+    reversed there: ``(x_next, alpha, lam)``.
+
+    An iteration :math:`x_{k+1} = T(x_k)` (IDIM-IV, DIDIM: :mod:`dynid.pipeline.control_loop`)
+    with steps :math:`s_k = T(x_k) - x_k`; everything in units of ``scale`` (the parameters'
+    standard deviations, as the stopping rule measures the moves). Along the last move
+    :math:`d = x_k - x_{k-1}` the secant of :math:`G = T - I` gives the estimate
+    :math:`\\lambda = 1 + (s_k - s_{k-1})^T d / d^T d` of :math:`T`'s Jacobian along ``d`` (for a
+    full step, :math:`d = s_{k-1}`, the ratio of successive steps along the previous one,
+    :math:`s_k^T s_{k-1} / s_{k-1}^T s_{k-1}`; for a linear :math:`T` and ``d`` along an
+    eigenvector, that eigenvalue). A 2-cycle is :math:`\\lambda = -1`, a growing oscillation
+    :math:`\\lambda < -1`, a damped one :math:`-1 < \\lambda < 0`.
+
+    Rule: when, and only when, the step reversed along the move (:math:`\\lambda < 0`), the
+    component of the step along :math:`\\hat d` is scaled by the secant (Aitken) factor
+    :math:`\\alpha = 1 / (1 - \\lambda) \\in (0, 1)`, the root of the secant of :math:`G` along
+    ``d`` (the secant method on one direction; for a full step it is Aitken's :math:`\\Delta^2`
+    extrapolation of that component, A. C. Aitken, Proc. R. Soc. Edinburgh 46, 1926); the rest of
+    the step is taken as it is:
+
+    .. math::
+
+        x_{k+1} = x_k + s_k - (1 - \\alpha)\\,(\\hat d^T s_k)\\,\\hat d .
+
+    Otherwise (:math:`\\lambda \\ge 0`: no reversal, or no move to take a secant along)
+    :math:`x_{k+1} = T(x_k)`, the plain iteration, bit for bit. Along ``d`` the relaxed map's factor
+    is 0 to first order (the plain one's :math:`|\\lambda|`, 1 for a 2-cycle); the other
+    directions keep the plain iteration's factors (a relaxation of the whole step,
+    :math:`x_k + \\alpha s_k`, would slow every direction that contracts monotonically, from
+    :math:`\\nu` to :math:`(\\nu - \\lambda)/(1 - \\lambda)`). Its fixed points are :math:`T`'s
+    (:math:`s_k = 0` gives :math:`x_{k+1} = x_k`), so the converged estimate is still the method's.
+    ``alpha`` is 1 when no relaxation acted; ``lam`` NaN when there is no move.
+    """
+    x, fx = np.asarray(x, dtype=float), np.asarray(fx, dtype=float)
+    sc = np.asarray(scale, dtype=float)
+    sc = np.where(sc > 0, sc, 1.0)
+    d = (x - np.asarray(x_prev, dtype=float)) / sc
+    dd = float(d @ d)
+    if not dd > 0:
+        return fx, 1.0, float("nan")
+    step_prev = (np.asarray(fx_prev, dtype=float) - np.asarray(x_prev, dtype=float)) / sc
+    step = (fx - x) / sc
+    lam = 1.0 + float((step - step_prev) @ d) / dd
+    if not (np.isfinite(lam) and lam < 0.0):
+        return fx, 1.0, lam
+    alpha = 1.0 / (1.0 - lam)
+    along = float(step @ d) / dd  # the step's component along d, in units of d
+    return fx - (1.0 - alpha) * along * d * sc, alpha, lam

@@ -48,7 +48,7 @@ from dynid.errors import ConfigError, ModelError
 from dynid.model.base_parameters import BaseParameters, StandardMap, consistent_parameters, robot_base_parameters
 from dynid.model.closed_loop import DISTRIBUTIONS, actuator_regressor, mechanism_base_parameters
 from dynid.model.closures import JointCoordinates, JointTerm
-from dynid.model.loop_kinematics import actuator_states, platform_pose, pose_states
+from dynid.model.loop_kinematics import actuator_states, platform_pose, pose_states, states
 from dynid.model.mechanism import Mechanism
 from dynid.model.reduction import ParameterReduction, reduce_mechanism
 from dynid.model.serial_dynamics import regressor
@@ -280,6 +280,22 @@ class SerialSystem:
 
 
 # ----------------------------------------------------------------------------------- closed loop
+@dataclasses.dataclass(frozen=True, eq=False)
+class KnownJointPositions:
+    """All joint positions along samples, known to satisfy the loop closures (a simulation's own
+    states at its samples: DIDIM's replay, :mod:`dynid.pipeline.control_loop`). Given to the rows as
+    ``joint_q`` where the independent joints are the actuated ones, they are the rows' positions as
+    they are (:func:`~dynid.model.loop_kinematics.actuator_states` would accept them as they are,
+    after a residual and Jacobian per sample) and the velocities, accelerations and velocity map
+    come from the compiled :func:`~dynid.model.loop_kinematics.states` (the same closure equations,
+    the same values to rounding). Sliced like an array of samples."""
+
+    q: FloatArray
+
+    def __getitem__(self, s: slice) -> KnownJointPositions:
+        return KnownJointPositions(self.q[s])
+
+
 class _MechanismRows:
     """Rows of a mechanism: all joint states from the actuator states (warm-started from the
     previous chunk's solution at the same or the nearest earlier sample), then the actuator-space
@@ -300,8 +316,20 @@ class _MechanismRows:
     def __call__(self, q: FloatArray, dq: FloatArray, ddq: FloatArray, tau: FloatArray, start: int = 0,
                  joint_q: FloatArray | None = None) -> Rows:
         """``joint_q``: all joint positions where known (a simulated motion): the starting points
-        of the position solve (:func:`~dynid.model.loop_kinematics.actuator_states`)."""
-        state, resid = actuator_states(self.mech, q, dq, ddq, q0=self._guess(start), sample_offset=start, q_start=joint_q)
+        of the position solve (:func:`~dynid.model.loop_kinematics.actuator_states`); or the
+        :class:`KnownJointPositions` of the samples, taken as they are where the independent joints
+        are the actuated ones and their actuator positions are ``q`` (else the starting points)."""
+        if isinstance(joint_q, KnownJointPositions):
+            ind, act = self.mech.independent, list(self.mech.actuated)
+            if (isinstance(ind, JointCoordinates) and tuple(ind.joints) == tuple(act) and not self.mech.redundant
+                    and np.array_equal(joint_q.q[:, act], q)):
+                state, resid = states(self.mech, joint_q.q, dq, ddq), np.zeros(q.shape[0])
+            else:
+                state, resid = actuator_states(self.mech, q, dq, ddq, q0=self._guess(start), sample_offset=start,
+                                               q_start=joint_q.q)
+        else:
+            state, resid = actuator_states(self.mech, q, dq, ddq, q0=self._guess(start), sample_offset=start,
+                                           q_start=joint_q)
         self.last = (start, state.q)
         reg = actuator_regressor(self.mech, state, distribution=self.force_model, data=self.data)
         W = reg.W if self.T is None else reg.W @ self.T

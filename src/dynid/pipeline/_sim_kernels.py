@@ -496,16 +496,34 @@ def supports(sim, controller) -> bool:
 
 class _Kinematics:
     """The placements of the bodies that carry closure sides, read from one pinocchio ``Data``
-    after ``computeJointJacobians`` (shared by the controller and the closure check)."""
+    after ``computeJointJacobians`` (shared by the controller and the closure check).
+
+    Read through the strided view of ``data.oMi`` (:func:`dynid.model.loop_batch.placement_view`:
+    one fancy-indexed copy instead of a Python call and a new 4x4 array per joint; the same numbers)
+    into one buffer, rewritten at every call: a period's kernels use the placements before the next
+    call. Where pinocchio's layout is not the one the view expects, the per-joint reads."""
 
     def __init__(self, mech) -> None:
+        from dynid.model.loop_batch import placement_view
+
         self.model, self.data = mech.pin_model, mech.pin_model.createData()
         self.joints = sorted(set(_sides(mech).joints) | set(_closures(mech).joints)) or [0]
+        self._view = placement_view(mech, self.data)
+        m = len(self.joints)
+        self._sel = np.array(self.joints, dtype=np.int64)
+        self._H = np.zeros((m, 4, 4))
+        self._H[:, 3, 3] = 1.0
 
     def __call__(self, q):
         J = pin.computeJointJacobians(self.model, self.data, q)
-        oMi = self.data.oMi
-        return J, np.array([oMi[j].homogeneous for j in self.joints])
+        if self._view is None:
+            oMi = self.data.oMi
+            return J, np.array([oMi[j].homogeneous for j in self.joints])
+        v = self._view[self._sel]  # (m, 12): rotation column-major (R^T row-major), translation
+        H = self._H
+        H[:, :3, :3] = v[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1)
+        H[:, :3, 3] = v[:, 9:]
+        return J, H
 
 
 def compiled_replay(sim, controller, reference, *, duration: float, dt: float, substeps: int,

@@ -52,7 +52,14 @@ measurement noise:
   the fixed combinations, are 0.1 to 0.2 (RMS) along the ten strongest and 0.3 to 0.7 along the
   ten weakest (singular values 1e-3 to 1e-2 of the largest), where the replay's jitter passes
   through the smallest singular values; ``directions_rtol = 3e-3`` (26 directions) converges in
-  5 iterations, 1e-2 (18) in 2 (bench/README, closed-loop estimators, replay cost).
+  5 iterations, 1e-2 (18) in 2 (bench/README, closed-loop estimators, replay cost). That map is
+  not smooth there: finite differences of one IV iteration at a late iterate grow as the
+  difference step shrinks (spectral radius 4.3 at 0.5 sd, 15 at 0.05 sd; moves of 0.001 sd change
+  the next iterate by 0.3 sd), because the replay jumps with the estimate (the computed-torque
+  controller's Coulomb switch at the control instants among the causes) and the weakest kept
+  directions pass the jumps on (bench/README, "IV's oscillation on the hexapod benchmark,
+  diagnosed"); with the relaxation below IV converges there in 9 iterations, by the chance of a
+  small step rather than by contraction.
 * **DIDIM** (Gautier, Janot & Vandanjon, "A new closed-loop output error method for
   parameter identification of robot dynamics", IEEE TCST 21(2), 2013, Eqs. 14–20): the measured
   forces are regressed on the simulated regressor alone, :math:`y = W(q_s(\\beta_k))\\beta_{k+1}`
@@ -75,6 +82,15 @@ measurement noise:
   passive joint (``fv_qb2``, truth 0.0012, to 0 with its bound active) and leaves every true
   base parameter inside its 95 % interval (25 of 25, largest |z| 1.8, the truth's
   :math:`\\chi^2` 29 for p = 25).
+
+**Oscillating steps** (:func:`dynid.estimation.instrumental.oscillation_relaxation`): from the
+second iteration on, the secant of the step along the last move, in standard deviations,
+estimates the iteration's Jacobian there (:math:`\\lambda`); when, and only when, the step
+reversed along that move (:math:`\\lambda < 0`: a 2-cycle at -1), the next replay takes the
+step's component along the move scaled by :math:`1 / (1 - \\lambda)` (the secant root), the rest
+as it is. The fixed point is unchanged (the estimate is the method's), a monotonically contracting
+iteration is untouched, and ``solver["iterations"]`` records ``secant_eigenvalue`` and
+``relaxation``, the notes after which iterations it acted.
 
 Both iterate until no parameter moves by more than ``tolerance`` of its standard deviation, or
 ``max_iterations``; the history is in ``result.solver["iterations"]`` (for DIDIM with the output
@@ -140,7 +156,13 @@ at them), and the simulated rows go through exactly the processing of the measur
 start the loop-closure position solve from the simulation's own joint positions, which already
 satisfy it (residual below the solve's 1e-10 tolerance at the control instants: no Gauss–Newton
 iteration; the rows then differ from those solved from the actuator positions at that level: the
-DIDIM estimate on the hexapod twin by 1e-9 of its standard deviations). IV's instrument rows
+DIDIM estimate on the hexapod twin by 1e-9 of its standard deviations). Where the log's instants
+are the control instants and the mechanism's independent joints are its actuated ones (the hexapod),
+DIDIM's rows take those positions as they are (:class:`~dynid.model.system.KnownJointPositions`:
+no residual and Jacobian per sample to accept them) and the compiled
+:func:`~dynid.model.loop_kinematics.states` for the velocity map, velocities and accelerations: the
+same rows to rounding, 28 % less time per replay's rows (bench/README, issue 37 item 3, fourth
+pass). IV's instrument rows
 start there too: its replayed actuator positions are low-passed, so the solve still iterates,
 but from within the filter's deviation of the solution instead of from the previous sample (one
 Gauss–Newton step fewer; the same positions, tests/test_control_loop.py).
@@ -187,7 +209,7 @@ from dynid.dataset import Dataset
 from dynid.errors import ConfigError, DynidError, InputError
 from dynid.estimation import IdentificationResult, ProblemBuilder
 from dynid.estimation.instrumental import (InstrumentBuilder, determined_directions, fixed_point_covariance, iv_result,
-                                           iv_solve, reduce_instrumental)
+                                           iv_solve, oscillation_relaxation, reduce_instrumental)
 from dynid.estimation.problem import RegressionProblem, _qr_r
 from dynid.model.base_parameters import BaseParameters
 from dynid.model.system import System
@@ -259,7 +281,9 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
     (DIDIM) they solve it already at the control instants (no Gauss–Newton step); processed (IV)
     the solve starts from them instead of from the previous sample: the filtered actuator
     positions lie within the filter's small deviation of the simulated ones, so it takes one
-    Gauss–Newton step fewer and converges to the same assembly."""
+    Gauss–Newton step fewer and converges to the same assembly. Unprocessed, with the log's
+    instants the control instants (to 1e-9 s), the samples are the replay's own (no interpolation)
+    and the joint positions come as :class:`~dynid.model.system.KnownJointPositions`."""
     from dynid.pipeline.simulate import actuator_states, run_simulation
 
     # standard: the model's full layout; band: the regularized Coulomb law of the replay (module docstring)
@@ -274,9 +298,20 @@ def _simulated_states(exp: _Experiment, standard: np.ndarray, t: np.ndarray, pro
                           f"processed log {t[0]:g}-{t[-1]:g} s (the experiment's duration must cover the log)")
     interp = lambda x: np.column_stack([np.interp(t, ts, x[:, k]) for k in range(x.shape[1])])  # noqa: E731
     joint_q = None
-    if getattr(outcome, "motion", None) is not None:
-        qj = np.asarray(outcome.motion.q, dtype=float)
+    motion = getattr(outcome, "motion", None)
+    if motion is not None:
+        qj = np.asarray(motion.q, dtype=float)
         joint_q = interp(qj) if np.all(np.isfinite(qj)) else None
+    if process is None and joint_q is not None:
+        # DIDIM: the log's instants are the control instants (to 1e-9 s): the replay's own samples, its
+        # joint positions on the closures (projected to 1e-12 at every period), which the rows take
+        # as they are (KnownJointPositions: the compiled velocity map, no position check)
+        idx = np.rint((t - ts[0]) / (ts[1] - ts[0])).astype(int) if ts.size > 1 else np.zeros(t.size, dtype=int)
+        idx = np.clip(idx, 0, ts.size - 1)
+        if np.all(np.abs(ts[idx] - t) <= 1e-9) and np.all(np.isfinite(qj[idx])):
+            from dynid.model.system import KnownJointPositions
+
+            return q[idx], dq[idx], ddq[idx], KnownJointPositions(qj[idx])
     return interp(q), interp(dq), interp(ddq), joint_q
 
 
@@ -548,6 +583,13 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         beta_prev, beta = beta_used, new
         if moved < icfg.tolerance:
             break
+        if len(inputs) >= 2:  # an oscillating step is relaxed (module docstring, oscillation_relaxation)
+            relaxed_beta, alpha, lam = oscillation_relaxation(inputs[-2], outputs[-2], beta_used, new, bse)
+            if np.isfinite(lam):
+                entry["secant_eigenvalue"] = lam
+            if alpha < 1.0:
+                entry["relaxation"] = alpha
+                beta = relaxed_beta
     progress(f"{method.upper()} iterations", icfg.max_iterations, icfg.max_iterations)
     assert result is not None
     converged = history[-1]["max_change_in_std"] < icfg.tolerance
@@ -582,6 +624,12 @@ def control_loop_estimate(cfg: Config, system: System, base: BaseParameters, tra
         notes.append(f"{base.n_base - subspace[2].shape[1]} of {base.n_base} directions of the base parameters are not "
                      f"determined by the start's replayed regressor (singular value below {icfg.directions_rtol:g} of the "
                      "largest): held at the start's values; the standard errors are conditional on them")
+    relaxed = [(h["iteration"], h["relaxation"]) for h in history if "relaxation" in h]
+    if relaxed:  # oscillation_relaxation acted: say where
+        notes.append("the iteration oscillated (the step reversed along the previous move: negative secant eigenvalue); "
+                     "the next replay took the step's component along that move relaxed, after iteration "
+                     + ", ".join(f"{k} by {a:.2g}" for k, a in relaxed)
+                     + " (the fixed point, the reported estimate, is the method's own)")
     if not converged:
         notes.append(f"not converged in {icfg.max_iterations} iterations: the last step moved a parameter by "
                      f"{history[-1]['max_change_in_std']:.3g} standard deviations")
