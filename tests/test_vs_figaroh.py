@@ -91,3 +91,23 @@ def test_no_package_index_is_one_line_exit_2(tmp_path):
     _one_line_error(proc, "cannot make FIGAROH's virtual environment")
     assert "pip install figaroh==1.0.2 failed" in proc.stderr
     assert not venv.exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="VmRSS needs Linux /proc")
+def test_tree_memory_counts_a_child_process(tmp_path):
+    # --plot-worker's memory: a measured process that starts a child holding 120 MB while it holds
+    # 60 MB itself, both for 0.5 s (100 sampling periods of 5 ms: the sampler cannot miss it). The
+    # process's own VmHWM sees its 60 MB only; the tree's sampled peak sees both buffers (page-size
+    # granularity; two bare interpreters ~10-30 MB on top).
+    from vs_figaroh import run_measured
+
+    child = ("import sys, time\nb = bytearray(120 * 2**20)\nb[::4096] = b'x' * len(b[::4096])\n"
+             "sys.stdout.write('up\\n'); sys.stdout.flush(); time.sleep(0.5)\n")
+    script = tmp_path / "parent.py"
+    script.write_text("import subprocess, sys\nb = bytearray(60 * 2**20)\nb[::4096] = b'x' * len(b[::4096])\n"
+                      f"p = subprocess.Popen([sys.executable, '-c', {child!r}], stdout=subprocess.PIPE)\n"
+                      "p.stdout.readline(); p.wait()\n")
+    res = run_measured(sys.executable, [str(script)], {"PATH": "/usr/bin:/bin"}, tmp_path, "tree", tree=True)
+    assert 58 < res["peak_mb"] < 100, res  # the parent's own peak: its 60 MB, not the child's
+    assert res["processes"] >= 2, res
+    assert 178 < res["tree_mb"] < 240, res  # 60 + 120 MB held at once, plus two interpreters
