@@ -70,7 +70,9 @@ def test_a_non_contracting_oscillation_is_relaxed_to_the_fixed_point(oscillating
     bound = 3.0 * max(abs(nu / (1.0 - nu)) for nu in (oscillating, 0.3, -0.2, 0.0, 0.5)) * 0.5 * np.sqrt(5)
     assert np.linalg.norm((est - x_star) / scale) < bound
     # run on (tolerance at rounding), the relaxed iteration reaches T's own fixed point: its fixed
-    # point is T's, so the relaxation does not move the estimate (only 1e-9 of the 40 sd start: rounding)
+    # point is T's, so the relaxation does not move the estimate. Margin: the stop leaves a step below
+    # 1e-9 sd = 1e-10 per coordinate, hence (the bound above, 1.8 sqrt(5) per unit step) at most ~4e-10
+    # from x*; rounding of T on |x| <= ~40 is ~1e-14. The 4e-8 allowed is 100x the first, 1e6x the second.
     est, *_, converged = _iterate(T, x0, scale, relax=True, max_iterations=200, tolerance=1e-9)
     assert converged
     np.testing.assert_allclose(est, x_star, rtol=0, atol=1e-8 * scale.max() * 40)
@@ -105,6 +107,9 @@ def test_the_secant_step_along_the_move():
         nxt, alpha, lam = oscillation_relaxation(x_prev_off, T(x_prev_off), x, T(x), scale)
         assert lam == pytest.approx(-1.4, abs=1e-12)
         assert alpha == pytest.approx(1.0 / 2.4, abs=1e-12)
+        # the move is exactly along e1 (the offsets cancel to 0 exactly), so components 2-3 are T(x)'s
+        # bits; component 1 is a few operations on values of magnitude <= 2.4: a few ulp (5e-16 each),
+        # and 1e-14 allows ~20 ulp, whatever the FMA or SIMD path
         np.testing.assert_allclose(nxt, [0.0, *T(x)[1:]], rtol=0, atol=1e-14)
     # no move: no secant, the plain step
     nxt, alpha, lam = oscillation_relaxation(x_prev, T(x_prev), x_prev, T(x_prev), scale)
